@@ -1,0 +1,1 @@
+"""Everything that touches storage: pass stores, manifests, hashes, atomic writes."""

@@ -1,0 +1,1 @@
+"""Prefect flows, thin task wrappers and the command-line interface."""

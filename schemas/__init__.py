@@ -1,0 +1,1 @@
+"""Pydantic schemas of weldrecon: manifest, configs, ground truth, provenance."""

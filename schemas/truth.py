@@ -1,0 +1,80 @@
+"""Ground truth written by the simulator beside a sample; the pipeline never reads it."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from schemas.common import Pose4x4, StrictModel, Vector3
+
+__all__ = ["TRUTH_SCHEMA_VERSION", "PointLabel", "Material", "TrueSticker", "WeldSection",
+           "TruePass", "GroundTruth"]
+
+TRUTH_SCHEMA_VERSION = "1.0"
+
+
+class PointLabel:
+    """Per-point label of a simulated pass (``labels`` array of the truth store)."""
+
+    VALID = 0
+    SHADOW = 1  # the laser hit the surface but the camera could not see the spot
+    DROPOUT = 2  # the sensor lost a visible spot (reflective or random)
+    NO_SURFACE = 3  # no surface within the measuring range along the laser ray
+    GRAZING = 4  # surface too steep to the laser or the camera to return a peak
+    OUTLIER = 5  # a spurious peak: reported, but away from the surface
+
+
+class Material:
+    """Per-point surface material (``materials`` array of the truth store)."""
+
+    NONE = 0
+    STEEL = 1  # sprayed steel
+    GROUND = 2  # burr-ground, reflective
+    STICKER = 3
+    FIXTURE = 4
+    FIXTURE_STICKER = 5
+
+
+class TrueSticker(StrictModel):
+    sticker_id: int
+    on: Literal["specimen", "fixture"]
+    face: str
+    centre_mm: Vector3 = Field(description="specimen frame if on the specimen, world frame if on the fixture")
+    normal: Vector3
+    diameter_mm: float
+
+
+class WeldSection(StrictModel):
+    """The weld cap's true parameters at one position along the weld (specimen frame)."""
+
+    side: Literal["top", "bottom"]
+    y_mm: float
+    centre_x_mm: float
+    height_mm: float
+    width_mm: float
+    flank_angle_deg: tuple[float, float]
+    toe_radius_mm: tuple[float, float]
+    undercut_depth_mm: tuple[float, float]
+
+
+class TruePass(StrictModel):
+    pass_id: str
+    setup: str
+    T_nominal_true: Pose4x4 = Field(description="the pass's rigid robot error, world frame")
+    n_points: int
+    label_counts: dict[str, int]
+
+
+class GroundTruth(StrictModel):
+    schema_version: Literal["1.0"] = TRUTH_SCHEMA_VERSION
+    sample_id: str
+    seed: int
+    preset: str
+    T_world_specimen: dict[str, Pose4x4] = Field(description="per setup")
+    stickers: list[TrueSticker]
+    weld_sections: list[WeldSection]
+    misalignment: dict[str, float]
+    passes: list[TruePass]
+    overlapping_pairs: list[tuple[str, str]]
+    common_stickers: dict[str, list[int]] = Field(description="'A|B' -> sticker ids both passes see whole")

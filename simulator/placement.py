@@ -1,0 +1,43 @@
+"""Putting the specimen on the fixture by hand: nominal pose plus a random offset and yaw; the
+plate comes to rest on the two support blocks (the down-facing surface touches both)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from schemas.simulation import FixtureConfig, PlacementConfig
+from simulator.specimen import Specimen
+from simulator.transforms import apply, make_pose, rotation_deg, translation
+
+__all__ = ["place_on_fixture", "FLIP"]
+
+FLIP = make_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
+"""Turned over by hand: 180 degrees about the specimen's length axis."""
+
+
+def _contact_heights(vertices: np.ndarray, fixture: FixtureConfig) -> np.ndarray:
+    bx, by, _ = fixture.block_size_mm
+    out = []
+    for cx in fixture.block_centres_x_mm:
+        inside = (np.abs(vertices[:, 0] - cx) <= bx / 2) & (np.abs(vertices[:, 1]) <= by / 2)
+        if not inside.any():
+            raise ValueError(f"the specimen does not rest on the support block at x = {cx} mm")
+        out.append(vertices[inside, 2].min())
+    return np.array(out)
+
+
+def place_on_fixture(specimen: Specimen, fixture: FixtureConfig, placement: PlacementConfig,
+                     rng: np.random.Generator, *, flipped: bool) -> np.ndarray:
+    """T_world_specimen for one setup."""
+    dx, dy = rng.uniform(-placement.translation_mm, placement.translation_mm, 2)
+    yaw = rng.uniform(-placement.yaw_deg, placement.yaw_deg)
+    T = translation([dx, dy, 0.0]) @ rotation_deg("z", yaw) @ (FLIP if flipped else np.eye(4))
+    vertices = specimen.mesh.vertices
+    x1, x2 = fixture.block_centres_x_mm
+    for _ in range(3):  # settle: level the two contacts, then lower onto the blocks
+        z1, z2 = _contact_heights(apply(T, vertices), fixture)
+        pitch = np.degrees(np.arctan2(z2 - z1, x2 - x1))
+        centre = np.array([(x1 + x2) / 2, 0.0, 0.0])
+        T = translation(centre) @ rotation_deg("y", pitch) @ translation(-centre) @ T
+    z = _contact_heights(apply(T, vertices), fixture).min()
+    return translation([0.0, 0.0, fixture.block_size_mm[2] - z]) @ T

@@ -1,0 +1,289 @@
+"""Simulate one sample: specimen, setups, stickers, passes; write the cell's files and the truth.
+
+Output folder (written atomically: it appears only when complete)::
+
+    manifest.json            the sample manifest (schemas.manifest.SampleManifest)
+    passes/<pass_id>.zarr    one store per pass (data_catalog.passes)
+    truth/                   ground truth, never read by the pipeline (data_catalog.truth)
+    preview/                 PNG pictures for a person to check at a glance
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+
+from data_catalog.atomic import atomic_directory, atomic_write_text
+from data_catalog.hashing import sha256_tree
+from data_catalog.manifests import MANIFEST_NAME, write_manifest
+from data_catalog.passes import PassWriter
+from data_catalog.truth import TRUTH_DIR, TruthPassWriter, write_truth
+from schemas.manifest import (NominalMotion, PassEntry, SampleManifest, ScannerSettings, Setup,
+                              SpecimenGeometry, WeldDescription)
+from schemas.simulation import SimulationConfig
+from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection
+from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
+from simulator.fixture import build_fixture
+from simulator.placement import place_on_fixture
+from simulator.robot import PassMotion, PlannedPass, draw_motion, plan_passes
+from simulator.scanner import LineScanner
+from simulator.scene import Scene, StickerSet
+from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
+from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
+from simulator.transforms import invert
+
+__all__ = ["SimulationSummary", "simulate", "COVERAGE_CELL_MM", "SCAN_DATE"]
+
+log = logging.getLogger(__name__)
+
+COVERAGE_CELL_MM = 2.0
+PLANNING_STEP_MM = 0.5
+PLANNING_MARGIN_MM = 0.5
+SCAN_DATE = datetime(2026, 1, 5, 8, 0, tzinfo=timezone.utc)
+"""The simulated cell's clock: fixed, so that a seed reproduces the files bit for bit."""
+
+_LABEL_NAMES = {v: k.lower() for k, v in vars(PointLabel).items() if k.isupper()}
+_SETUPS = ("top", "bottom")
+
+
+@dataclass(frozen=True)
+class SimulationSummary:
+    out_dir: Path
+    n_passes: int
+    n_points: int
+    n_valid_points: int
+    n_stickers_specimen: int
+    n_stickers_fixture: int
+    seconds: float
+
+
+def _empty_stickers(radius: float) -> StickerSet:
+    return StickerSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.uint8), radius, 0.0)
+
+
+def _overlapping_pairs(coverage: CoverageMap, candidates: Candidates, config: SimulationConfig, *,
+                       area_factor: float = 1.0) -> list[tuple[int, int]]:
+    """Passes overlap when they share sticker-eligible surface (plates, away from weld and edges)
+    that holds a disc of a sticker's radius, the planning margin, half the minimum spread and one
+    coverage cell, over ``stickers.overlap_area_mm2`` (times ``area_factor``)."""
+    erosion = (config.stickers.diameter_mm / 2 + PLANNING_MARGIN_MM + config.stickers.min_spread_mm / 2
+               + COVERAGE_CELL_MM)
+    return coverage.overlapping_pairs(candidates.faces, candidates.params(), erosion_mm=erosion,
+                                      min_area_mm2=config.stickers.overlap_area_mm2 * area_factor,
+                                      area_per_point_mm2=candidates.step_mm**2)
+
+
+def _planning_coverage(config: SimulationConfig, planned: list[PlannedPass], motions: list[PassMotion],
+                       scenes: dict[str, Scene]) -> CoverageMap:
+    """Coarse, noise-free renders (about 1 mm apart) of every pass: what each pass sees."""
+    sc = config.scanner
+    col_stride = max(1, int(PLANNING_STEP_MM / sc.x_spacing_mm))
+    n_cols = max(2, math.ceil(sc.points_per_profile / col_stride))
+    coarse = LineScanner(sc.model_copy(update={"points_per_profile": n_cols, "x_spacing_mm": sc.x_spacing_mm * col_stride}))
+    row_stride = max(1, int(PLANNING_STEP_MM / config.robot.profile_spacing_mm))
+    coverage = CoverageMap([p.pass_id for p in planned], COVERAGE_CELL_MM)
+    for index, (p, motion) in enumerate(zip(planned, motions)):
+        poses = motion.T_world_sensor_true[::row_stride]
+        for start in range(0, len(poses), 2000):
+            prof = coarse.render(scenes[p.setup], poses[start:start + 2000], None, keep_specimen_points=True)
+            seen = prof.label == PointLabel.VALID
+            seen &= prof.face_id != 255
+            coverage.add(index, prof.face_id[seen], prof.point_specimen[seen].astype(np.float64))
+    return coverage
+
+
+def _weld_sections(specimen: Specimen, step_mm: float = 5.0) -> list[WeldSection]:
+    sections = []
+    hw = specimen.config.grip_width_mm / 2
+    for side, cap in (("top", specimen.weld_top), ("bottom", specimen.weld_bottom)):
+        for y in np.arange(-hw, hw + 1e-9, step_mm):
+            ya = np.array([y])
+            sections.append(WeldSection(
+                side=side, y_mm=float(y), centre_x_mm=float(cap.centre(ya)[0]),
+                height_mm=float(cap.height(ya)[0]), width_mm=float(cap.width(ya)[0]),
+                flank_angle_deg=(float(cap.effective_flank_deg(ya, 0)[0]), float(cap.effective_flank_deg(ya, 1)[0])),
+                toe_radius_mm=(float(cap.toe_radius[0](ya)[0]), float(cap.toe_radius[1](ya)[0])),
+                undercut_depth_mm=(float(cap.undercut[0](ya)[0]), float(cap.undercut[1](ya)[0])),
+            ))
+    return sections
+
+
+def _write_mesh(path: Path, mesh: SurfaceMesh) -> None:
+    o3d_mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
+                                         o3d.utility.Vector3iVector(mesh.triangles))
+    if not o3d.io.write_triangle_mesh(str(path), o3d_mesh, write_ascii=False, compressed=False,
+                                      write_vertex_normals=False, write_vertex_colors=False):
+        raise OSError(f"could not write {path}")
+
+
+def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict[str, str]) -> SampleManifest:
+    sp, sc, robot = config.specimen, config.scanner, config.robot
+    T_sensor_flange = invert(np.asarray(robot.T_flange_sensor))
+    setups = []
+    for setup in _SETUPS:
+        entries = []
+        for p in planned:
+            if p.setup != setup:
+                continue
+            motion = NominalMotion(
+                T_world_flange_start=(p.T_world_sensor_start @ T_sensor_flange).tolist(),
+                direction_world=tuple(float(v) for v in p.travel_world), speed_mm_s=p.speed_mm_s,
+                profile_rate_hz=p.profile_rate_hz, length_mm=p.length_mm)
+            entries.append(PassEntry(
+                pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction,
+                n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
+                has_profile_poses=robot.log_profile_poses, content_sha256=hashes[p.pass_id]))
+        description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
+        setups.append(Setup(name=setup, description=description, passes=entries))
+    return SampleManifest(
+        sample_id=config.sample_id, created=SCAN_DATE, material="S355",
+        specimen=SpecimenGeometry(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
+                                  gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
+                                  transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm),
+        weld=WeldDescription(treatment=config.weld.treatment),
+        sticker_diameter_mm=config.stickers.diameter_mm,
+        scanner=ScannerSettings(model=sc.model, points_per_profile=sc.points_per_profile,
+                                x_spacing_mm=sc.x_spacing_mm, z_resolution_mm=sc.z_resolution_mm,
+                                reference_distance_mm=sc.reference_distance_mm, z_range_mm=sc.z_range_mm,
+                                camera_offset_mm=sc.camera_offset_mm, T_flange_sensor=robot.T_flange_sensor),
+        setups=setups,
+    )
+
+
+def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str], None] | None = None,
+             previews: bool = True) -> SimulationSummary:
+    """Simulate the sample described by ``config`` into ``out_dir`` (which must not exist)."""
+    say = progress or (lambda message: log.info(message))
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        raise FileExistsError(f"{out_dir} already exists; refusing to overwrite it")
+    t0 = time.perf_counter()
+    seeds = np.random.SeedSequence(config.seed).spawn(5)
+    rng_specimen, rng_place, rng_stickers, rng_fixture = (np.random.default_rng(s) for s in seeds[:4])
+
+    specimen = build_specimen(config.specimen, config.weld, config.mesh, rng_specimen)
+    fixture_mesh = build_fixture(config.fixture)
+    T_world_specimen = {setup: place_on_fixture(specimen, config.fixture, config.placement, rng_place,
+                                                flipped=(setup == "bottom")) for setup in _SETUPS}
+    z_top = config.fixture.block_size_mm[2] + config.specimen.thickness_mm
+    planned = plan_passes(config.plan, config.specimen, config.robot, z_top_mm=z_top,
+                          standoff_mm=config.scanner.reference_distance_mm, setups=_SETUPS)
+    pass_seeds = seeds[4].spawn(len(planned))
+    motions, render_rngs = [], []
+    for p, s in zip(planned, pass_seeds):
+        motion_seed, render_seed = s.spawn(2)
+        motions.append(draw_motion(p, config.robot, np.random.default_rng(motion_seed)))
+        render_rngs.append(np.random.default_rng(render_seed))
+    say(f"specimen meshed: {len(specimen.mesh.triangles):,} triangles; {len(planned)} passes planned")
+
+    radius = config.stickers.diameter_mm / 2
+    planning_scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, _empty_stickers(radius),
+                                _empty_stickers(radius)) for s in _SETUPS}
+    coverage = _planning_coverage(config, planned, motions, planning_scenes)
+    candidates = sticker_candidates(specimen, config)
+    # Plan for more pairs than the final check will call overlapping: the coarse planning
+    # renders see a little less than the real passes.
+    pairs = _overlapping_pairs(coverage, candidates, config)
+    marginal = _overlapping_pairs(coverage, candidates, config, area_factor=0.5)
+    specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
+                                       margin_mm=PLANNING_MARGIN_MM, optional_pairs=marginal)
+    fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
+    say(f"stickers placed: {len(specimen_stickers.ids)} on the specimen, {len(fixture_stickers.ids)} on the "
+        f"fixture; {len(pairs)} overlapping pass pairs")
+    scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, specimen_stickers, fixture_stickers)
+              for s in _SETUPS}
+
+    scanner = LineScanner(config.scanner)
+    final = CoverageMap([p.pass_id for p in planned], COVERAGE_CELL_MM)
+    chunk = config.chunk_profiles
+    n_cols = config.scanner.points_per_profile
+    true_passes, hashes = [], {}
+    total = valid_total = 0
+    with atomic_directory(out_dir) as tmp:
+        (tmp / "passes").mkdir()
+        (tmp / TRUTH_DIR / "passes").mkdir(parents=True)
+        for index, (p, motion, rng) in enumerate(zip(planned, motions, render_rngs)):
+            t_pass = time.perf_counter()
+            n = p.n_profiles
+            writer = PassWriter(tmp / "passes" / f"{p.pass_id}.zarr", pass_id=p.pass_id, n_profiles=n,
+                                n_columns=n_cols, chunk_profiles=chunk, with_poses=config.robot.log_profile_poses)
+            truth_writer = TruthPassWriter(tmp / TRUTH_DIR / "passes" / f"{p.pass_id}.zarr",
+                                           n_profiles=n, n_columns=n_cols, chunk_profiles=chunk)
+            counts = np.zeros(256, np.int64)
+            for start in range(0, n, chunk):
+                stop = min(start + chunk, n)
+                prof = scanner.render(scenes[p.setup], motion.T_world_sensor_true[start:stop], rng,
+                                      keep_specimen_points=True)
+                writer.write(start, x_mm=prof.x_mm, z_mm=prof.z_mm, intensity=prof.intensity,
+                             timestamp_s=motion.timestamp_s[start:stop],
+                             T_world_flange=motion.T_world_flange_logged[start:stop])
+                truth_writer.write(start, T_world_sensor=motion.T_world_sensor_true[start:stop],
+                                   label=prof.label, material=prof.material, sticker_id=prof.sticker_id)
+                seen = (prof.label == PointLabel.VALID) & (prof.face_id != 255)
+                final.add(index, prof.face_id[seen], prof.point_specimen[seen].astype(np.float64))
+                counts += np.bincount(prof.label.ravel(), minlength=256)
+            writer.close()
+            hashes[p.pass_id] = sha256_tree(tmp / "passes" / f"{p.pass_id}.zarr")
+            label_counts = {_LABEL_NAMES[k]: int(counts[k]) for k in _LABEL_NAMES}
+            true_passes.append(TruePass(pass_id=p.pass_id, setup=p.setup, T_nominal_true=motion.T_error.tolist(),
+                                        n_points=int(n * n_cols), label_counts=label_counts))
+            total += n * n_cols
+            valid_total += label_counts["valid"] + label_counts["outlier"]
+            say(f"pass {index + 1}/{len(planned)} {p.pass_id}: {p.length_mm:.0f} mm, {n} profiles x {n_cols} "
+                f"points, {p.duration_s:.1f} s scan time, {time.perf_counter() - t_pass:.1f} s")
+
+        final_pairs = _overlapping_pairs(final, candidates, config)
+        masks = final.disc_masks(specimen_stickers.faces,
+                                 face_params(specimen_stickers.faces, specimen_stickers.centres), radius)
+        common = {}
+        for i, j in final_pairs:
+            both = (np.uint64(1) << np.uint64(i)) | (np.uint64(1) << np.uint64(j))
+            ids = [int(k) for k in specimen_stickers.ids if masks[k] & both == both]
+            common[f"{planned[i].pass_id}|{planned[j].pass_id}"] = ids
+            if len(ids) < config.stickers.min_common or \
+                    spread_off_line_mm(specimen_stickers.centres[ids]) < config.stickers.min_spread_mm:
+                log.warning("passes %s and %s share only %d stickers whole", planned[i].pass_id,
+                            planned[j].pass_id, len(ids))
+
+        manifest = _manifest(config, planned, hashes)
+        write_manifest(tmp / MANIFEST_NAME, manifest)
+        truth = GroundTruth(
+            sample_id=config.sample_id, seed=config.seed, preset=config.preset,
+            T_world_specimen={s: T.tolist() for s, T in T_world_specimen.items()},
+            stickers=_true_stickers(specimen_stickers, fixture_stickers, config.stickers.diameter_mm),
+            weld_sections=_weld_sections(specimen),
+            misalignment={"axial_mm": specimen.axial_misalignment_mm,
+                          "angular_deg": specimen.angular_misalignment_deg},
+            passes=true_passes,
+            overlapping_pairs=[(planned[i].pass_id, planned[j].pass_id) for i, j in final_pairs],
+            common_stickers=common,
+        )
+        write_truth(tmp / TRUTH_DIR / "truth.json", truth)
+        atomic_write_text(tmp / TRUTH_DIR / "simulation.json", config.model_dump_json(indent=2) + "\n")
+        _write_mesh(tmp / TRUTH_DIR / "specimen.ply", specimen.mesh)
+        _write_mesh(tmp / TRUTH_DIR / "fixture.ply", fixture_mesh)
+        if previews:
+            from simulator.preview import write_previews
+            write_previews(tmp, manifest, truth, config)
+        say(f"wrote {total:,} points ({valid_total:,} returns) in {len(planned)} passes")
+    return SimulationSummary(out_dir=out_dir, n_passes=len(planned), n_points=int(total),
+                             n_valid_points=int(valid_total), n_stickers_specimen=len(specimen_stickers.ids),
+                             n_stickers_fixture=len(fixture_stickers.ids), seconds=time.perf_counter() - t0)
+
+
+def _true_stickers(specimen_stickers: StickerSet, fixture_stickers: StickerSet, diameter: float) -> list[TrueSticker]:
+    out = []
+    for on, stickers in (("specimen", specimen_stickers), ("fixture", fixture_stickers)):
+        for row, k in enumerate(stickers.ids):
+            out.append(TrueSticker(sticker_id=int(k), on=on, face=Face.NAMES[stickers.faces[row]],
+                                   centre_mm=tuple(float(v) for v in stickers.centres[row]),
+                                   normal=tuple(float(v) for v in stickers.normals[row]), diameter_mm=diameter))
+    return out

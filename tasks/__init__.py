@@ -1,0 +1,1 @@
+"""Pure processing stages on numpy arrays: no Prefect, no zarr, no file paths."""
