@@ -107,8 +107,8 @@ class StickerConfig(StrictModel):
     min_spread_mm: float = Field(default=4.0, gt=0, description="the common stickers' extent off their best line")
     spacing_factor: float = Field(default=1.6, ge=1.05, description="min centre distance in diameters")
     overlap_area_mm2: float = Field(default=300.0, gt=0, description=(
-        "two passes overlap when their common surface, shrunk by a sticker radius plus half of "
-        "min_spread_mm, still covers this area"))
+        "two passes overlap when the sticker-eligible surface both see, where a whole sticker "
+        "fits, covers this area and is not a mere line"))
     weld_clearance_mm: float = Field(default=2.0, ge=0, description="gap kept between sticker and weld zone")
     edge_clearance_mm: float = Field(default=1.0, ge=0, description="gap kept between sticker and face edge")
     fill_density_per_1000mm2: float = Field(default=0.5, ge=0, description="extra random stickers on faces")
@@ -136,7 +136,7 @@ class ScannerConfig(StrictModel):
     reference_distance_mm: float = Field(default=200.0, gt=0)
     z_range_mm: FloatRange = (150.0, 300.0)
     z_resolution_mm: float = Field(default=0.004, gt=0)
-    camera_offset_mm: Vector3 = (0.0, 90.0, 0.0)
+    camera_offset_mm: Vector3 = Field(default=(0.0, 115.0, 0.0), description="30 deg triangulation at 200 mm")
     range_noise_mm: float = Field(default=0.006, ge=0, le=1, description="1-sigma along the laser ray, sprayed steel")
     intensity_noise: float = Field(default=10.0, ge=0, description="1-sigma, in 10-bit counts")
     grazing_limit_deg: float = Field(default=82.0, gt=0, lt=90)
@@ -186,8 +186,12 @@ class ScanPlanConfig(StrictModel):
     the specimen length plus ``margin_mm`` at each end; along-width passes its grip width plus
     ``margin_mm`` at each side."""
 
+    setups: list[Literal["top", "bottom"]] = Field(default=["top", "bottom"], min_length=1)
     margin_mm: float = Field(default=30.0, ge=0, le=500)
     vertical_offsets_mm: list[float] = Field(default=[-35.0, -21.0, -7.0, 7.0, 21.0, 35.0], min_length=1)
+    inclination_deg: float = Field(default=20.0, ge=0, le=45, description=(
+        "forward/backward tilt of the top-down along-length passes, alternating, so the camera "
+        "looks over the weld cap as in a real cell"))
     side_rolls_deg: list[float] = Field(default=[30.0, 50.0, 70.0], description="tilted passes per side")
     width_passes: list[WidthPass] = Field(
         default=[WidthPass(x_mm=-25.0), WidthPass(x_mm=25.0),
@@ -196,6 +200,8 @@ class ScanPlanConfig(StrictModel):
 
     @model_validator(mode="after")
     def _possible(self) -> "ScanPlanConfig":
+        if len(set(self.setups)) != len(self.setups):
+            raise ValueError("setups must not repeat")
         for roll in self.side_rolls_deg:
             if not (0 < roll < 85):
                 raise ValueError("side_rolls_deg must lie within (0, 85) degrees")

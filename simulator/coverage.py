@@ -50,20 +50,22 @@ class CoverageMap:
             masks[np.searchsorted(all_keys, keys)] |= np.uint64(1) << np.uint64(index)
         return all_keys, masks
 
-    def overlapping_pairs(self, face: np.ndarray, ab: np.ndarray, *, erosion_mm: float, min_area_mm2: float,
-                          area_per_point_mm2: float) -> list[tuple[int, int]]:
-        """Pass pairs that share room for stickers: the points (face, ab) of the sticker-eligible
-        surface, each standing for ``area_per_point_mm2``, around which both passes see a disc
-        of radius ``erosion_mm`` whole, must cover ``min_area_mm2``. Slivers do not count."""
-        core = self.disc_masks(face, ab, erosion_mm)
-        core = core[core != 0]
+    def overlapping_pairs(self, face: np.ndarray, ab: np.ndarray, points: np.ndarray, *, radius_mm: float,
+                          min_area_mm2: float, area_per_point_mm2: float,
+                          min_spread_mm: float) -> list[tuple[int, int]]:
+        """Pass pairs that share room for stickers off one line: the sticker-eligible points
+        (face, ab; ``points`` (k, 3) in 3-D), each standing for ``area_per_point_mm2``, around
+        which both passes see a disc of ``radius_mm`` whole, must cover ``min_area_mm2`` and lie
+        at least ``min_spread_mm`` off their best line. Slivers of overlap do not count."""
+        masks = self.disc_masks(face, ab, radius_mm)
         n_min = min_area_mm2 / area_per_point_mm2
         pairs = []
         indices = sorted(self._seen)
         for i_pos, i in enumerate(indices):
-            has_i = (core >> np.uint64(i)) & np.uint64(1)
+            has_i = ((masks >> np.uint64(i)) & np.uint64(1)).astype(bool)
             for j in indices[i_pos + 1:]:
-                if int(np.count_nonzero(has_i & (core >> np.uint64(j)))) >= n_min:
+                common = has_i & ((masks >> np.uint64(j)) & np.uint64(1)).astype(bool)
+                if np.count_nonzero(common) >= n_min and spread_off_line_mm(points[common]) >= min_spread_mm:
                     pairs.append((i, j))
         return pairs
 

@@ -40,9 +40,9 @@ def _ci() -> SimulationConfig:
     return SimulationConfig(
         preset="ci", seed=11, sample_id="sim-ci-0011",
         specimen=SpecimenConfig(length_mm=240.0, grip_width_mm=60.0, gauge_width_mm=44.0, gauge_length_mm=60.0,
-                                transition_radius_mm=40.0, thickness_mm=16.0),
-        weld=WeldConfig(treatment="as-welded", cap_height_mm=(1.0, 2.5), cap_width_mm=(10.0, 13.0),
-                        undercut_probability=0.5),
+                                transition_radius_mm=40.0, thickness_mm=20.0),
+        weld=WeldConfig(treatment="as-welded", cap_height_mm=(1.5, 3.0), cap_width_mm=(10.0, 13.0),
+                        flank_angle_deg=(30.0, 60.0), undercut_probability=0.5),
         stickers=StickerConfig(diameter_mm=5.0, n_fixture=4),
         fixture=FixtureConfig(plate_size_mm=(400.0, 220.0, 10.0), block_size_mm=(30.0, 30.0, 25.0),
                               block_centres_x_mm=(-90.0, 90.0)),

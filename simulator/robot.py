@@ -46,9 +46,11 @@ class PlannedPass:
 
 
 def _sensor_frame(travel: np.ndarray, view: np.ndarray, aim: np.ndarray, standoff: float) -> np.ndarray:
-    """Sensor pose whose z looks along ``view`` at ``aim`` from ``standoff``; y along travel."""
-    y = travel / np.linalg.norm(travel)
+    """Sensor pose whose z looks along ``view`` at ``aim`` from ``standoff``; y as close to the
+    travel direction as the view allows (an inclined sensor still travels straight)."""
     z = view / np.linalg.norm(view)
+    y = travel - (travel @ z) * z
+    y = y / np.linalg.norm(y)
     x = np.cross(y, z)
     return frame_from_axes(x, y, z, aim - standoff * z)
 
@@ -74,9 +76,11 @@ def plan_passes(plan: ScanPlanConfig, specimen: SpecimenConfig, robot: RobotConf
             count = sum(1 for p in passes if p.setup == setup and p.direction == kind) + 1
             passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, kind, T_start, travel,
                                       travel_len, robot.speed_mm_s, rate))
-        for y_off in plan.vertical_offsets_mm:
+        for k, y_off in enumerate(plan.vertical_offsets_mm):
+            tilt = np.radians(plan.inclination_deg) * (1 if k % 2 == 0 else -1)
             aim = np.array([-length / 2, y_off, z_top_mm])
-            add("along-length", _sensor_frame(along_x, np.array([0.0, 0.0, -1.0]), aim, standoff_mm), along_x, length)
+            view = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
+            add("along-length", _sensor_frame(along_x, view, aim, standoff_mm), along_x, length)
         for side in (-1.0, 1.0):
             for roll in plan.side_rolls_deg:
                 b = np.radians(roll)

@@ -51,7 +51,6 @@ SCAN_DATE = datetime(2026, 1, 5, 8, 0, tzinfo=timezone.utc)
 """The simulated cell's clock: fixed, so that a seed reproduces the files bit for bit."""
 
 _LABEL_NAMES = {v: k.lower() for k, v in vars(PointLabel).items() if k.isupper()}
-_SETUPS = ("top", "bottom")
 
 
 @dataclass(frozen=True)
@@ -69,16 +68,16 @@ def _empty_stickers(radius: float) -> StickerSet:
     return StickerSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.uint8), radius, 0.0)
 
 
-def _overlapping_pairs(coverage: CoverageMap, candidates: Candidates, config: SimulationConfig, *,
-                       area_factor: float = 1.0) -> list[tuple[int, int]]:
+def _overlapping_pairs(coverage: CoverageMap, candidates: Candidates, config: SimulationConfig) -> list[tuple[int, int]]:
     """Passes overlap when they share sticker-eligible surface (plates, away from weld and edges)
-    that holds a disc of a sticker's radius, the planning margin, half the minimum spread and one
-    coverage cell, over ``stickers.overlap_area_mm2`` (times ``area_factor``)."""
-    erosion = (config.stickers.diameter_mm / 2 + PLANNING_MARGIN_MM + config.stickers.min_spread_mm / 2
-               + COVERAGE_CELL_MM)
-    return coverage.overlapping_pairs(candidates.faces, candidates.params(), erosion_mm=erosion,
-                                      min_area_mm2=config.stickers.overlap_area_mm2 * area_factor,
-                                      area_per_point_mm2=candidates.step_mm**2)
+    where both see a sticker (grown by the planning margin) whole, over ``overlap_area_mm2``,
+    reaching 1 mm more than the stickers' own required spread off its best line: room for
+    stickers not in a line. Slivers of overlap, or overlaps on the weld alone, do not count."""
+    sc = config.stickers
+    return coverage.overlapping_pairs(candidates.faces, candidates.params(), candidates.centres,
+                                      radius_mm=sc.diameter_mm / 2 + PLANNING_MARGIN_MM,
+                                      min_area_mm2=sc.overlap_area_mm2, area_per_point_mm2=candidates.step_mm**2,
+                                      min_spread_mm=sc.min_spread_mm + 2 * PLANNING_MARGIN_MM + 1.0)
 
 
 def _planning_coverage(config: SimulationConfig, planned: list[PlannedPass], motions: list[PassMotion],
@@ -128,7 +127,7 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
     sp, sc, robot = config.specimen, config.scanner, config.robot
     T_sensor_flange = invert(np.asarray(robot.T_flange_sensor))
     setups = []
-    for setup in _SETUPS:
+    for setup in config.plan.setups:
         entries = []
         for p in planned:
             if p.setup != setup:
@@ -172,10 +171,10 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     specimen = build_specimen(config.specimen, config.weld, config.mesh, rng_specimen)
     fixture_mesh = build_fixture(config.fixture)
     T_world_specimen = {setup: place_on_fixture(specimen, config.fixture, config.placement, rng_place,
-                                                flipped=(setup == "bottom")) for setup in _SETUPS}
+                                                flipped=(setup == "bottom")) for setup in ("top", "bottom")}
     z_top = config.fixture.block_size_mm[2] + config.specimen.thickness_mm
     planned = plan_passes(config.plan, config.specimen, config.robot, z_top_mm=z_top,
-                          standoff_mm=config.scanner.reference_distance_mm, setups=_SETUPS)
+                          standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
     pass_seeds = seeds[4].spawn(len(planned))
     motions, render_rngs = [], []
     for p, s in zip(planned, pass_seeds):
@@ -186,20 +185,19 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
 
     radius = config.stickers.diameter_mm / 2
     planning_scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, _empty_stickers(radius),
-                                _empty_stickers(radius)) for s in _SETUPS}
+                                _empty_stickers(radius)) for s in config.plan.setups}
     coverage = _planning_coverage(config, planned, motions, planning_scenes)
     candidates = sticker_candidates(specimen, config)
     # Plan for more pairs than the final check will call overlapping: the coarse planning
     # renders see a little less than the real passes.
     pairs = _overlapping_pairs(coverage, candidates, config)
-    marginal = _overlapping_pairs(coverage, candidates, config, area_factor=0.5)
     specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
-                                       margin_mm=PLANNING_MARGIN_MM, optional_pairs=marginal)
+                                       margin_mm=PLANNING_MARGIN_MM)
     fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
     say(f"stickers placed: {len(specimen_stickers.ids)} on the specimen, {len(fixture_stickers.ids)} on the "
         f"fixture; {len(pairs)} overlapping pass pairs")
     scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, specimen_stickers, fixture_stickers)
-              for s in _SETUPS}
+              for s in config.plan.setups}
 
     scanner = LineScanner(config.scanner)
     final = CoverageMap([p.pass_id for p in planned], COVERAGE_CELL_MM)
@@ -240,7 +238,8 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
             say(f"pass {index + 1}/{len(planned)} {p.pass_id}: {p.length_mm:.0f} mm, {n} profiles x {n_cols} "
                 f"points, {p.duration_s:.1f} s scan time, {time.perf_counter() - t_pass:.1f} s")
 
-        final_pairs = _overlapping_pairs(final, candidates, config)
+        # The planned overlaps, checked on what the passes really saw: whole stickers, not in a line.
+        final_pairs = pairs
         masks = final.disc_masks(specimen_stickers.faces,
                                  face_params(specimen_stickers.faces, specimen_stickers.centres), radius)
         common = {}
@@ -257,7 +256,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
         write_manifest(tmp / MANIFEST_NAME, manifest)
         truth = GroundTruth(
             sample_id=config.sample_id, seed=config.seed, preset=config.preset,
-            T_world_specimen={s: T.tolist() for s, T in T_world_specimen.items()},
+            T_world_specimen={s: T_world_specimen[s].tolist() for s in config.plan.setups},
             stickers=_true_stickers(specimen_stickers, fixture_stickers, config.stickers.diameter_mm),
             weld_sections=_weld_sections(specimen),
             misalignment={"axial_mm": specimen.axial_misalignment_mm,

@@ -83,12 +83,10 @@ def _bits(mask: np.uint64) -> set[int]:
 
 
 def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tuple[int, int]],
-                   cfg: SimulationConfig, rng: np.random.Generator, *, margin_mm: float = 0.0,
-                   optional_pairs: list[tuple[int, int]] = ()) -> StickerSet:
+                   cfg: SimulationConfig, rng: np.random.Generator, *, margin_mm: float = 0.0) -> StickerSet:
     """Greedy semi-random placement on the specimen (specimen frame). A pass counts as seeing a
     candidate when it sees the disc grown by ``margin_mm`` whole; the common stickers of a pair
-    must lie ``min_spread_mm + 2 * margin_mm`` off their best line. ``optional_pairs`` get
-    stickers where there is room; ``pairs`` must, or StickerPlacementError is raised."""
+    must lie ``min_spread_mm + 2 * margin_mm`` off their best line."""
     sc = cfg.stickers
     r = sc.diameter_mm / 2
     masks = coverage.disc_masks(candidates.faces, candidates.params(), r + margin_mm)
@@ -101,17 +99,15 @@ def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tu
         chosen.append(k)
         available[tree.query_ball_point(candidates.centres[k], spacing)] = False
 
-    seen_area = available.sum() * 1.0
-    for _ in range(int(sc.fill_density_per_1000mm2 * seen_area / 1000)):
-        pool = np.flatnonzero(available)
-        if pool.size == 0:
-            break
-        add(int(rng.choice(pool)))
+    def room(pair: tuple[int, int]) -> int:
+        both = (np.uint64(1) << np.uint64(pair[0])) | (np.uint64(1) << np.uint64(pair[1]))
+        return int(np.count_nonzero((masks & both) == both))
 
-    required = set(pairs)
+    # The pairs with the least room choose first; random extra stickers come last.
+    pairs = sorted(pairs, key=room)
     for _ in range(4):
         changed = False
-        for i, j in list(pairs) + [p for p in optional_pairs if p not in required]:
+        for i, j in pairs:
             both = (np.uint64(1) << np.uint64(i)) | (np.uint64(1) << np.uint64(j))
             while True:
                 common = [k for k in chosen if masks[k] & both == both]
@@ -119,8 +115,6 @@ def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tu
                 if len(common) >= sc.min_common and spread >= sc.min_spread_mm + 2 * margin_mm:
                     break
                 pool = np.flatnonzero(available & ((masks & both) == both))
-                if pool.size == 0 and (i, j) not in required:
-                    break
                 if pool.size == 0:
                     names = coverage.pass_ids
                     raise StickerPlacementError(
@@ -143,6 +137,12 @@ def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tu
                 changed = True
         if not changed:
             break
+    seen_area = np.count_nonzero(masks) * candidates.step_mm**2
+    for _ in range(int(sc.fill_density_per_1000mm2 * seen_area / 1000)):
+        pool = np.flatnonzero(available)
+        if pool.size == 0:
+            break
+        add(int(rng.choice(pool)))
     ids = np.arange(len(chosen))
     return StickerSet(centres=candidates.centres[chosen], normals=candidates.normals[chosen], ids=ids,
                       faces=candidates.faces[chosen], radius_mm=r, thickness_mm=sc.thickness_mm)

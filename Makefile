@@ -1,0 +1,27 @@
+# weldrecon: `make demo` sets everything up and runs the main job on the built-in demo sample;
+# `make test` runs the tests. Both install what is missing first (system packages, .venv).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: setup demo test bench clean-demo
+
+$(STAMP): pyproject.toml deploy/install-system-deps.sh
+	bash deploy/install-system-deps.sh
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+demo: setup
+	rm -rf out/demo
+	$(BIN)/weldrecon simulate --preset demo out/demo
+
+test: setup
+	$(BIN)/pytest -q
+
+bench: setup
+	$(BIN)/python bench/bench_simulator.py

@@ -1,0 +1,70 @@
+"""The sample manifest: the exported JSON schema is current, and bad manifests are refused with
+the field named."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from data_catalog.manifests import ManifestError, load_manifest, manifest_json_schema
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_exported_json_schema_is_current():
+    assert (REPO / "schemas" / "manifest.schema.json").read_text() == manifest_json_schema()
+
+
+@pytest.fixture
+def good(ci_sample):
+    return json.loads((ci_sample / "manifest.json").read_text())
+
+
+def _load(tmp_path, raw):
+    path = tmp_path / "manifest.json"
+    path.write_text(json.dumps(raw) if not isinstance(raw, str) else raw)
+    return load_manifest(tmp_path)
+
+
+def test_good_manifest_loads(tmp_path, good):
+    manifest = _load(tmp_path, good)
+    assert manifest.units == "mm" and len(manifest.passes()) == 14
+
+
+@pytest.mark.parametrize(
+    ("edit", "where", "message"),
+    [
+        (lambda m: m.update(units="inch"), "units", "Input should be 'mm'"),
+        (lambda m: m.update(colour="red"), "colour", "Extra inputs are not permitted"),
+        (lambda m: m["setups"][0]["passes"][0].update(file="../../etc/passwd"), "setups.0.passes.0.file",
+         "must not leave the sample folder"),
+        (lambda m: m["setups"][0]["passes"][0].update(file="/etc/passwd"), "setups.0.passes.0.file",
+         "relative POSIX path"),
+        (lambda m: m["setups"][0]["passes"][1]["nominal_motion"]["T_world_flange_start"][0].__setitem__(3, float("nan")),
+         "setups.0.passes.1.nominal_motion.T_world_flange_start", "finite"),
+        (lambda m: m["setups"][0]["passes"][1]["nominal_motion"]["T_world_flange_start"][0].__setitem__(0, 2.0),
+         "setups.0.passes.1.nominal_motion.T_world_flange_start", "orthonormal"),
+        (lambda m: m["setups"][0]["passes"][2]["nominal_motion"].update(speed_mm_s=-15), 
+         "setups.0.passes.2.nominal_motion.speed_mm_s", "greater than 0"),
+        (lambda m: m["setups"][1]["passes"][0].update(pass_id=m["setups"][0]["passes"][0]["pass_id"]),
+         "(top level)", "pass ids must be unique"),
+        (lambda m: m.update(created="2026-01-05T08:00:00"), "created", "timezone"),
+        (lambda m: m["scanner"].update(z_range_mm=[300, 100]), "scanner.z_range_mm", "near < far"),
+    ],
+)
+def test_bad_manifest_names_the_field(tmp_path, good, edit, where, message):
+    edit(good)
+    with pytest.raises(ManifestError) as info:
+        _load(tmp_path, good)
+    text = str(info.value)
+    assert str(tmp_path / "manifest.json") in text
+    assert f"  {where}:" in text and message in text, text
+
+
+def test_not_json_and_missing(tmp_path):
+    with pytest.raises(ManifestError, match="not valid JSON"):
+        _load(tmp_path, "{nope")
+    with pytest.raises(ManifestError, match="no manifest file there"):
+        load_manifest(tmp_path / "empty")
