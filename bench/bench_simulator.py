@@ -60,6 +60,7 @@ def _child(case: str, out: str) -> None:
     pass_id = truth["passes"][0]["pass_id"]
     poses = read_truth_pass(sample / "truth" / "passes" / f"{pass_id}.zarr").T_world_sensor
     n_points_pass = len(poses) * len(fan)
+    scene.cast_rays(o3d.core.Tensor(np.array([[0, 0, 500, 0, 0, -1]], np.float32)))  # builds the BVH
     cast_s = 0.0
     for start in range(0, len(poses), cfg.chunk_profiles):
         block = poses[start:start + cfg.chunk_profiles]
