@@ -11,7 +11,7 @@ import zarr
 
 from schemas.manifest import SampleManifest
 from schemas.simulation import SimulationConfig
-from schemas.truth import GroundTruth
+from schemas.truth import GroundTruth, PointLabel
 from simulator.scanner import fan_directions
 from simulator.transforms import apply, invert
 
@@ -52,22 +52,27 @@ def _sticker_world(truth: GroundTruth, setup: str) -> np.ndarray:
 def _intensity_png(sample: Path, manifest: SampleManifest, truth: GroundTruth, pass_id: str, setup: str,
                    config: SimulationConfig, out: Path) -> None:
     store = zarr.open_group(str(sample / "passes" / f"{pass_id}.zarr"), mode="r")
-    n = store["intensity"].shape[0]
+    n, n_cols = store["intensity"].shape
     step = max(1, int(np.ceil(n / _MAX_ROWS)))
     image = np.asarray(store["intensity"][::step]).astype(np.float32)
     grey = np.clip(image / 1023 * 255, 0, 255).astype(np.uint8)
-    scale_x = max(1, int(round(config.robot.profile_spacing_mm * step / config.scanner.x_spacing_mm)))
-    grey = cv2.resize(grey, (grey.shape[1], grey.shape[0] * scale_x), interpolation=cv2.INTER_NEAREST)
+    # one physical pixel size on both axes, the long side at most about 2000 px
+    row_mm = config.robot.profile_spacing_mm * step
+    px_mm = max(row_mm, config.scanner.x_spacing_mm, n * config.robot.profile_spacing_mm / 2000)
+    height = max(1, int(round(grey.shape[0] * row_mm / px_mm)))
+    width = max(1, int(round(n_cols * config.scanner.x_spacing_mm / px_mm)))
+    grey = cv2.resize(grey, (width, height), interpolation=cv2.INTER_AREA)
     colour = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
     truth_store = zarr.open_group(str(sample / "truth" / "passes" / f"{pass_id}.zarr"), mode="r")
     T_true = np.asarray(truth_store["T_world_sensor"][...])
-    seen = set(np.unique(np.asarray(truth_store["sticker_id"][...])).tolist())
+    reported = np.asarray(truth_store["label"][...]) == PointLabel.VALID
+    seen = set(np.unique(np.asarray(truth_store["sticker_id"][...])[reported]).tolist())
     uv = project_to_pass(_sticker_world(truth, setup), T_true, config.scanner.x_spacing_mm,
                          config.scanner.reference_distance_mm, config.scanner.points_per_profile)
-    radius = max(3, int(config.stickers.diameter_mm / 2 / config.scanner.x_spacing_mm))
+    radius = max(3, int(round(config.stickers.diameter_mm / 2 / px_mm)))
     for (row, col), s in zip(uv, truth.stickers):
-        if s.sticker_id in seen and np.isfinite(row) and 0 <= col < image.shape[1]:
-            centre = (int(round(col)), int(round(row / step * scale_x)))
+        if s.sticker_id in seen and np.isfinite(row) and 0 <= col < n_cols:
+            centre = (int(round(col * width / n_cols)), int(round(row * height / n)))
             cv2.circle(colour, centre, radius, (0, 0, 255) if s.on == "specimen" else (255, 128, 0), 1)
             cv2.drawMarker(colour, centre, (0, 255, 0), cv2.MARKER_CROSS, 6, 1)
     colour = np.ascontiguousarray(np.rot90(colour))  # profiles left to right
