@@ -66,32 +66,31 @@ def plan_passes(plan: ScanPlanConfig, specimen: SpecimenConfig, robot: RobotConf
     t = specimen.thickness_mm
     along_x = np.array([1.0, 0.0, 0.0])
     along_y = np.array([0.0, 1.0, 0.0])
-    passes = []
+    passes: list[PlannedPass] = []
+
+    def add(setup: str, kind: str, T_start: np.ndarray, travel: np.ndarray, travel_len: float) -> None:
+        tag = "L" if kind == "along-length" else "W"
+        count = sum(1 for p in passes if p.setup == setup and p.direction == kind) + 1
+        passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, kind, T_start, travel, travel_len,
+                                  robot.speed_mm_s, rate))
+
     for setup in setups:
-        n = 0
-        def add(kind: str, T_start: np.ndarray, travel: np.ndarray, travel_len: float) -> None:
-            nonlocal n
-            n += 1
-            tag = "L" if kind == "along-length" else "W"
-            count = sum(1 for p in passes if p.setup == setup and p.direction == kind) + 1
-            passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, kind, T_start, travel,
-                                      travel_len, robot.speed_mm_s, rate))
         for k, y_off in enumerate(plan.vertical_offsets_mm):
             tilt = np.radians(plan.inclination_deg) * (1 if k % 2 == 0 else -1)
             aim = np.array([-length / 2, y_off, z_top_mm])
             view = np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
-            add("along-length", _sensor_frame(along_x, view, aim, standoff_mm), along_x, length)
+            add(setup, "along-length", _sensor_frame(along_x, view, aim, standoff_mm), along_x, length)
         for side in (-1.0, 1.0):
             for roll in plan.side_rolls_deg:
                 b = np.radians(roll)
                 view = np.array([0.0, -side * np.sin(b), -np.cos(b)])
                 aim = np.array([-length / 2, side * half_w, z_top_mm - 0.5 * t * np.sin(b)])
-                add("along-length", _sensor_frame(along_x, view, aim, standoff_mm), along_x, length)
+                add(setup, "along-length", _sensor_frame(along_x, view, aim, standoff_mm), along_x, length)
         for wp in plan.width_passes:
             g = np.radians(wp.pitch_deg)
             view = np.array([np.sin(g), 0.0, -np.cos(g)])
             aim = np.array([wp.x_mm, -width / 2, z_top_mm])
-            add("along-width", _sensor_frame(along_y, view, aim, standoff_mm), along_y, width)
+            add(setup, "along-width", _sensor_frame(along_y, view, aim, standoff_mm), along_y, width)
     return passes
 
 
