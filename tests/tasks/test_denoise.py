@@ -1,0 +1,77 @@
+"""Statistical outlier removal on organized passes: recovers the simulator's outlier labels."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from data_catalog.manifests import load_manifest
+from data_catalog.passes import read_pass
+from data_catalog.truth import read_truth_pass
+from schemas.truth import PointLabel
+from tasks.denoise import remove_statistical_outliers
+
+
+def _world_points(sample, manifest, entry):
+    data = read_pass(sample / entry.file, pass_id=entry.pass_id)
+    T = data.T_world_flange @ np.array(manifest.scanner.T_flange_sensor)
+    local = np.stack([data.x_mm, np.zeros_like(data.x_mm), data.z_mm], -1).astype(np.float64)
+    return np.einsum("nij,nkj->nki", T[:, :3, :3], local) + T[:, None, :3, 3]
+
+
+def test_recovers_true_outliers_on_the_ci_sample(ci_sample):
+    manifest = load_manifest(ci_sample)
+    found = total_out = lost = total_valid = 0
+    for _, entry in manifest.passes()[:4]:
+        points = _world_points(ci_sample, manifest, entry)
+        labels = read_truth_pass(ci_sample / "truth" / "passes" / f"{entry.pass_id}.zarr").label
+        result = remove_statistical_outliers(points, k=8, alpha=1.0)
+        outlier = labels == PointLabel.OUTLIER
+        valid = labels == PointLabel.VALID
+        found += np.count_nonzero(outlier & ~result.keep)
+        total_out += np.count_nonzero(outlier)
+        lost += np.count_nonzero(valid & ~result.keep)
+        total_valid += np.count_nonzero(valid)
+    assert total_out > 500
+    assert found / total_out > 0.95, found / total_out
+    assert lost / total_valid < 0.05, lost / total_valid
+
+
+def test_agrees_with_open3d_on_which_points_go(ci_sample):
+    manifest = load_manifest(ci_sample)
+    _, entry = manifest.passes()[0]
+    points = _world_points(ci_sample, manifest, entry)
+    result = remove_statistical_outliers(points, k=8, alpha=1.0)
+    flat = points.reshape(-1, 3)
+    valid = np.isfinite(flat).all(1)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat[valid]))
+    _, kept = cloud.remove_statistical_outlier(nb_neighbors=8, std_ratio=1.0)
+    peer = np.zeros(valid.sum(), bool)
+    peer[kept] = True
+    ours = result.keep.reshape(-1)[valid]
+    assert np.mean(ours == peer) > 0.9
+
+
+def test_a_lone_spike_goes_and_a_plane_stays():
+    rows, cols = np.mgrid[0:40, 0:60]
+    points = np.stack([cols * 0.1, rows * 0.1, np.zeros_like(rows, dtype=float)], -1).astype(float)
+    points[:, :, 2] += np.random.default_rng(0).normal(0, 0.002, rows.shape)
+    points[20, 30, 2] = 2.0
+    points[5, 5] = np.nan
+    result = remove_statistical_outliers(points, k=8, alpha=2.0)
+    assert not result.keep[20, 30]
+    assert not result.keep[5, 5]
+    assert result.keep.sum() >= 40 * 60 - 2 - 40  # only the spike, the hole and few of their neighbours
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [({"k": 0}, "k must be at least 1"), ({"alpha": 0.0}, "alpha must be positive"),
+     ({"k": 30, "window_rows": 1, "window_cols": 1}, "holds fewer than k = 30")],
+)
+def test_bad_arguments(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        remove_statistical_outliers(np.zeros((4, 4, 3)), **kwargs)
+    with pytest.raises(ValueError, match=r"shape \(profiles, columns, 3\)"):
+        remove_statistical_outliers(np.zeros((4, 3)))
