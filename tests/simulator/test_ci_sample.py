@@ -17,6 +17,7 @@ from simulator.coverage import spread_off_line_mm
 from simulator.preview import project_to_pass
 from simulator.scanner import fan_directions
 from simulator.transforms import apply
+from tasks.ingest import profile_points
 
 
 @pytest.fixture(scope="module")
@@ -169,8 +170,7 @@ def test_reported_points_lie_on_the_true_surface(ci_sample, manifest, truth, tru
         data = read_pass(ci_sample / entry.file)
         tp = truth_passes[entry.pass_id]
         T_spec_world = np.linalg.inv(np.array(truth.T_world_specimen[setup]))
-        local = np.stack([data.x_mm, np.zeros_like(data.x_mm), data.z_mm], -1).astype(np.float64)
-        world = np.einsum("nij,nkj->nki", tp.T_world_sensor[:, :3, :3], local) + tp.T_world_sensor[:, None, :3, 3]
+        world = profile_points(data.x_mm, data.z_mm, tp.T_world_sensor)
         on_steel = tp.material == Material.STEEL
         scene = o3d.t.geometry.RaycastingScene()
         scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(mesh))

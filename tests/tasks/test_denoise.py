@@ -11,13 +11,12 @@ from data_catalog.passes import read_pass
 from data_catalog.truth import read_truth_pass
 from schemas.truth import PointLabel
 from tasks.denoise import remove_statistical_outliers
+from tasks.ingest import profile_points
 
 
 def _world_points(sample, manifest, entry):
     data = read_pass(sample / entry.file, pass_id=entry.pass_id)
-    T = data.T_world_flange @ np.array(manifest.scanner.T_flange_sensor)
-    local = np.stack([data.x_mm, np.zeros_like(data.x_mm), data.z_mm], -1).astype(np.float64)
-    return np.einsum("nij,nkj->nki", T[:, :3, :3], local) + T[:, None, :3, 3]
+    return profile_points(data.x_mm, data.z_mm, data.T_world_flange @ np.array(manifest.scanner.T_flange_sensor))
 
 
 def test_recovers_true_outliers_on_the_ci_sample(ci_sample):
