@@ -1,0 +1,191 @@
+"""Sticker targets: circles in a pass's intensity image, refined to 3-D centres.
+
+1. The intensity grid (profiles x columns) is resampled to square pixels of the pass's own
+   point spacing and searched with OpenCV's Hough transform for circles of about the sticker's
+   radius (the paper's method).
+2. Each circle is refined in 3-D with the organized points (the pixel -> 3-D "dictionary"): the
+   sticker's bright points give its plane; the sticker's edge is located to sub-pixel precision
+   where the intensity crosses halfway between sticker and steel on each bright/dark grid edge;
+   a circle of the known radius is fitted to those edge points in the plane (least squares).
+3. A quality figure per target: edge-fit RMS, the share of the rim that was seen, the radius a
+   free fit finds. Circles cut by the pass border, shadows or glare fail these checks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+
+__all__ = ["Target", "TargetDetection", "detect_targets"]
+
+_RIM_BINS = 24
+
+
+@dataclass(frozen=True)
+class Target:
+    """A sticker's centre on its top surface, in the frame of the input points (mm)."""
+
+    centre_mm: np.ndarray  # (3,)
+    normal: np.ndarray  # (3,) unit, toward the sensor side
+    pixel: tuple[float, float]  # (profile, column) of the Hough circle
+    rms_mm: float  # edge points' distance to the fitted circle
+    rim_coverage: float  # share of the rim's angular bins holding edge points
+    free_radius_mm: float  # radius of an unconstrained circle fit
+    n_edge_points: int
+
+
+@dataclass(frozen=True)
+class TargetDetection:
+    targets: list[Target]
+    n_circles: int  # Hough candidates before refinement
+    rejected: dict[str, int]  # reason -> count
+    pixel_mm: float  # square pixel size the search ran at
+
+
+def _spacing(points: np.ndarray, axis: int) -> float:
+    d = np.linalg.norm(np.diff(points, axis=axis), axis=-1)
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if d.size else float("nan")
+
+
+def _threshold(intensity: np.ndarray) -> float:
+    values = intensity[intensity > 0]
+    if values.size == 0:
+        return float("inf")
+    img = np.clip(values / 4, 0, 255).astype(np.uint8).reshape(-1, 1)
+    t, _ = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return float(t) * 4
+
+
+def _plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    c = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - c, full_matrices=False)
+    return c, vt[2]
+
+
+def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: float,
+                 window: tuple[slice, slice]) -> np.ndarray:
+    """Sub-pixel edge points where bright and dark grid neighbours meet inside ``window``."""
+    I = intensity[window].astype(np.float64)
+    P = points[window]
+    B = bright[window]
+    valid = np.isfinite(P).all(axis=-1) & (I > 0)
+    out = []
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(None, -1), slice(1, None)
+        a, b = tuple(a), tuple(b)
+        pair = valid[a] & valid[b] & (B[a] != B[b])
+        if not pair.any():
+            continue
+        ia, ib = I[a][pair], I[b][pair]
+        pa, pb = P[a][pair], P[b][pair]
+        f = np.clip((ia - level) / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
+        out.append(pa + f[:, None] * (pb - pa))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float, float]:
+    """Centre (2,), radius and RMS of a circle fit in the plane; radius fixed when given."""
+    A = np.column_stack([2 * uv, np.ones(len(uv))])
+    sol, *_ = np.linalg.lstsq(A, (uv**2).sum(axis=1), rcond=None)
+    centre0 = sol[:2]
+    r0 = float(np.sqrt(max(sol[2] + centre0 @ centre0, 1e-12)))
+    if radius is None:
+        fun = lambda q: np.linalg.norm(uv - q[:2], axis=1) - q[2]  # noqa: E731
+        q = least_squares(fun, np.append(centre0, r0)).x
+        centre, r = q[:2], float(q[2])
+    else:
+        fun = lambda q: np.linalg.norm(uv - q, axis=1) - radius  # noqa: E731
+        centre, r = least_squares(fun, centre0, loss="soft_l1", f_scale=0.05).x, radius
+    rms = float(np.sqrt(np.mean((np.linalg.norm(uv - centre, axis=1) - r) ** 2)))
+    return centre, r, rms
+
+
+def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,
+                   sensor_side: np.ndarray | None = None, max_rms_mm: float = 0.08,
+                   min_rim_coverage: float = 0.85, radius_tolerance: float = 0.1) -> TargetDetection:
+    """Find sticker targets in one pass.
+
+    intensity : (profiles, columns) uint16, 0 where nothing was returned.
+    points_mm : (profiles, columns, 3) float, mm, organized points of the same pass (NaN missing).
+    sticker_diameter_mm : the stickers' nominal diameter.
+    sensor_side : (3,) a point on the sensor's side of the surface (e.g. a sensor position), used
+        to orient the normals; default +z.
+    max_rms_mm : largest edge-fit RMS accepted, or 0.45 of the point spacing if that is larger
+        (a point-sampled edge is only known to within one spacing).
+    """
+    intensity = np.asarray(intensity)
+    points = np.asarray(points_mm, dtype=np.float64)
+    if intensity.ndim != 2 or points.shape != intensity.shape + (3,):
+        raise ValueError(f"intensity (profiles, columns) and points (profiles, columns, 3) must match, "
+                         f"got {intensity.shape} and {points.shape}")
+    if not sticker_diameter_mm > 0:
+        raise ValueError(f"sticker_diameter_mm must be positive, got {sticker_diameter_mm}")
+    radius = sticker_diameter_mm / 2
+    row_mm, col_mm = _spacing(points, 0), _spacing(points, 1)
+    rejected = {"rim": 0, "fit": 0, "radius": 0, "points": 0}
+    if not (np.isfinite(row_mm) and np.isfinite(col_mm)):
+        return TargetDetection([], 0, rejected, float("nan"))
+    pixel = max(min(row_mm, col_mm), radius / 40)
+    h, w = intensity.shape
+    size = (max(1, int(round(w * col_mm / pixel))), max(1, int(round(h * row_mm / pixel))))
+    image = cv2.resize(np.clip(intensity / 4, 0, 255).astype(np.uint8), size, interpolation=cv2.INTER_AREA)
+    image = cv2.medianBlur(image, 3)
+    r_px = radius / pixel
+    circles = cv2.HoughCircles(image, cv2.HOUGH_GRADIENT, dp=1, minDist=1.5 * r_px, param1=100, param2=12,
+                               minRadius=max(2, int(0.6 * r_px)), maxRadius=int(np.ceil(1.3 * r_px)))
+    circles = np.zeros((0, 3)) if circles is None else circles[0]
+    side = np.array([0.0, 0.0, 1.0]) if sensor_side is None else np.asarray(sensor_side, dtype=np.float64)
+    targets: list[Target] = []
+    for cx, cy, _ in circles:
+        row, col = cy * pixel / row_mm, cx * pixel / col_mm
+        half_r = int(np.ceil(1.6 * radius / row_mm)) + 1
+        half_c = int(np.ceil(1.6 * radius / col_mm)) + 1
+        window = (slice(max(int(row) - half_r, 0), min(int(row) + half_r + 1, h)),
+                  slice(max(int(col) - half_c, 0), min(int(col) + half_c + 1, w)))
+        level = _threshold(intensity[window])  # sticker vs its own surroundings
+        bright = np.zeros(intensity.shape, bool)
+        bright[window] = intensity[window] >= level
+        inside = bright[window] & np.isfinite(points[window]).all(axis=-1)
+        if np.count_nonzero(inside) < 12:
+            rejected["points"] += 1
+            continue
+        origin, normal = _plane(points[window][inside])
+        if normal @ (side - origin) < 0:
+            normal = -normal
+        edges = _edge_points(intensity, points, bright, level, window)
+        if len(edges) < 12:
+            rejected["points"] += 1
+            continue
+        e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(normal, e1)
+        uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
+        # keep edge points near the rim of the circle suggested by the bright blob
+        near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
+        uv = uv[near]
+        if len(uv) < 12:
+            rejected["points"] += 1
+            continue
+        centre_uv, _, rms = _fit_circle(uv, radius)
+        _, free_r, _ = _fit_circle(uv, None)
+        angles = np.arctan2(uv[:, 1] - centre_uv[1], uv[:, 0] - centre_uv[0])
+        coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
+        if coverage < min_rim_coverage:
+            rejected["rim"] += 1
+            continue
+        if rms > max(max_rms_mm, 0.45 * max(row_mm, col_mm)):  # edges are quantised to the grid
+            rejected["fit"] += 1
+            continue
+        if abs(free_r - radius) > radius_tolerance * radius:
+            rejected["radius"] += 1
+            continue
+        centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+        targets.append(Target(centre_mm=centre, normal=normal, pixel=(float(row), float(col)), rms_mm=rms,
+                              rim_coverage=float(coverage), free_radius_mm=float(free_r), n_edge_points=len(uv)))
+    return TargetDetection(targets=targets, n_circles=len(circles), rejected=rejected, pixel_mm=pixel)
