@@ -86,15 +86,18 @@ class LineScanner:
         material[on_fixture] = Material.FIXTURE
         material[on_specimen] = np.where(scene.specimen_mesh.reflective[tri[on_specimen]],
                                          Material.GROUND, Material.STEEL)
+        # A sticker is a disc on top of the surface: the ray is on it where it crosses the disc's
+        # top plane (one thickness above the surface) within its radius.
+        thickness = scene.specimen_stickers.thickness_mm
+        t_top = t_safe - thickness / np.maximum(cos_l, 0.2)
+        top = origin + t_top[:, None] * d
         sticker = np.full(m * n, NO_STICKER, np.int32)
-        p_spec = apply(scene.T_specimen_world, point)
-        sticker[on_specimen] = scene.specimen_stickers.lookup(p_spec[on_specimen])
-        sticker[on_fixture] = scene.fixture_stickers.lookup(point[on_fixture])
+        sticker[on_specimen] = scene.specimen_stickers.lookup(apply(scene.T_specimen_world, top[on_specimen]))
+        sticker[on_fixture] = scene.fixture_stickers.lookup(top[on_fixture])
         has_sticker = sticker != NO_STICKER
         material[has_sticker & on_specimen] = Material.STICKER
         material[has_sticker & on_fixture] = Material.FIXTURE_STICKER
-        thickness = scene.specimen_stickers.thickness_mm
-        t_surf = t_safe - np.where(has_sticker, thickness / np.maximum(cos_l, 0.2), 0.0)
+        t_surf = np.where(has_sticker, t_top, t_safe)
         point = origin + t_surf[:, None] * d
 
         camera = o + self.camera_offset @ R.transpose(0, 2, 1)  # (m, 3)

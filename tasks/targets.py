@@ -66,6 +66,13 @@ def _plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, vt[2]
 
 
+def _on_plane(points: np.ndarray, origins: np.ndarray, plane_point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Where each point's ray from its sensor origin crosses the plane."""
+    ray = points - origins
+    t = ((plane_point - origins) @ normal) / np.where(np.abs(ray @ normal) > 1e-12, ray @ normal, 1e-12)
+    return origins + t[..., None] * ray
+
+
 def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: float,
                  window: tuple[slice, slice]) -> np.ndarray:
     """Sub-pixel edge points where bright and dark grid neighbours meet inside ``window``."""
@@ -107,15 +114,17 @@ def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float
 
 
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,
-                   sensor_side: np.ndarray | None = None, max_rms_mm: float = 0.08,
+                   sensor_origins_mm: np.ndarray | None = None, max_rms_mm: float = 0.08,
                    min_rim_coverage: float = 0.85, radius_tolerance: float = 0.1) -> TargetDetection:
     """Find sticker targets in one pass.
 
     intensity : (profiles, columns) uint16, 0 where nothing was returned.
     points_mm : (profiles, columns, 3) float, mm, organized points of the same pass (NaN missing).
     sticker_diameter_mm : the stickers' nominal diameter.
-    sensor_side : (3,) a point on the sensor's side of the surface (e.g. a sensor position), used
-        to orient the normals; default +z.
+    sensor_origins_mm : (profiles, 3) the sensor (laser) origin of each profile, same frame. With
+        it, every rim point is taken where its own ray crosses the sticker's plane (the paper is
+        0.1 mm proud of the steel, which matters at oblique views) and normals face the sensor;
+        without it normals face +z.
     max_rms_mm : largest edge-fit RMS accepted, or 0.45 of the point spacing if that is larger
         (a point-sampled edge is only known to within one spacing).
     """
@@ -140,7 +149,9 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
     circles = cv2.HoughCircles(image, cv2.HOUGH_GRADIENT, dp=1, minDist=1.5 * r_px, param1=100, param2=12,
                                minRadius=max(2, int(0.6 * r_px)), maxRadius=int(np.ceil(1.3 * r_px)))
     circles = np.zeros((0, 3)) if circles is None else circles[0]
-    side = np.array([0.0, 0.0, 1.0]) if sensor_side is None else np.asarray(sensor_side, dtype=np.float64)
+    origins = None if sensor_origins_mm is None else np.asarray(sensor_origins_mm, dtype=np.float64)
+    if origins is not None and origins.shape != (intensity.shape[0], 3):
+        raise ValueError(f"sensor_origins_mm must have shape ({intensity.shape[0]}, 3), got {origins.shape}")
     targets: list[Target] = []
     for cx, cy, _ in circles:
         row, col = cy * pixel / row_mm, cx * pixel / col_mm
@@ -148,17 +159,26 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
         half_c = int(np.ceil(1.6 * radius / col_mm)) + 1
         window = (slice(max(int(row) - half_r, 0), min(int(row) + half_r + 1, h)),
                   slice(max(int(col) - half_c, 0), min(int(col) + half_c + 1, w)))
-        level = _threshold(intensity[window])  # sticker vs its own surroundings
+        split = _threshold(intensity[window])  # sticker vs its own surroundings
         bright = np.zeros(intensity.shape, bool)
-        bright[window] = intensity[window] >= level
+        bright[window] = intensity[window] >= split
+        local = intensity[window]
+        # the edge lies where the intensity crosses halfway between the two plateaus
+        level = 0.5 * (np.median(local[local >= split]) + np.median(local[(local < split) & (local > 0)])) \
+            if np.any((local < split) & (local > 0)) else split
         inside = bright[window] & np.isfinite(points[window]).all(axis=-1)
         if np.count_nonzero(inside) < 12:
             rejected["points"] += 1
             continue
         origin, normal = _plane(points[window][inside])
+        side = origins[window[0]].mean(axis=0) if origins is not None else origin + np.array([0.0, 0.0, 1.0])
         if normal @ (side - origin) < 0:
             normal = -normal
-        edges = _edge_points(intensity, points, bright, level, window)
+        grid = points
+        if origins is not None:
+            grid = points.copy()
+            grid[window] = _on_plane(points[window], origins[window[0]][:, None, :], origin, normal)
+        edges = _edge_points(intensity, grid, bright, level, window)
         if len(edges) < 12:
             rejected["points"] += 1
             continue

@@ -1,0 +1,146 @@
+"""From per-pass target centres to registered pass poses: the registration graph stage.
+
+Within each setup, pass pairs are matched by translation (the nominal robot poses are close);
+each setup is solved on its own; the setups' consolidated targets are then matched without any
+pose relation (the specimen was turned by hand), and all passes are solved together. Targets
+seen in both setups lie on the specimen (fixture targets move relative to it between setups).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from tasks.matching import match_by_translation, match_rotation_invariant
+from tasks.registration import RegistrationGraph, RegistrationResult, solve_pass_poses
+
+__all__ = ["PairReport", "PassRegistration", "register_passes"]
+
+
+@dataclass(frozen=True)
+class PairReport:
+    pass_a: int
+    pass_b: int
+    n_common: int  # matched targets
+
+
+@dataclass(frozen=True)
+class PassRegistration:
+    """``T_common_pass`` (n, 4, 4): maps each pass's (coarsely aligned) points into the common
+    frame. ``tracks``: per physical target, its (pass, target index) observations.
+    ``specimen_targets_mm`` (k, 3): consolidated targets seen in more than one setup."""
+
+    T_common_pass: np.ndarray
+    result: RegistrationResult
+    graph: RegistrationGraph
+    pairs: list[PairReport]
+    weak_pairs: list[PairReport]  # overlapping passes with fewer than 3 common targets
+    tracks: list[list[tuple[int, int]]]
+    track_positions_mm: np.ndarray
+    specimen_track: np.ndarray  # (tracks,) bool
+    T_first_setup: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _UnionFind:
+    def __init__(self) -> None:
+        self.parent: dict = {}
+
+    def find(self, x):
+        self.parent.setdefault(x, x)
+        while self.parent[x] != x:
+            self.parent[x] = self.parent[self.parent[x]]
+            x = self.parent[x]
+        return x
+
+    def union(self, a, b) -> None:
+        self.parent[self.find(a)] = self.find(b)
+
+
+def _edges(targets, idx_pairs):
+    ep, pa, pb = [], [], []
+    for i, j, pairs in idx_pairs:
+        for a, b in pairs:
+            ep.append((i, j))
+            pa.append(targets[i][a])
+            pb.append(targets[j][b])
+    return (np.array(ep, int).reshape(-1, 2), np.array(pa, float).reshape(-1, 3), np.array(pb, float).reshape(-1, 3))
+
+
+def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
+                    min_common: int = 3, max_offset_mm: float = 3.0, tolerance_mm: float = 0.3) -> PassRegistration:
+    """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
+    setups: per pass its setup name. The first pass is held fixed."""
+    n = len(targets)
+    if len(setups) != n:
+        raise ValueError("targets and setups must have one entry per pass")
+    names = names or [str(i) for i in range(n)]
+    setup_names = list(dict.fromkeys(setups))
+    matched, weak, reports = [], [], []
+    uf = _UnionFind()
+    for i in range(n):
+        for j in range(i + 1, n):
+            if setups[i] != setups[j] or len(targets[i]) == 0 or len(targets[j]) == 0:
+                continue
+            m = match_by_translation(targets[i], targets[j], max_offset_mm=max_offset_mm, tolerance_mm=tolerance_mm)
+            if len(m.pairs) >= min_common:
+                matched.append((i, j, m.pairs))
+                reports.append(PairReport(i, j, len(m.pairs)))
+                for a, b in m.pairs:
+                    uf.union((i, int(a)), (j, int(b)))
+            elif len(m.pairs) > 0:
+                weak.append(PairReport(i, j, len(m.pairs)))
+    T_initial = np.repeat(np.eye(4)[None], n, axis=0)
+    # 1. each setup on its own
+    for s in setup_names:
+        members = [k for k in range(n) if setups[k] == s]
+        local = {k: q for q, k in enumerate(members)}
+        sub = [(local[i], local[j], p) for i, j, p in matched if i in local and j in local]
+        ep, pa, pb = _edges([targets[k] for k in members], sub)
+        g = RegistrationGraph(len(members), ep, pa, pb, np.repeat(np.eye(4)[None], len(members), axis=0))
+        res = solve_pass_poses(g, fixed=0, names=[names[k] for k in members])
+        T_initial[members] = res.T_common_initial
+    # 2. consolidated targets per setup, then the setups to each other
+    groups: dict = {}
+    for p in range(n):  # every detection is a track, matched ones share theirs
+        for t in range(len(targets[p])):
+            groups.setdefault(uf.find((p, t)), set()).add((p, t))
+    tracks = [sorted(v) for v in groups.values()]
+    positions = np.array([np.mean([T_initial[p, :3, :3] @ targets[p][t] + T_initial[p, :3, 3] for p, t in tr], axis=0)
+                          for tr in tracks]).reshape(-1, 3)
+    track_setup = [setups[tr[0][0]] for tr in tracks]
+    cross = []
+    T_first_setup = {setup_names[0]: np.eye(4)}
+    for s in setup_names[1:]:
+        ta = [k for k, ts in enumerate(track_setup) if ts == setup_names[0]]
+        tb = [k for k, ts in enumerate(track_setup) if ts == s]
+        rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5), min_shared=2)
+        T_first_setup[s] = rm.T_a_b
+        for k in range(n):
+            if setups[k] == s:
+                T_initial[k] = rm.T_a_b @ T_initial[k]
+        for a, b in rm.pairs:
+            cross.append((tracks[ta[a]], tracks[tb[b]]))
+    # 3. everything together, the cross-setup tracks tying the setups
+    ep, pa, pb = _edges(targets, matched)
+    xe, xa, xb = [], [], []
+    specimen = np.zeros(len(tracks), bool)
+    index = {tuple(tr): k for k, tr in enumerate(tracks)}
+    for tr_a, tr_b in cross:
+        specimen[index[tuple(tr_a)]] = specimen[index[tuple(tr_b)]] = True
+        for p, t in tr_a:
+            for q, u in tr_b:
+                xe.append((p, q))
+                xa.append(targets[p][t])
+                xb.append(targets[q][u])
+    if xe:
+        ep = np.concatenate([ep, np.array(xe)])
+        pa = np.concatenate([pa, np.array(xa)])
+        pb = np.concatenate([pb, np.array(xb)])
+    graph = RegistrationGraph(n, ep, pa, pb, T_initial)
+    result = solve_pass_poses(graph, fixed=0, names=names)
+    final = np.array([np.mean([result.T_common_initial[p, :3, :3] @ targets[p][t] + result.T_common_initial[p, :3, 3]
+                               for p, t in tr], axis=0) for tr in tracks]).reshape(-1, 3)
+    return PassRegistration(T_common_pass=result.T_common_initial, result=result, graph=graph, pairs=reports,
+                            weak_pairs=weak, tracks=tracks, track_positions_mm=final, specimen_track=specimen,
+                            T_first_setup=T_first_setup)

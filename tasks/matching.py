@@ -1,0 +1,148 @@
+"""Matching sticker targets between passes.
+
+Within a setup the robot's nominal poses align passes to a few tenths of a millimetre, and the
+paper's two steps apply: (a) a target whose list of distances to the pass's other targets finds
+no counterpart in the other pass is omitted; (b) the remaining candidates are paired by the
+translation that most candidate pairs agree on. Between setups (turned by hand, no pose
+relation) the same distance lists, being rotation invariant, propose correspondences, and the
+rigid transform that the most of them agree on (RANSAC over triples, Kabsch) decides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["PairMatch", "match_by_translation", "RigidMatch", "match_rotation_invariant", "kabsch"]
+
+
+@dataclass(frozen=True)
+class PairMatch:
+    """Index pairs (k, 2) into targets A and B, and the translation B - A they agree on (mm)."""
+
+    pairs: np.ndarray
+    translation_mm: np.ndarray
+    n_omitted_a: int
+    n_omitted_b: int
+
+
+def kabsch(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Least-squares rigid transform (4, 4) mapping src (n, 3) onto dst (n, 3) (Arun 1987)."""
+    src, dst = np.asarray(src, float), np.asarray(dst, float)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
+        raise ValueError(f"kabsch needs two (n >= 3, 3) arrays of equal shape, got {src.shape} and {dst.shape}")
+    cs, cd = src.mean(0), dst.mean(0)
+    U, _, Vt = np.linalg.svd((src - cs).T @ (dst - cd))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = cd - R @ cs
+    return T
+
+
+def _distance_signatures(points: np.ndarray, max_mm: float = np.inf) -> list[np.ndarray]:
+    """Per point, the sorted distances to the other points (those up to ``max_mm``)."""
+    d = np.linalg.norm(points[:, None] - points[None], axis=-1)
+    out = []
+    for i, row in enumerate(d):
+        row = np.delete(row, i)
+        out.append(np.sort(row[row <= max_mm]))
+    return out
+
+
+def _shared_distances(a: np.ndarray, b: np.ndarray, tol: float) -> int:
+    """How many of the sorted distances a find a partner in the sorted distances b within tol."""
+    if a.size == 0 or b.size == 0:
+        return 0
+    pos = np.clip(np.searchsorted(b, a), 1, b.size - 1) if b.size > 1 else np.zeros(a.size, int)
+    best = np.minimum(np.abs(b[pos] - a), np.abs(b[pos - 1] - a)) if b.size > 1 else np.abs(b[0] - a)
+    return int(np.count_nonzero(best <= tol))
+
+
+def match_by_translation(a_mm: np.ndarray, b_mm: np.ndarray, *, max_offset_mm: float = 3.0,
+                         tolerance_mm: float = 0.3, min_shared: int = 2) -> PairMatch:
+    """Pair targets of two coarsely aligned passes (n, 3) and (m, 3), mm, same frame."""
+    a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
+    sig_a, sig_b = _distance_signatures(a), _distance_signatures(b)
+    keep_a = np.array([any(_shared_distances(s, t, tolerance_mm) >= min_shared for t in sig_b) for s in sig_a], bool)
+    keep_b = np.array([any(_shared_distances(t, s, tolerance_mm) >= min_shared for s in sig_a) for t in sig_b], bool)
+    ia, ib = np.flatnonzero(keep_a), np.flatnonzero(keep_b)
+    empty = PairMatch(np.zeros((0, 2), int), np.zeros(3), int((~keep_a).sum()), int((~keep_b).sum()))
+    if ia.size == 0 or ib.size == 0:
+        return empty
+    cand = [(i, j) for i in ia for j in cKDTree(b[ib]).query_ball_point(a[i], max_offset_mm)]
+    cand = [(i, ib[j]) for i, j in cand]
+    if not cand:
+        return empty
+    shifts = np.array([b[j] - a[i] for i, j in cand])
+    votes = (np.linalg.norm(shifts[:, None] - shifts[None], axis=-1) <= tolerance_mm).sum(axis=1)
+    best = shifts[votes == votes.max()].mean(axis=0)
+    agree = np.linalg.norm(shifts - best, axis=1) <= tolerance_mm
+    pairs, used_a, used_b = [], set(), set()
+    for k in np.argsort(np.linalg.norm(shifts - best, axis=1)):
+        i, j = cand[k]
+        if agree[k] and i not in used_a and j not in used_b:
+            pairs.append((i, j))
+            used_a.add(i)
+            used_b.add(j)
+    pairs = np.array(sorted(pairs), int).reshape(-1, 2)
+    translation = (b[pairs[:, 1]] - a[pairs[:, 0]]).mean(axis=0) if len(pairs) else np.zeros(3)
+    return PairMatch(pairs, translation, int((~keep_a).sum()), int((~keep_b).sum()))
+
+
+@dataclass(frozen=True)
+class RigidMatch:
+    """Index pairs (k, 2) into A and B and the transform T_a_b (4, 4) mapping B onto A."""
+
+    pairs: np.ndarray
+    T_a_b: np.ndarray
+    rms_mm: float
+
+
+def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm: float = 0.2,
+                             min_shared: int = 2, neighbourhood_mm: float = 120.0, per_target: int = 3,
+                             iterations: int = 4000, seed: int = 0) -> RigidMatch:
+    """Match two target sets (n, 3), (m, 3) with no pose relation between them.
+
+    Each target's distances to its neighbours (up to ``neighbourhood_mm``) are compared; every
+    target keeps its ``per_target`` best-scoring partners as candidates; random triples of
+    candidates propose rigid transforms (Kabsch) and the one most targets agree with wins.
+    """
+    a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
+    sig_a, sig_b = _distance_signatures(a, neighbourhood_mm), _distance_signatures(b, neighbourhood_mm)
+    score = np.array([[_shared_distances(s, t, tolerance_mm) for t in sig_b] for s in sig_a]).reshape(len(a), len(b))
+    cand = []
+    for i in range(len(a)):
+        for j in np.argsort(-score[i], kind="stable")[:per_target]:
+            if score[i, j] >= min_shared:
+                cand.append((i, j))
+    cand = np.array(cand, int).reshape(-1, 2)
+    if len(cand) < 3:
+        raise ValueError(f"fewer than 3 candidate correspondences between the target sets ({len(a)} and {len(b)} "
+                         f"targets); they share too few stickers")
+    rng = np.random.default_rng(seed)
+    tree_a = cKDTree(a)
+    best_pairs, best_T = np.zeros((0, 2), int), np.eye(4)
+    for _ in range(iterations):
+        pick = cand[rng.choice(len(cand), 3, replace=False)]
+        if len(set(pick[:, 0])) < 3 or len(set(pick[:, 1])) < 3:
+            continue
+        src, dst = b[pick[:, 1]], a[pick[:, 0]]
+        if np.linalg.matrix_rank(src - src.mean(0), tol=1.0) < 2:
+            continue
+        T = kabsch(src, dst)
+        moved = b @ T[:3, :3].T + T[:3, 3]
+        dist, idx = tree_a.query(moved, distance_upper_bound=tolerance_mm)
+        inl = np.flatnonzero(np.isfinite(dist))
+        if len(inl) > len(best_pairs):
+            best_pairs = np.column_stack([idx[inl], inl])
+            best_T = T
+    if len(best_pairs) < 3:
+        raise ValueError("no rigid transform brings 3 targets of the two sets together")
+    T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])
+    moved = b[best_pairs[:, 1]] @ T[:3, :3].T + T[:3, 3]
+    rms = float(np.sqrt(np.mean(np.sum((moved - a[best_pairs[:, 0]]) ** 2, axis=1))))
+    return RigidMatch(pairs=best_pairs[np.argsort(best_pairs[:, 0])], T_a_b=T, rms_mm=rms)
