@@ -1,0 +1,87 @@
+"""The stage store: content-addressed, atomic storage of every stage's outputs.
+
+Layout under a run folder::
+
+    stages/<stage>/<cache_key>/          outputs of one stage run (zarr stores, JSON, meshes)
+    stages/<stage>/<cache_key>/record.json   its provenance record, written last
+
+The cache key is the sha256 of the stage name, its inputs' hashes, its parameters and its code
+version: a rerun finds the key and runs nothing; a changed parameter changes the key of that
+stage and, through the output hashes, of every stage downstream.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zarr
+
+from data_catalog.atomic import atomic_write_text
+from data_catalog.hashing import sha256_tree
+from schemas.provenance import StageRecord
+
+__all__ = ["StageStore", "cache_key", "save_arrays", "load_arrays", "RECORD_NAME"]
+
+RECORD_NAME = "record.json"
+
+
+def cache_key(stage: str, inputs: dict[str, str], parameters: dict[str, Any], code_version: str) -> str:
+    canonical = json.dumps({"stage": stage, "inputs": inputs, "parameters": parameters, "code": code_version},
+                           sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(canonical.encode("utf-8")).hexdigest()
+
+
+def save_arrays(path: Path, *, chunk_rows: int = 65536, **arrays: np.ndarray) -> None:
+    """A zarr v3 group of arrays, each chunked along its first axis."""
+    group = zarr.open_group(str(path), mode="w-")
+    for name, value in arrays.items():
+        value = np.asarray(value)
+        chunks = (max(1, min(chunk_rows, value.shape[0])),) + value.shape[1:] if value.ndim else ()
+        array = group.create_array(name, shape=value.shape, chunks=chunks or None, dtype=value.dtype,
+                                   config={"write_empty_chunks": True})
+        array[...] = value
+
+
+def load_arrays(path: Path, *names: str) -> dict[str, np.ndarray]:
+    group = zarr.open_group(str(path), mode="r")
+    return {name: np.asarray(group[name][...]) for name in (names or list(group.array_keys()))}
+
+
+class StageStore:
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    def path(self, stage: str, key: str) -> Path:
+        return self.root / "stages" / stage / key
+
+    def lookup(self, stage: str, key: str) -> StageRecord | None:
+        """The record of a finished run with this key, or None. A folder without its record (a
+        run killed before the end) does not count."""
+        record = self.path(stage, key) / RECORD_NAME
+        if not record.is_file():
+            return None
+        return StageRecord.model_validate_json(record.read_text())
+
+    def build_dir(self, stage: str) -> Path:
+        parent = self.root / "stages" / stage
+        parent.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=".build-", dir=parent))
+
+    def commit(self, build: Path, record: StageRecord) -> Path:
+        """Hash the outputs, write the record, move the build folder into place atomically."""
+        final = self.path(record.stage, record.cache_key)
+        outputs = {name: sha256_tree(build / name) for name in record.outputs}
+        record = record.model_copy(update={"outputs": outputs})
+        atomic_write_text(build / RECORD_NAME, record.model_dump_json(indent=1) + "\n")
+        if final.exists():  # an identical run finished first (same key): keep the one there
+            shutil.rmtree(build, ignore_errors=True)
+        else:
+            os.rename(build, final)
+        return final

@@ -1,0 +1,235 @@
+"""Stage bodies: read inputs from the store, call ``tasks``, write outputs to the store, return a
+small reference. Prefect wraps these in ``flows.reconstruct``; they hold no numerics of their own.
+
+A reference is a plain dict: ``{"stage", "key", "path", "outputs": {name: sha256}, "cached"}``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import socket
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from data_catalog.atomic import atomic_write_text
+from data_catalog.hashing import sha256_tree
+from data_catalog.passes import read_pass
+from data_catalog.stages import StageStore, cache_key, load_arrays, save_arrays
+from schemas.manifest import PassEntry, SampleManifest
+from schemas.provenance import StageRecord
+from schemas.reconstruction import ReconstructionConfig
+
+__all__ = ["Ref", "pass_hash", "cloud_stage", "targets_stage", "register_stage", "merge_stage",
+           "segment_stage", "surface_stage", "STAGE_MODULES"]
+
+Ref = dict[str, Any]
+
+STAGE_MODULES = {
+    "cloud": ("tasks.ingest", "tasks.denoise"),
+    "targets": ("tasks.ingest", "tasks.targets"),
+    "register": ("tasks.matching", "tasks.registration", "tasks.graph"),
+    "merge": ("tasks.merge",),
+    "segment": ("tasks.segment",),
+    "surface": ("tasks.surface",),
+}
+
+
+def _code_version(stage: str, body: Callable) -> str:
+    """Hash of the stage's task modules and of its body: changed code recomputes the stage."""
+    import importlib
+
+    digest = hashlib.sha256(inspect.getsource(body).encode())
+    for name in STAGE_MODULES[stage]:
+        digest.update(inspect.getsource(importlib.import_module(name)).encode())
+    return digest.hexdigest()[:16]
+
+
+def pass_hash(sample_dir: Path, entry: PassEntry) -> str:
+    """The pass file's content hash; checked against the manifest's when it carries one."""
+    actual = sha256_tree(Path(sample_dir) / entry.file)
+    if entry.content_sha256 is not None and actual != entry.content_sha256:
+        raise ValueError(f"pass {entry.pass_id}: {entry.file} does not match the manifest's content_sha256 "
+                         f"(file changed or truncated)")
+    return actual
+
+
+def _run(store: StageStore, *, sample_id: str, stage: str, item: str | None, inputs: dict[str, str],
+         parameters: dict[str, Any], body: Callable[[Path], dict[str, Any]], outputs: list[str],
+         code_of: Callable) -> Ref:
+    key = cache_key(stage if item is None else f"{stage}/{item}", inputs, parameters, _code_version(stage, code_of))
+    found = store.lookup(stage, key)
+    if found is not None:
+        return {"stage": stage, "key": key, "path": str(store.path(stage, key)), "outputs": found.outputs,
+                "cached": True, "metrics": found.metrics}
+    build = store.build_dir(stage)
+    started = datetime.now(timezone.utc)
+    t0 = time.perf_counter()
+    metrics = body(build)
+    metrics["seconds"] = round(time.perf_counter() - t0, 3)
+    record = StageRecord(sample_id=sample_id, stage=stage, item=item, cache_key=key, inputs=inputs,
+                         outputs={name: "" for name in outputs}, parameters=parameters,
+                         code_version=_code_version(stage, code_of), host=socket.gethostname(),
+                         started=started, finished=datetime.now(timezone.utc), metrics=metrics)
+    final = store.commit(build, record)
+    committed = store.lookup(stage, key)
+    return {"stage": stage, "key": key, "path": str(final), "outputs": committed.outputs, "cached": False,
+            "metrics": committed.metrics}
+
+
+def _sensor_poses(data, manifest: SampleManifest, entry: PassEntry) -> np.ndarray:
+    """T_world_sensor per profile: the logged flange poses, or else the nominal linear motion."""
+    T_flange_sensor = np.asarray(manifest.scanner.T_flange_sensor)
+    if data.T_world_flange is not None:
+        if not np.isfinite(data.T_world_flange).all():
+            raise ValueError(f"pass {entry.pass_id}: T_world_flange holds NaN or inf")
+        return data.T_world_flange @ T_flange_sensor
+    motion = entry.nominal_motion
+    s = data.timestamp_s * motion.speed_mm_s
+    T = np.repeat(np.asarray(motion.T_world_flange_start)[None], len(s), axis=0)
+    T[:, :3, 3] += s[:, None] * np.asarray(motion.direction_world)[None]
+    return T @ T_flange_sensor
+
+
+def cloud_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry: PassEntry,
+                config: ReconstructionConfig) -> Ref:
+    """Ingest one pass (coarse alignment by the robot's poses) and remove its outliers."""
+    from tasks.denoise import remove_statistical_outliers
+    from tasks.ingest import profile_points
+
+    def body(out: Path) -> dict[str, Any]:
+        data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+        T = _sensor_poses(data, manifest, entry)
+        points = profile_points(data.x_mm, data.z_mm, T)
+        result = remove_statistical_outliers(points, **config.denoise.model_dump())
+        kept = np.where(result.keep[..., None], points, np.nan).astype(np.float32)
+        save_arrays(out / "cloud.zarr", points=kept, sensor_origins=T[:, :3, 3])
+        n_in = int(np.isfinite(points).all(axis=-1).sum())
+        return {"points_in": n_in, "points_out": int(result.keep.sum()), "removed": result.n_removed,
+                "threshold_mm": result.threshold_mm}
+
+    return _run(store, sample_id=manifest.sample_id, stage="cloud", item=entry.pass_id,
+                inputs={"pass": pass_hash(sample_dir, entry)}, parameters=config.denoise.model_dump(),
+                body=body, outputs=["cloud.zarr"], code_of=cloud_stage)
+
+
+def targets_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry: PassEntry,
+                  config: ReconstructionConfig) -> Ref:
+    """Detect the pass's sticker targets (3-D centres, coarse world frame)."""
+    from tasks.ingest import profile_points
+    from tasks.targets import detect_targets
+
+    def body(out: Path) -> dict[str, Any]:
+        data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+        T = _sensor_poses(data, manifest, entry)
+        points = profile_points(data.x_mm, data.z_mm, T)
+        found = detect_targets(data.intensity, points, sticker_diameter_mm=manifest.sticker_diameter_mm,
+                               sensor_origins_mm=T[:, :3, 3], **config.targets.model_dump())
+        k = len(found.targets)
+        save_arrays(out / "targets.zarr",
+                    centres=np.array([t.centre_mm for t in found.targets]).reshape(k, 3),
+                    normals=np.array([t.normal for t in found.targets]).reshape(k, 3),
+                    rms_mm=np.array([t.rms_mm for t in found.targets]).reshape(k),
+                    rim_coverage=np.array([t.rim_coverage for t in found.targets]).reshape(k),
+                    pixel=np.array([t.pixel for t in found.targets]).reshape(k, 2))
+        if k == 0:
+            raise ValueError(f"pass {entry.pass_id}: no sticker targets found ({found.n_circles} circle candidates, "
+                             f"rejected {found.rejected}); the pass cannot be registered")
+        return {"targets": k, "circles": found.n_circles, "rejected": found.rejected,
+                "median_rms_mm": float(np.median([t.rms_mm for t in found.targets]))}
+
+    return _run(store, sample_id=manifest.sample_id, stage="targets", item=entry.pass_id,
+                inputs={"pass": pass_hash(sample_dir, entry)}, parameters=config.targets.model_dump(),
+                body=body, outputs=["targets.zarr"], code_of=targets_stage)
+
+
+def register_stage(store: StageStore, manifest: SampleManifest, target_refs: list[Ref],
+                   config: ReconstructionConfig) -> Ref:
+    """Match targets between passes and solve all pass poses together."""
+    from tasks.graph import register_passes
+
+    passes = manifest.passes()
+    names = [e.pass_id for _, e in passes]
+
+    def body(out: Path) -> dict[str, Any]:
+        targets = [load_arrays(Path(r["path"]) / "targets.zarr", "centres")["centres"] for r in target_refs]
+        rc = config.registration
+        reg = register_passes(targets, [s for s, _ in passes], names=names, min_common=rc.min_common_targets,
+                              max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)
+        save_arrays(out / "registration.zarr", T_common_pass=reg.T_common_pass, residual_mm=reg.result.residual_mm,
+                    inlier=reg.result.inlier, edge_passes=reg.graph.edge_passes,
+                    track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track)
+        res = reg.result.residual_mm[reg.result.inlier]
+        summary = {
+            "pairs": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common} for p in reg.pairs],
+            "pairs_below_min_common": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common}
+                                       for p in reg.weak_pairs],
+            "pass_rms_mm": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
+        }
+        atomic_write_text(out / "registration.json", json.dumps(summary, indent=1) + "\n")
+        return {"target_pairs": int(reg.result.inlier.sum()), "outlier_pairs": int((~reg.result.inlier).sum()),
+                "residual_median_mm": float(np.median(res)), "residual_max_mm": float(res.max()),
+                "specimen_targets": int(reg.specimen_track.sum()), "weak_pairs": len(reg.weak_pairs)}
+
+    inputs = {f"targets/{n}": r["outputs"]["targets.zarr"] for n, r in zip(names, target_refs)}
+    return _run(store, sample_id=manifest.sample_id, stage="register", item=None, inputs=inputs,
+                parameters=config.registration.model_dump(), body=body,
+                outputs=["registration.zarr", "registration.json"], code_of=register_stage)
+
+
+def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Ref], register_ref: Ref,
+                config: ReconstructionConfig) -> Ref:
+    """Bring every pass into the common frame and merge them with the box-grid filter."""
+    from tasks.merge import merge_box_grid
+
+    names = [e.pass_id for _, e in manifest.passes()]
+
+    def body(out: Path) -> dict[str, Any]:
+        T_all = load_arrays(Path(register_ref["path"]) / "registration.zarr", "T_common_pass")["T_common_pass"]
+        points, sensors = [], []
+        for ref, T in zip(cloud_refs, T_all):
+            cloud = load_arrays(Path(ref["path"]) / "cloud.zarr", "points", "sensor_origins")
+            grid = cloud["points"].astype(np.float64)
+            valid = np.isfinite(grid).all(axis=-1)
+            rows = np.nonzero(valid)[0]
+            p = grid[valid]
+            points.append(p @ T[:3, :3].T + T[:3, 3])
+            sensors.append(cloud["sensor_origins"][rows] @ T[:3, :3].T + T[:3, 3])
+        result = merge_box_grid(np.concatenate(points), cell_mm=config.merge.cell_mm,
+                                sensor_positions_mm=np.concatenate(sensors))
+        save_arrays(out / "merged.zarr", points=result.points_mm, sensor_positions=result.sensor_positions_mm,
+                    counts=result.counts)
+        return {"points_in": int(sum(len(p) for p in points)), "points_out": result.n_points}
+
+    inputs = {f"cloud/{n}": r["outputs"]["cloud.zarr"] for n, r in zip(names, cloud_refs)}
+    inputs["registration"] = register_ref["outputs"]["registration.zarr"]
+    return _run(store, sample_id=manifest.sample_id, stage="merge", item=None, inputs=inputs,
+                parameters=config.merge.model_dump(), body=body, outputs=["merged.zarr"], code_of=merge_stage)
+
+
+def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, register_ref: Ref,
+                  config: ReconstructionConfig) -> Ref:
+    """Keep the connected components that carry the specimen's targets; the fixture goes."""
+    from tasks.segment import keep_specimen_components
+
+    def body(out: Path) -> dict[str, Any]:
+        merged = load_arrays(Path(merge_ref["path"]) / "merged.zarr")
+        reg = load_arrays(Path(register_ref["path"]) / "registration.zarr", "track_positions_mm", "specimen_track")
+        anchors = reg["track_positions_mm"][reg["specimen_track"]]
+        if len(anchors) == 0:
+            raise ValueError("no target was seen in more than one setup: the specimen cannot be told from the fixture")
+        result = keep_specimen_components(merged["points"], link_mm=config.segment.link_mm, target_points_mm=anchors)
+        keep = result.keep
+        save_arrays(out / "specimen.zarr", points=merged["points"][keep], sensor_positions=merged["sensor_positions"][keep])
+        return {"points_in": int(len(keep)), "points_out": int(keep.sum()), "components": int(result.n_components),
+                "kept_components": int(len(result.kept_labels))}
+
+    inputs = {"merged": merge_ref["outputs"]["merged.zarr"], "registration": register_ref["outputs"]["registration.zarr"]}
+    return _run(store, sample_id=manifest.sample_id, stage="segment", item=None, inputs=inputs,
+                parameters=config.segment.model_dump(), body=body, outputs=["specimen.zarr"], code_of=segment_stage)

@@ -1,0 +1,59 @@
+"""Configuration of the reconstruction: one model per stage, units in the names, bounds checked.
+Loaded from YAML over the defaults; the config actually used is written next to the results."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from schemas.common import StrictModel
+
+__all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "MergeConfig", "SegmentConfig",
+           "SurfaceConfig", "ReconstructionConfig"]
+
+
+class DenoiseConfig(StrictModel):
+    """Statistical outlier removal on the organized pass (Rusu 2008)."""
+
+    k: int = Field(default=8, ge=1, le=100)
+    alpha: float = Field(default=1.0, gt=0, le=10)
+    window_rows: int = Field(default=2, ge=0, le=10)
+    window_cols: int = Field(default=2, ge=0, le=20)
+
+
+class TargetsConfig(StrictModel):
+    max_rms_mm: float = Field(default=0.08, gt=0, le=1)
+    min_rim_coverage: float = Field(default=0.85, gt=0, le=1)
+    radius_tolerance: float = Field(default=0.1, gt=0, lt=1)
+
+
+class RegistrationConfig(StrictModel):
+    min_common_targets: int = Field(default=3, ge=3)
+    max_offset_mm: float = Field(default=3.0, gt=0, le=100, description="coarse alignment error bound")
+    tolerance_mm: float = Field(default=0.3, gt=0, le=5)
+
+
+class MergeConfig(StrictModel):
+    cell_mm: float = Field(default=0.1, gt=0, le=10, description="box-grid filter cell (paper: 0.1 mm)")
+
+
+class SegmentConfig(StrictModel):
+    link_mm: float = Field(default=1.0, gt=0, le=50, description="points closer than this are connected")
+
+
+class SurfaceConfig(StrictModel):
+    normals_k: int = Field(default=100, ge=3, le=1000, description="neighbours per normal (paper: 100)")
+    poisson_depth: int = Field(default=10, ge=4, le=14)
+    samples_per_node: float = Field(default=1.5, gt=0, le=50)
+    point_weight: float = Field(default=4.0, ge=0, le=100)
+
+
+class ReconstructionConfig(StrictModel):
+    schema_version: Literal["1.0"] = "1.0"
+    denoise: DenoiseConfig = DenoiseConfig()
+    targets: TargetsConfig = TargetsConfig()
+    registration: RegistrationConfig = RegistrationConfig()
+    merge: MergeConfig = MergeConfig()
+    segment: SegmentConfig = SegmentConfig()
+    surface: SurfaceConfig = SurfaceConfig()
