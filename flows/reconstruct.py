@@ -1,0 +1,127 @@
+"""The ``reconstruct_sample`` Prefect flow: per-pass denoising and target detection in parallel,
+then the registration graph, merging, segmentation, meshing, export and the report.
+
+Tasks are thin: they call ``flows.stages`` and pass small references (store path + content
+hash), never point arrays. IO failures are retried with back-off; bad input is not.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+from prefect import flow, get_run_logger, task, unmapped
+from prefect.cache_policies import NO_CACHE
+from prefect.task_runners import ThreadPoolTaskRunner
+from pydantic import ValidationError
+
+from data_catalog.atomic import atomic_write_text
+from data_catalog.manifests import load_manifest
+from data_catalog.stages import StageStore
+from flows import stages
+from schemas.manifest import SampleManifest
+from schemas.reconstruction import ReconstructionConfig
+
+__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed"]
+
+
+class ReconstructionFailed(RuntimeError):
+    """A stage failed; the message names the passes or the stage and why."""
+
+
+def load_config(path: str | Path | None) -> ReconstructionConfig:
+    """The reconstruction config: defaults, overridden by a YAML file's fields."""
+    if path is None:
+        return ReconstructionConfig()
+    try:
+        raw = yaml.safe_load(Path(path).read_text()) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read the reconstruction config ({exc})") from None
+    try:
+        return ReconstructionConfig.model_validate(raw)
+    except ValidationError as exc:
+        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"{path}: invalid reconstruction config:\n{lines}") from None
+
+
+def _io_failure(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's retry hook signature
+    """Retry only what may pass on a second try: IO errors, not bad input."""
+    try:
+        state.result()
+    except OSError:
+        return True
+    except Exception:  # noqa: BLE001 - anything else is final
+        return False
+    return False
+
+
+_TASK = dict(cache_policy=NO_CACHE, retries=2, retry_delay_seconds=[1, 4], retry_condition_fn=_io_failure)
+
+
+@task(name="denoise-pass", task_run_name="denoise {entry.pass_id}", **_TASK)
+def denoise_pass(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry, config) -> stages.Ref:
+    return stages.cloud_stage(store, sample_dir, manifest, entry, config)
+
+
+@task(name="detect-targets", task_run_name="targets {entry.pass_id}", **_TASK)
+def detect_pass_targets(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry, config) -> stages.Ref:
+    return stages.targets_stage(store, sample_dir, manifest, entry, config)
+
+
+@task(name="registration-graph", **_TASK)
+def register(store, manifest, target_refs, config) -> stages.Ref:
+    return stages.register_stage(store, manifest, target_refs, config)
+
+
+@task(name="merge", **_TASK)
+def merge(store, manifest, cloud_refs, register_ref, config) -> stages.Ref:
+    return stages.merge_stage(store, manifest, cloud_refs, register_ref, config)
+
+
+@task(name="remove-unwanted-objects", **_TASK)
+def segment(store, manifest, merge_ref, register_ref, config) -> stages.Ref:
+    return stages.segment_stage(store, manifest, merge_ref, register_ref, config)
+
+
+def _gather(futures, what: str) -> list[stages.Ref]:
+    """Results of mapped per-pass tasks; every failure is named, not just the first."""
+    results, failures = [], []
+    for future in futures:
+        try:
+            results.append(future.result())
+        except Exception as exc:  # noqa: BLE001 - collected and re-raised below
+            failures.append(str(exc))
+    if failures:
+        raise ReconstructionFailed(f"{what} failed for {len(failures)} pass(es):\n  " + "\n  ".join(failures))
+    return results
+
+
+@flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
+def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None) -> dict[str, Any]:
+    """Reconstruct one sample folder (manifest + passes) into ``out_dir``."""
+    log = get_run_logger()
+    sample = Path(sample_dir)
+    manifest = load_manifest(sample)
+    config = load_config(config_path)
+    store = StageStore(Path(out_dir))
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    atomic_write_text(Path(out_dir) / "config.json", config.model_dump_json(indent=2) + "\n")
+    entries = [e for _, e in manifest.passes()]
+    log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
+    clouds = denoise_pass.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
+    targets = detect_pass_targets.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
+    cloud_refs = _gather(clouds, "denoising")
+    target_refs = _gather(targets, "target detection")
+    register_ref = register.submit(store, manifest, target_refs, config).result()
+    log.info("registration: %s", register_ref["metrics"])
+    merge_ref = merge.submit(store, manifest, cloud_refs, register_ref, config).result()
+    segment_ref = segment.submit(store, manifest, merge_ref, register_ref, config).result()
+    refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "merge": merge_ref,
+            "segment": segment_ref}
+    summary = {"sample_id": manifest.sample_id,
+               "stages": {k: ([r["key"] for r in v] if isinstance(v, list) else v["key"]) for k, v in refs.items()},
+               "cached": {k: (all(r["cached"] for r in v) if isinstance(v, list) else v["cached"]) for k, v in refs.items()}}
+    atomic_write_text(Path(out_dir) / "summary.json", json.dumps(summary, indent=1) + "\n")
+    return summary
