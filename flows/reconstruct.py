@@ -85,6 +85,51 @@ def segment(store, manifest, merge_ref, register_ref, config) -> stages.Ref:
     return stages.segment_stage(store, manifest, merge_ref, register_ref, config)
 
 
+@task(name="mesh", **_TASK)
+def mesh(store, manifest, segment_ref, config) -> stages.Ref:
+    return stages.surface_stage(store, manifest, segment_ref, config)
+
+
+@task(name="export", **_TASK)
+def export(store, manifest, surface_ref) -> stages.Ref:
+    return stages.export_stage(store, manifest, surface_ref)
+
+
+def _publish(out_dir: Path, manifest: SampleManifest, refs: dict[str, Any], config: ReconstructionConfig) -> dict:
+    """Copy the deliverables into ``results/`` and write the sample's report."""
+    import shutil
+
+    from data_catalog.hashing import sha256_file
+
+    results = out_dir / "results"
+    results.mkdir(exist_ok=True)
+    outputs = {}
+    for name in refs["export"]["outputs"]:
+        tmp = results / f".{name}.partial"
+        shutil.copyfile(Path(refs["export"]["path"]) / name, tmp)
+        tmp.replace(results / name)
+        outputs[name] = {"path": str(results / name), "sha256": sha256_file(results / name)}
+    registration = json.loads((Path(refs["register"]["path"]) / "registration.json").read_text())
+
+    def metrics(ref):
+        return [dict(r["metrics"], cached=r["cached"]) for r in ref] if isinstance(ref, list) else \
+            dict(ref["metrics"], cached=ref["cached"])
+
+    report = {
+        "sample_id": manifest.sample_id,
+        "passes": [e.pass_id for _, e in manifest.passes()],
+        "config": config.model_dump(),
+        "stages": {name: metrics(ref) for name, ref in refs.items()},
+        "registration": registration,
+        "mesh": refs["mesh"]["metrics"],
+        "outputs": outputs,
+        "stage_keys": {k: ([r["key"] for r in v] if isinstance(v, list) else v["key"]) for k, v in refs.items()},
+        "cached": {k: (all(r["cached"] for r in v) if isinstance(v, list) else v["cached"]) for k, v in refs.items()},
+    }
+    atomic_write_text(results / "report.json", json.dumps(report, indent=1, default=str) + "\n")
+    return report
+
+
 def _gather(futures, what: str) -> list[stages.Ref]:
     """Results of mapped per-pass tasks; every failure is named, not just the first."""
     results, failures = [], []
@@ -118,10 +163,10 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     log.info("registration: %s", register_ref["metrics"])
     merge_ref = merge.submit(store, manifest, cloud_refs, register_ref, config).result()
     segment_ref = segment.submit(store, manifest, merge_ref, register_ref, config).result()
+    log.info("specimen: %s", segment_ref["metrics"])
+    mesh_ref = mesh.submit(store, manifest, segment_ref, config).result()
+    log.info("mesh: %s", mesh_ref["metrics"])
+    export_ref = export.submit(store, manifest, mesh_ref).result()
     refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "merge": merge_ref,
-            "segment": segment_ref}
-    summary = {"sample_id": manifest.sample_id,
-               "stages": {k: ([r["key"] for r in v] if isinstance(v, list) else v["key"]) for k, v in refs.items()},
-               "cached": {k: (all(r["cached"] for r in v) if isinstance(v, list) else v["cached"]) for k, v in refs.items()}}
-    atomic_write_text(Path(out_dir) / "summary.json", json.dumps(summary, indent=1) + "\n")
-    return summary
+            "segment": segment_ref, "mesh": mesh_ref, "export": export_ref}
+    return _publish(Path(out_dir), manifest, refs, config)

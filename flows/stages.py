@@ -25,9 +25,18 @@ from data_catalog.stages import StageStore, cache_key, load_arrays, save_arrays
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.provenance import StageRecord
 from schemas.reconstruction import ReconstructionConfig
+# Imported here, in the main thread: open3d, pymeshlab and OpenCV first imported inside a
+# Prefect worker thread corrupt the heap at interpreter exit (seen: malloc_consolidate abort).
+from tasks.denoise import remove_statistical_outliers
+from tasks.graph import register_passes
+from tasks.ingest import profile_points
+from tasks.merge import merge_box_grid
+from tasks.segment import keep_specimen_components
+from tasks.surface import estimate_normals, screened_poisson, write_mesh
+from tasks.targets import detect_targets
 
 __all__ = ["Ref", "pass_hash", "cloud_stage", "targets_stage", "register_stage", "merge_stage",
-           "segment_stage", "surface_stage", "STAGE_MODULES"]
+           "segment_stage", "surface_stage", "export_stage", "STAGE_MODULES"]
 
 Ref = dict[str, Any]
 
@@ -38,6 +47,7 @@ STAGE_MODULES = {
     "merge": ("tasks.merge",),
     "segment": ("tasks.segment",),
     "surface": ("tasks.surface",),
+    "export": ("tasks.surface",),
 }
 
 
@@ -100,8 +110,6 @@ def _sensor_poses(data, manifest: SampleManifest, entry: PassEntry) -> np.ndarra
 def cloud_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry: PassEntry,
                 config: ReconstructionConfig) -> Ref:
     """Ingest one pass (coarse alignment by the robot's poses) and remove its outliers."""
-    from tasks.denoise import remove_statistical_outliers
-    from tasks.ingest import profile_points
 
     def body(out: Path) -> dict[str, Any]:
         data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
@@ -122,8 +130,6 @@ def cloud_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, e
 def targets_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry: PassEntry,
                   config: ReconstructionConfig) -> Ref:
     """Detect the pass's sticker targets (3-D centres, coarse world frame)."""
-    from tasks.ingest import profile_points
-    from tasks.targets import detect_targets
 
     def body(out: Path) -> dict[str, Any]:
         data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
@@ -152,7 +158,6 @@ def targets_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest,
 def register_stage(store: StageStore, manifest: SampleManifest, target_refs: list[Ref],
                    config: ReconstructionConfig) -> Ref:
     """Match targets between passes and solve all pass poses together."""
-    from tasks.graph import register_passes
 
     passes = manifest.passes()
     names = [e.pass_id for _, e in passes]
@@ -186,7 +191,6 @@ def register_stage(store: StageStore, manifest: SampleManifest, target_refs: lis
 def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Ref], register_ref: Ref,
                 config: ReconstructionConfig) -> Ref:
     """Bring every pass into the common frame and merge them with the box-grid filter."""
-    from tasks.merge import merge_box_grid
 
     names = [e.pass_id for _, e in manifest.passes()]
 
@@ -216,7 +220,6 @@ def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Re
 def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, register_ref: Ref,
                   config: ReconstructionConfig) -> Ref:
     """Keep the connected components that carry the specimen's targets; the fixture goes."""
-    from tasks.segment import keep_specimen_components
 
     def body(out: Path) -> dict[str, Any]:
         merged = load_arrays(Path(merge_ref["path"]) / "merged.zarr")
@@ -233,3 +236,39 @@ def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, r
     inputs = {"merged": merge_ref["outputs"]["merged.zarr"], "registration": register_ref["outputs"]["registration.zarr"]}
     return _run(store, sample_id=manifest.sample_id, stage="segment", item=None, inputs=inputs,
                 parameters=config.segment.model_dump(), body=body, outputs=["specimen.zarr"], code_of=segment_stage)
+
+
+def surface_stage(store: StageStore, manifest: SampleManifest, segment_ref: Ref, config: ReconstructionConfig) -> Ref:
+    """Normals oriented toward the sensors, then MeshLab's screened Poisson reconstruction."""
+
+    sc = config.surface
+
+    def body(out: Path) -> dict[str, Any]:
+        cloud = load_arrays(Path(segment_ref["path"]) / "specimen.zarr")
+        normals = estimate_normals(cloud["points"], cloud["sensor_positions"], k=sc.normals_k)
+        mesh = screened_poisson(cloud["points"], normals, depth=sc.poisson_depth, samples_per_node=sc.samples_per_node,
+                                point_weight=sc.point_weight, scale=sc.poisson_scale)
+        save_arrays(out / "mesh.zarr", vertices=mesh.vertices, triangles=mesh.triangles)
+        r = mesh.report
+        return {"points": int(len(cloud["points"])), "vertices": r.n_vertices, "triangles": r.n_triangles,
+                "watertight": r.watertight, "consistently_oriented": r.consistently_oriented,
+                "boundary_edges": r.n_boundary_edges, "non_manifold_edges": r.n_non_manifold_edges,
+                "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2, "note": mesh.note}
+
+    return _run(store, sample_id=manifest.sample_id, stage="surface", item=None,
+                inputs={"specimen": segment_ref["outputs"]["specimen.zarr"]}, parameters=sc.model_dump(),
+                body=body, outputs=["mesh.zarr"], code_of=surface_stage)
+
+
+def export_stage(store: StageStore, manifest: SampleManifest, surface_ref: Ref) -> Ref:
+    """Binary STL (for FE software) and PLY of the mesh."""
+
+    def body(out: Path) -> dict[str, Any]:
+        mesh = load_arrays(Path(surface_ref["path"]) / "mesh.zarr")
+        write_mesh(out / f"{manifest.sample_id}.stl", mesh["vertices"], mesh["triangles"], binary=True)
+        write_mesh(out / f"{manifest.sample_id}.ply", mesh["vertices"], mesh["triangles"], binary=True)
+        return {"stl_bytes": (out / f"{manifest.sample_id}.stl").stat().st_size}
+
+    return _run(store, sample_id=manifest.sample_id, stage="export", item=None,
+                inputs={"mesh": surface_ref["outputs"]["mesh.zarr"]}, parameters={}, body=body,
+                outputs=[f"{manifest.sample_id}.stl", f"{manifest.sample_id}.ply"], code_of=export_stage)

@@ -47,6 +47,9 @@ class SurfaceConfig(StrictModel):
     poisson_depth: int = Field(default=10, ge=4, le=14)
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
     point_weight: float = Field(default=4.0, ge=0, le=100)
+    poisson_scale: float = Field(default=1.3, ge=1.0, le=3.0, description=(
+        "reconstruction cube over the points' bounding cube; > 1 so that unscanned faces (the "
+        "specimen's ends) close inside it instead of being cut open"))
 
 
 class ReconstructionConfig(StrictModel):

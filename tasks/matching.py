@@ -125,7 +125,7 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                          f"targets); they share too few stickers")
     rng = np.random.default_rng(seed)
     tree_a = cKDTree(a)
-    best_pairs, best_T = np.zeros((0, 2), int), np.eye(4)
+    best_pairs = np.zeros((0, 2), int)
     for _ in range(iterations):
         pick = cand[rng.choice(len(cand), 3, replace=False)]
         if len(set(pick[:, 0])) < 3 or len(set(pick[:, 1])) < 3:
@@ -139,7 +139,6 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
         inl = np.flatnonzero(np.isfinite(dist))
         if len(inl) > len(best_pairs):
             best_pairs = np.column_stack([idx[inl], inl])
-            best_T = T
     if len(best_pairs) < 3:
         raise ValueError("no rigid transform brings 3 targets of the two sets together")
     T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])

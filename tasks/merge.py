@@ -1,0 +1,121 @@
+"""Box-grid merge (the paper's box-grid filter): all points in one cubic cell become their mean.
+
+The grid is aligned with the origin of the points' frame: cell (i, j, k) holds the points with
+``floor(p / cell_mm) == (i, j, k)``. Optional per-point normals and sensor positions are averaged
+over the same cells (normals renormalised). Output cells are sorted by (i, j, k), so the result
+does not depend on the order of the input points beyond float summation order.
+
+Open3D's ``PointCloud.voxel_down_sample(cell)`` also averages per cell, but its grid starts at
+``cloud.get_min_bound() - cell / 2``, so it moves with the data; the two agree exactly when that
+corner lies on the origin-aligned grid (or when the points are shifted by it first). Open3D's
+output order is arbitrary (a hash map), and Open3D 0.20 leaves averaged normals unnormalised.
+
+Memory: the cell indices are packed into one int64 key per point; np.unique adds a sort order
+and an inverse index (int64 each) and the per-cell sums come from np.bincount. No Python loop runs
+over points. Measured: 30 M uniform points in 24 M cells took 17 s and peaked at 2.8 GB resident,
+0.7 GB of it the input and 1.1 GB the (m, 3) outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MergeResult", "merge_box_grid"]
+
+
+@dataclass(frozen=True)
+class MergeResult:
+    """``points_mm`` (m, 3) float64, mm: the mean point of each occupied cell, sorted by cell index;
+    ``normals`` (m, 3) float64 unit vectors (NaN rows where a cell's normals cancel exactly) or None;
+    ``sensor_positions_mm`` (m, 3) float64, mm, or None; ``counts`` (m,) int64 points per cell;
+    ``cells`` (m, 3) int64 the (i, j, k) index of each cell; ``cell_mm`` the cell edge."""
+
+    points_mm: np.ndarray
+    normals: np.ndarray | None
+    sensor_positions_mm: np.ndarray | None
+    counts: np.ndarray
+    cells: np.ndarray
+    cell_mm: float
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points_mm)
+
+
+def _check_points(name: str, values, n: int | None) -> np.ndarray:
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
+    if n is not None and len(array) != n:
+        raise ValueError(f"{name} must have one row per point ({n}), got {len(array)}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name} holds NaN or inf")
+    return array
+
+
+def _cell_keys(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique cells (m, 3) int64, inverse (n,) index, counts (m,): sorted lexicographically."""
+    # floor(x / cell) is monotone in x, so the cell index range follows from the coordinate range.
+    lo = np.floor(points.min(axis=0) / cell).astype(np.int64)
+    span = np.floor(points.max(axis=0) / cell).astype(np.int64) - lo + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**62:  # too large to pack: unique rows
+        ijk = np.floor(points / cell).astype(np.int64)
+        cells, inverse, counts = np.unique(ijk, axis=0, return_inverse=True, return_counts=True)
+        return cells, inverse.reshape(-1), counts
+    # Pack (i, j, k) into one int64 (mixed radix), one column at a time; key order = (i, j, k) order.
+    key = np.zeros(len(points), np.int64)
+    for d in range(3):
+        key *= span[d]
+        key += np.floor(points[:, d] / cell).astype(np.int64) - lo[d]
+    unique, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    del key
+    cells = np.stack([unique // (span[1] * span[2]), unique // span[2] % span[1], unique % span[2]], axis=1) + lo
+    return cells, inverse.reshape(-1), counts
+
+
+def _cell_mean(values: np.ndarray, inverse: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    m = len(counts)
+    sums = [np.bincount(inverse, weights=values[:, d], minlength=m) for d in range(3)]
+    return np.stack(sums, axis=1) / counts[:, None]
+
+
+def merge_box_grid(points_mm: np.ndarray, *, cell_mm: float, normals: np.ndarray | None = None,
+                   sensor_positions_mm: np.ndarray | None = None) -> MergeResult:
+    """Average the points (and their normals and sensor positions) of each occupied grid cell.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) float, mm, any frame; must be finite.
+    cell_mm : edge of the cubic cells, mm, > 0; the grid has a corner at the frame's origin.
+    normals : optional (n, 3) float, unit normals of the points; averaged and renormalised.
+    sensor_positions_mm : optional (n, 3) float, mm, the sensor position that saw each point.
+
+    Returns
+    -------
+    MergeResult with m <= n points sorted by cell index (i, j, k).
+    """
+    points = _check_points("points_mm", points_mm, None)
+    cell = float(cell_mm)
+    if not (np.isfinite(cell) and cell > 0):
+        raise ValueError(f"cell_mm must be positive and finite, got {cell_mm}")
+    n = len(points)
+    normal_in = None if normals is None else _check_points("normals", normals, n)
+    sensor_in = None if sensor_positions_mm is None else _check_points("sensor_positions_mm", sensor_positions_mm, n)
+    if n == 0:
+        empty = np.zeros((0, 3))
+        return MergeResult(points_mm=empty, normals=None if normal_in is None else empty,
+                           sensor_positions_mm=None if sensor_in is None else empty,
+                           counts=np.zeros(0, np.int64), cells=np.zeros((0, 3), np.int64), cell_mm=cell)
+    cells, inverse, counts = _cell_keys(points, cell)
+    merged = _cell_mean(points, inverse, counts)
+    merged_normals = None
+    if normal_in is not None:
+        merged_normals = _cell_mean(normal_in, inverse, counts)
+        length = np.linalg.norm(merged_normals, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            merged_normals = np.where(length > 0, merged_normals / length, np.nan)
+    merged_sensors = None if sensor_in is None else _cell_mean(sensor_in, inverse, counts)
+    return MergeResult(points_mm=merged, normals=merged_normals, sensor_positions_mm=merged_sensors,
+                       counts=counts.astype(np.int64), cells=cells, cell_mm=cell)

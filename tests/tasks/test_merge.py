@@ -1,0 +1,107 @@
+"""Box-grid merge: per-cell means on an origin-aligned grid, checked against Open3D's voxel filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+
+from tasks.merge import merge_box_grid
+
+
+def _sorted_by_cell(points: np.ndarray, cell: float, *others: np.ndarray):
+    """Rows sorted by the (i, j, k) cell holding each point (a cell mean lies in its cell)."""
+    ijk = np.floor(points / cell).astype(np.int64)
+    order = np.lexsort(ijk.T[::-1])
+    return (points[order], *(o[order] for o in others))
+
+
+def _open3d_merge(points: np.ndarray, cell: float, normals: np.ndarray | None = None):
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if normals is not None:
+        cloud.normals = o3d.utility.Vector3dVector(normals)
+    down = cloud.voxel_down_sample(cell)
+    return np.asarray(down.points), np.asarray(down.normals)
+
+
+def _random_cloud(rng, n, low, high):
+    points = rng.uniform(low, high, (n, 3))
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return points, normals
+
+
+def test_matches_open3d_when_its_grid_corner_is_on_the_origin_grid():
+    # Open3D's grid starts at min_bound - cell / 2: a point at (cell / 2,) * 3 as the minimum puts
+    # that corner at the origin, so both grids coincide exactly (cell 0.5 keeps the arithmetic exact).
+    rng = np.random.default_rng(1)
+    cell = 0.5
+    points, normals = _random_cloud(rng, 200_000, cell / 2, 10.0)
+    points[0] = cell / 2
+    ours = merge_box_grid(points, cell_mm=cell, normals=normals)
+    theirs, their_normals = _open3d_merge(points, cell, normals)
+    assert len(theirs) == ours.n_points == 8000  # 20^3 occupied cells (dense data)
+    assert ours.counts.sum() == len(points)
+    theirs, their_normals = _sorted_by_cell(theirs, cell, their_normals)
+    assert np.abs(theirs - ours.points_mm).max() < 1e-9
+    # Open3D 0.20 averages normals without renormalising them; we renormalise.
+    their_normals /= np.linalg.norm(their_normals, axis=1, keepdims=True)
+    assert np.abs(their_normals - ours.normals).max() < 1e-9
+    np.testing.assert_allclose(np.linalg.norm(ours.normals, axis=1), 1.0, atol=1e-12)
+
+
+def test_matches_open3d_on_sparse_data_once_shifted_to_its_grid():
+    # Any cell and any offset: shifting the points by Open3D's grid corner makes the grids agree.
+    rng = np.random.default_rng(2)
+    cell = 0.37
+    points, _ = _random_cloud(rng, 50_000, -31.3, 17.9)  # sparse: most cells hold 1-2 points
+    corner = points.min(axis=0) - cell / 2
+    ours = merge_box_grid(points - corner, cell_mm=cell)
+    theirs, _ = _open3d_merge(points, cell)
+    assert len(theirs) == ours.n_points
+    assert ours.n_points < len(points) and ours.counts.max() >= 2  # some cells really were merged
+    theirs = _sorted_by_cell(theirs - corner, cell)[0]
+    assert np.abs(theirs - ours.points_mm).max() < 1e-9
+
+
+def test_grid_is_origin_aligned_unlike_open3d():
+    points = np.array([[0.1, 0.1, 0.1], [0.9, 0.1, 0.1], [1.1, 0.1, 0.1]])
+    ours = merge_box_grid(points, cell_mm=1.0)
+    np.testing.assert_allclose(ours.points_mm, [[0.5, 0.1, 0.1], [1.1, 0.1, 0.1]], atol=1e-15)
+    np.testing.assert_array_equal(ours.cells, [[0, 0, 0], [1, 0, 0]])
+    np.testing.assert_array_equal(ours.counts, [2, 1])
+    theirs, _ = _open3d_merge(points, 1.0)  # Open3D's cells start at x = 0.1 - 0.5
+    np.testing.assert_allclose(_sorted_by_cell(theirs, 1.0)[0], [[0.1, 0.1, 0.1], [1.0, 0.1, 0.1]], atol=1e-15)
+
+
+def test_deterministic_sensors_averaged_and_cancelling_normals_are_nan():
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-5, 5, (5000, 3))
+    sensors = points + np.array([0.0, 0.0, 300.0])
+    ours = merge_box_grid(points, cell_mm=1.0, sensor_positions_mm=sensors)
+    order = rng.permutation(len(points))
+    shuffled = merge_box_grid(points[order], cell_mm=1.0, sensor_positions_mm=sensors[order])
+    np.testing.assert_array_equal(ours.cells, shuffled.cells)
+    np.testing.assert_allclose(ours.points_mm, shuffled.points_mm, atol=1e-12)
+    np.testing.assert_allclose(ours.sensor_positions_mm, ours.points_mm + [0, 0, 300], atol=1e-9)
+    assert ours.normals is None
+    keys = ours.cells[:, 0] * 10**8 + ours.cells[:, 1] * 10**4 + ours.cells[:, 2]
+    assert np.all(np.diff(keys) > 0)  # sorted by (i, j, k)
+    cancel = merge_box_grid(np.array([[0.2, 0.2, 0.2], [0.3, 0.3, 0.3]]), cell_mm=1.0,
+                            normals=np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
+    assert np.isnan(cancel.normals).all()
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "message"),
+    [((np.zeros((4, 2)),), {"cell_mm": 1.0}, r"points_mm must have shape \(n, 3\)"),
+     ((np.full((4, 3), np.nan),), {"cell_mm": 1.0}, "points_mm holds NaN"),
+     ((np.zeros((4, 3)),), {"cell_mm": 0.0}, "cell_mm must be positive"),
+     ((np.zeros((4, 3)),), {"cell_mm": 1.0, "normals": np.zeros((3, 3))},
+      r"normals must have one row per point \(4\)"),
+     ((np.zeros((4, 3)),), {"cell_mm": 1.0, "sensor_positions_mm": np.zeros((4, 4))},
+      "sensor_positions_mm must have shape")],
+)
+def test_bad_arguments(args, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        merge_box_grid(*args, **kwargs)
