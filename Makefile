@@ -17,8 +17,7 @@ $(STAMP): pyproject.toml deploy/install-system-deps.sh
 setup: $(STAMP)
 
 demo: setup
-	rm -rf out/demo
-	$(BIN)/weldrecon simulate --preset demo out/demo
+	$(BIN)/weldrecon demo --out out/demo
 
 test: setup
 	$(BIN)/pytest -q

@@ -71,6 +71,68 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _quiet_prefect() -> None:
+    import os
+
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+
+def _print_report(report: dict, out: Path) -> None:
+    stages = report["stages"]
+    reg, mesh = stages["register"], report["mesh"]
+    print(f"{report['sample_id']}: {len(report['passes'])} passes")
+    for name, value in stages.items():
+        if isinstance(value, list):
+            cached = sum(v["cached"] for v in value)
+            print(f"  {name:<9} {len(value)} passes, {sum(v['seconds'] for v in value):.1f} s of work, {cached} cached")
+        else:
+            extra = {k: v for k, v in value.items() if k in ("points_in", "points_out", "residual_median_mm",
+                                                              "residual_max_mm", "vertices", "watertight")}
+            took = "cached" if value["cached"] else f"{value['seconds']:.1f} s"
+            print(f"  {name:<9} {took}  {extra}")
+    weak = report["registration"]["pairs_below_min_common"]
+    if weak:
+        print("  pass pairs with fewer common targets than needed: "
+              + ", ".join(f"{w['a']}|{w['b']} ({w['common_targets']})" for w in weak))
+    print(f"mesh: {mesh['vertices']:,} vertices, {mesh['triangles']:,} triangles, "
+          f"{'watertight' if mesh['watertight'] else 'NOT watertight'}; target residual median "
+          f"{reg['residual_median_mm'] * 1000:.0f} um, max {reg['residual_max_mm'] * 1000:.0f} um")
+    for name, item in report["outputs"].items():
+        print(f"  {item['path']}")
+    print(f"  {out / 'results' / 'report.json'}")
+
+
+def _cmd_reconstruct(args: argparse.Namespace) -> int:
+    _quiet_prefect()
+    from flows.reconstruct import reconstruct_sample
+
+    sample = Path(args.sample_dir)
+    out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
+    report = reconstruct_sample(str(sample), str(out), args.config)
+    _print_report(report, out)
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from simulator.presets import preset_config
+    from simulator.run import simulate
+
+    root = Path(args.out)
+    sample = root / "sample"
+    if not sample.exists():
+        started = time.perf_counter()
+        print(f"simulating the demo sample into {sample} ...", file=sys.stderr, flush=True)
+        summary = simulate(preset_config("demo"), sample)
+        print(f"  {summary.n_passes} passes, {summary.n_points:,} points, {time.perf_counter() - started:.0f} s",
+              file=sys.stderr)
+    config = Path(__file__).resolve().parents[1] / "deploy" / "configs" / "demo.yaml"
+    args = argparse.Namespace(sample_dir=str(sample), out=str(root / "reconstruction"),
+                              config=str(config) if config.is_file() else None)
+    print("reconstructing ...", file=sys.stderr, flush=True)
+    return _cmd_reconstruct(args)
+
+
 def _cmd_schema(args: argparse.Namespace) -> int:
     from data_catalog.manifests import manifest_json_schema
 
@@ -89,6 +151,14 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--sample-id", help="override the preset's sample id")
     sim.add_argument("--no-preview", action="store_true", help="skip the PNG pictures")
     sim.set_defaults(func=_cmd_simulate)
+    rec = sub.add_parser("reconstruct", help="registered point cloud and watertight STL of one sample")
+    rec.add_argument("sample_dir", metavar="SAMPLE_DIR", help="folder with manifest.json and the passes")
+    rec.add_argument("--config", metavar="FILE", help="YAML file of reconstruction settings (schemas/reconstruction.py)")
+    rec.add_argument("--out", metavar="DIR", help="output folder (default: SAMPLE_DIR-reconstruction beside it)")
+    rec.set_defaults(func=_cmd_reconstruct)
+    demo = sub.add_parser("demo", help="simulate the demo sample (once) and reconstruct it")
+    demo.add_argument("--out", default="out/demo", help="folder for the sample and its reconstruction")
+    demo.set_defaults(func=_cmd_demo)
     schema = sub.add_parser("schema", help="print the sample manifest's JSON schema")
     schema.set_defaults(func=_cmd_schema)
     return parser
@@ -98,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as exc:
         print(f"weldrecon {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

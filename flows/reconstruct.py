@@ -124,6 +124,7 @@ def _publish(out_dir: Path, manifest: SampleManifest, refs: dict[str, Any], conf
         "mesh": refs["mesh"]["metrics"],
         "outputs": outputs,
         "stage_keys": {k: ([r["key"] for r in v] if isinstance(v, list) else v["key"]) for k, v in refs.items()},
+        "stage_paths": {k: ([r["path"] for r in v] if isinstance(v, list) else v["path"]) for k, v in refs.items()},
         "cached": {k: (all(r["cached"] for r in v) if isinstance(v, list) else v["cached"]) for k, v in refs.items()},
     }
     atomic_write_text(results / "report.json", json.dumps(report, indent=1, default=str) + "\n")

@@ -194,8 +194,8 @@ class ScanPlanConfig(StrictModel):
         "looks over the weld cap as in a real cell"))
     side_rolls_deg: list[float] = Field(default=[30.0, 50.0, 70.0], description="tilted passes per side")
     width_passes: list[WidthPass] = Field(
-        default=[WidthPass(x_mm=-25.0), WidthPass(x_mm=25.0),
-                 WidthPass(x_mm=-20.0, pitch_deg=25.0), WidthPass(x_mm=20.0, pitch_deg=-25.0)]
+        default=[WidthPass(x_mm=-30.0), WidthPass(x_mm=30.0),
+                 WidthPass(x_mm=-26.0, pitch_deg=25.0), WidthPass(x_mm=26.0, pitch_deg=-25.0)]
     )
 
     @model_validator(mode="after")

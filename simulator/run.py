@@ -191,6 +191,10 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     # Plan for more pairs than the final check will call overlapping: the coarse planning
     # renders see a little less than the real passes.
     pairs = _overlapping_pairs(coverage, candidates, config)
+    paired = {i for pair in pairs for i in pair}
+    for index, p in enumerate(planned):
+        if index not in paired:
+            log.warning("pass %s overlaps no other pass with room for stickers: it cannot be registered", p.pass_id)
     specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
                                        margin_mm=PLANNING_MARGIN_MM)
     fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))

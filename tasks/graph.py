@@ -57,6 +57,20 @@ class _UnionFind:
         self.parent[self.find(a)] = self.find(b)
 
 
+def _groups(members: list[int], matched) -> list[list[int]]:
+    """Connected groups of passes among ``members`` by matched pairs."""
+    uf = _UnionFind()
+    for k in members:
+        uf.find(k)
+    for i, j, _ in matched:
+        if i in uf.parent and j in uf.parent:
+            uf.union(i, j)
+    groups: dict = {}
+    for k in members:
+        groups.setdefault(uf.find(k), []).append(k)
+    return list(groups.values())
+
+
 def _edges(targets, idx_pairs):
     ep, pa, pb = [], [], []
     for i, j, pairs in idx_pairs:
@@ -91,15 +105,15 @@ def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list
             elif len(m.pairs) > 0:
                 weak.append(PairReport(i, j, len(m.pairs)))
     T_initial = np.repeat(np.eye(4)[None], n, axis=0)
-    # 1. each setup on its own
+    # 1. each setup on its own; a group of passes tied to the rest of its setup only through the
+    #    other setup (e.g. side passes) is solved apart and keeps the robot's coarse pose for now
     for s in setup_names:
-        members = [k for k in range(n) if setups[k] == s]
-        local = {k: q for q, k in enumerate(members)}
-        sub = [(local[i], local[j], p) for i, j, p in matched if i in local and j in local]
-        ep, pa, pb = _edges([targets[k] for k in members], sub)
-        g = RegistrationGraph(len(members), ep, pa, pb, np.repeat(np.eye(4)[None], len(members), axis=0))
-        res = solve_pass_poses(g, fixed=0, names=[names[k] for k in members])
-        T_initial[members] = res.T_common_initial
+        for members in _groups([k for k in range(n) if setups[k] == s], matched):
+            local = {k: q for q, k in enumerate(members)}
+            sub = [(local[i], local[j], p) for i, j, p in matched if i in local and j in local]
+            ep, pa, pb = _edges([targets[k] for k in members], sub)
+            g = RegistrationGraph(len(members), ep, pa, pb, np.repeat(np.eye(4)[None], len(members), axis=0))
+            T_initial[members] = solve_pass_poses(g, fixed=0, names=[names[k] for k in members]).T_common_initial
     # 2. consolidated targets per setup, then the setups to each other
     groups: dict = {}
     for p in range(n):  # every detection is a track, matched ones share theirs

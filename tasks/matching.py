@@ -108,8 +108,9 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     """Match two target sets (n, 3), (m, 3) with no pose relation between them.
 
     Each target's distances to its neighbours (up to ``neighbourhood_mm``) are compared; every
-    target keeps its ``per_target`` best-scoring partners as candidates; random triples of
-    candidates propose rigid transforms (Kabsch) and the one most targets agree with wins.
+    target keeps its ``per_target`` best-scoring partners as candidates; triples of candidates
+    whose mutual distances agree in both sets propose rigid transforms (Kabsch), at most
+    ``iterations`` of them, and the one most targets agree with wins.
     """
     a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
     sig_a, sig_b = _distance_signatures(a, neighbourhood_mm), _distance_signatures(b, neighbourhood_mm)
@@ -123,22 +124,42 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     if len(cand) < 3:
         raise ValueError(f"fewer than 3 candidate correspondences between the target sets ({len(a)} and {len(b)} "
                          f"targets); they share too few stickers")
-    rng = np.random.default_rng(seed)
+    # Guided sampling: a triple of candidate pairs is tried only when its distances agree in
+    # both sets (distances are what a rigid motion keeps), best-scoring seeds first.
+    order = np.argsort(-score[cand[:, 0], cand[:, 1]], kind="stable")
+    cand = cand[order]
+    ca, cb = a[cand[:, 0]], b[cand[:, 1]]
     tree_a = cKDTree(a)
     best_pairs = np.zeros((0, 2), int)
-    for _ in range(iterations):
-        pick = cand[rng.choice(len(cand), 3, replace=False)]
-        if len(set(pick[:, 0])) < 3 or len(set(pick[:, 1])) < 3:
-            continue
-        src, dst = b[pick[:, 1]], a[pick[:, 0]]
-        if np.linalg.matrix_rank(src - src.mean(0), tol=1.0) < 2:
-            continue
-        T = kabsch(src, dst)
-        moved = b @ T[:3, :3].T + T[:3, 3]
-        dist, idx = tree_a.query(moved, distance_upper_bound=tolerance_mm)
-        inl = np.flatnonzero(np.isfinite(dist))
-        if len(inl) > len(best_pairs):
-            best_pairs = np.column_stack([idx[inl], inl])
+    tries = 0
+    for s1 in range(min(len(cand), 150)):
+        d1 = np.abs(np.linalg.norm(ca - ca[s1], axis=1) - np.linalg.norm(cb - cb[s1], axis=1))
+        span1 = np.linalg.norm(ca - ca[s1], axis=1)
+        second = np.flatnonzero((d1 < tolerance_mm) & (span1 > 5) & (cand[:, 0] != cand[s1, 0])
+                                & (cand[:, 1] != cand[s1, 1]))[:30]
+        for s2 in second:
+            d2 = np.abs(np.linalg.norm(ca - ca[s2], axis=1) - np.linalg.norm(cb - cb[s2], axis=1))
+            third = np.flatnonzero((d1 < tolerance_mm) & (d2 < tolerance_mm) & (span1 > 5)
+                                   & (np.linalg.norm(ca - ca[s2], axis=1) > 5))[:10]
+            for s3 in third:
+                trio = cand[[s1, s2, s3]]
+                if len(set(trio[:, 0])) < 3 or len(set(trio[:, 1])) < 3:
+                    continue
+                src, dst = b[trio[:, 1]], a[trio[:, 0]]
+                if np.linalg.svd(src - src.mean(0), compute_uv=False)[1] < 2.0:
+                    continue  # nearly collinear: the rotation about their line is unknown
+                tries += 1
+                T = kabsch(src, dst)
+                dist, idx = tree_a.query(b @ T[:3, :3].T + T[:3, 3], distance_upper_bound=tolerance_mm)
+                inl = np.flatnonzero(np.isfinite(dist))
+                if len(inl) > len(best_pairs):
+                    best_pairs = np.column_stack([idx[inl], inl])
+                if tries >= iterations:
+                    break
+            if tries >= iterations:
+                break
+        if tries >= iterations:
+            break
     if len(best_pairs) < 3:
         raise ValueError("no rigid transform brings 3 targets of the two sets together")
     T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])

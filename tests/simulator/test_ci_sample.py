@@ -56,6 +56,8 @@ def test_every_overlapping_pair_shares_three_stickers_off_a_line(truth, truth_pa
     assert len(truth.overlapping_pairs) >= 10
     setups = {p.pass_id: p.setup for p in truth.passes}
     assert any(setups[a] != setups[b] for a, b in truth.overlapping_pairs), "no pair joins the two setups"
+    paired = {pass_id for pair in truth.overlapping_pairs for pass_id in pair}
+    assert paired == set(setups), f"passes with no overlapping partner: {set(setups) - paired}"
     for a, b in truth.overlapping_pairs:
         common = truth.common_stickers[f"{a}|{b}"]
         assert len(common) >= 3, (a, b, common)
