@@ -20,7 +20,7 @@ import numpy as np
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_tree
-from data_catalog.passes import read_pass
+from data_catalog.passes import PassFormatError, read_pass
 from data_catalog.stages import StageStore, cache_key, load_arrays, save_arrays
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.provenance import StageRecord
@@ -29,6 +29,7 @@ from schemas.reconstruction import ReconstructionConfig
 # Prefect worker thread corrupt the heap at interpreter exit (seen: malloc_consolidate abort).
 from tasks.denoise import remove_statistical_outliers
 from tasks.graph import register_passes
+from tasks.registration import RegistrationError
 from tasks.ingest import profile_points
 from tasks.merge import merge_box_grid
 from tasks.segment import keep_specimen_components
@@ -63,7 +64,10 @@ def _code_version(stage: str, body: Callable) -> str:
 
 def pass_hash(sample_dir: Path, entry: PassEntry) -> str:
     """The pass file's content hash; checked against the manifest's when it carries one."""
-    actual = sha256_tree(Path(sample_dir) / entry.file)
+    path = Path(sample_dir) / entry.file
+    if not path.exists():
+        raise PassFormatError(f"pass {entry.pass_id}: pass file {path} does not exist")
+    actual = sha256_tree(path)
     if entry.content_sha256 is not None and actual != entry.content_sha256:
         raise ValueError(f"pass {entry.pass_id}: {entry.file} does not match the manifest's content_sha256 "
                          f"(file changed or truncated)")
@@ -165,8 +169,13 @@ def register_stage(store: StageStore, manifest: SampleManifest, target_refs: lis
     def body(out: Path) -> dict[str, Any]:
         targets = [load_arrays(Path(r["path"]) / "targets.zarr", "centres")["centres"] for r in target_refs]
         rc = config.registration
-        reg = register_passes(targets, [s for s, _ in passes], names=names, min_common=rc.min_common_targets,
-                              max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)
+        try:
+            reg = register_passes(targets, [s for s, _ in passes], names=names, min_common=rc.min_common_targets,
+                                  max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)
+        except RegistrationError as exc:
+            weak = [f"{names[p.pass_a]}|{names[p.pass_b]} ({p.n_common})" for p in exc.weak_pairs]
+            raise RegistrationError(f"{exc}; overlapping pass pairs with fewer than {rc.min_common_targets} common "
+                                    f"targets: {', '.join(weak) or 'none'}", exc.unregistered) from None
         save_arrays(out / "registration.zarr", T_common_pass=reg.T_common_pass, residual_mm=reg.result.residual_mm,
                     inlier=reg.result.inlier, edge_passes=reg.graph.edge_passes,
                     track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track)

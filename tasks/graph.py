@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tasks.matching import match_by_translation, match_rotation_invariant
-from tasks.registration import RegistrationGraph, RegistrationResult, solve_pass_poses
+from tasks.registration import RegistrationError, RegistrationGraph, RegistrationResult, solve_pass_poses
 
 __all__ = ["PairReport", "PassRegistration", "register_passes"]
 
@@ -84,13 +84,22 @@ def _edges(targets, idx_pairs):
 def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
                     min_common: int = 3, max_offset_mm: float = 3.0, tolerance_mm: float = 0.3) -> PassRegistration:
     """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
-    setups: per pass its setup name. The first pass is held fixed."""
+    setups: per pass its setup name. The first pass is held fixed. A RegistrationError carries
+    the pass pairs that matched fewer than ``min_common`` targets."""
+    weak: list[PairReport] = []
+    try:
+        return _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak)
+    except RegistrationError as exc:
+        raise RegistrationError(str(exc), exc.unregistered, weak) from None
+
+
+def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak) -> PassRegistration:
     n = len(targets)
     if len(setups) != n:
         raise ValueError("targets and setups must have one entry per pass")
     names = names or [str(i) for i in range(n)]
     setup_names = list(dict.fromkeys(setups))
-    matched, weak, reports = [], [], []
+    matched, reports = [], []
     uf = _UnionFind()
     for i in range(n):
         for j in range(i + 1, n):

@@ -20,9 +20,10 @@ __all__ = ["RegistrationGraph", "RegistrationResult", "RegistrationError", "solv
 class RegistrationError(ValueError):
     """Some passes cannot be registered (not connected to the fixed pass by target pairs)."""
 
-    def __init__(self, message: str, unregistered: list[int]) -> None:
+    def __init__(self, message: str, unregistered: list[int], weak_pairs: list | None = None) -> None:
         super().__init__(message)
         self.unregistered = unregistered
+        self.weak_pairs = weak_pairs or []
 
 
 @dataclass(frozen=True)
