@@ -1,0 +1,152 @@
+"""Benchmark of the reconstruction on the ``demo`` sample.
+
+Part 1: every stage in a fresh process (earlier stages come from the stage store), its wall
+time and peak RSS. Part 2: on the same data, in one process, our denoise, merge and meshing
+against Open3D's ``remove_statistical_outlier``, ``voxel_down_sample`` and
+``create_from_point_cloud_poisson`` (same neighbours / cell / depth), as time ratios.
+
+    .venv/bin/python bench/bench_reconstruct.py [SAMPLE_DIR]   (default: out/demo/sample)
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+CONFIG = ROOT / "deploy" / "configs" / "demo.yaml"
+STAGES = ["cloud", "targets", "register", "merge", "segment", "surface", "export"]
+
+
+def _stage_child(sample: str, out: str, upto: str) -> None:
+    from data_catalog.manifests import load_manifest
+    from data_catalog.stages import StageStore
+    from flows import stages
+    from flows.reconstruct import load_config
+
+    m, st, cfg = load_manifest(Path(sample)), StageStore(Path(out)), load_config(CONFIG)
+    t0 = time.perf_counter()
+    refs = {}
+    refs["cloud"] = [stages.cloud_stage(st, Path(sample), m, e, cfg) for _, e in m.passes()]
+    if upto != "cloud":
+        refs["targets"] = [stages.targets_stage(st, Path(sample), m, e, cfg) for _, e in m.passes()]
+    if STAGES.index(upto) >= 2:
+        refs["register"] = stages.register_stage(st, m, refs["targets"], cfg)
+    if STAGES.index(upto) >= 3:
+        refs["merge"] = stages.merge_stage(st, m, refs["cloud"], refs["register"], cfg)
+    if STAGES.index(upto) >= 4:
+        refs["segment"] = stages.segment_stage(st, m, refs["merge"], refs["register"], cfg)
+    if STAGES.index(upto) >= 5:
+        refs["surface"] = stages.surface_stage(st, m, refs["segment"], cfg)
+    if STAGES.index(upto) >= 6:
+        refs["export"] = stages.export_stage(st, m, refs["surface"])
+    ref = refs[upto]
+    seconds = sum(r["metrics"]["seconds"] for r in ref) if isinstance(ref, list) else ref["metrics"]["seconds"]
+    print(json.dumps({"stage": upto, "seconds": round(seconds, 2), "wall_s": round(time.perf_counter() - t0, 2),
+                      "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)}))
+
+
+def _peers(sample: Path, out: Path) -> list[dict]:
+    import numpy as np
+    import open3d as o3d
+
+    from data_catalog.manifests import load_manifest
+    from data_catalog.passes import read_pass
+    from data_catalog.stages import load_arrays
+    from flows.reconstruct import load_config
+    from tasks.denoise import remove_statistical_outliers
+    from tasks.ingest import profile_points
+    from tasks.merge import merge_box_grid
+    from tasks.surface import estimate_normals, screened_poisson
+
+    cfg = load_config(CONFIG)
+    m = load_manifest(sample)
+    rows = []
+
+    def timed(fn):
+        t = time.perf_counter()
+        fn()
+        return time.perf_counter() - t
+
+    # denoise: every pass, same k and alpha
+    ours = peer = 0.0
+    n_points = 0
+    for _, e in m.passes():
+        d = read_pass(sample / e.file)
+        grid = profile_points(d.x_mm, d.z_mm, d.T_world_flange @ np.array(m.scanner.T_flange_sensor))
+        flat = grid.reshape(-1, 3)
+        flat = flat[np.isfinite(flat).all(1)]
+        n_points += len(flat)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat))
+        ours += timed(lambda: remove_statistical_outliers(grid, **cfg.denoise.model_dump()))
+        peer += timed(lambda: cloud.remove_statistical_outlier(nb_neighbors=cfg.denoise.k, std_ratio=cfg.denoise.alpha))
+    rows.append({"stage": "denoise", "points": n_points, "ours_s": ours, "peer": "o3d remove_statistical_outlier",
+                 "peer_s": peer})
+    # merge: the registered cloud of every pass
+    stages_dir = out / "stages"
+    T = load_arrays(next((stages_dir / "register").glob("*/registration.zarr")), "T_common_pass")["T_common_pass"]
+    pts = []
+    clouds = sorted((stages_dir / "cloud").glob("*/record.json"))
+    by_item = {json.loads(r.read_text())["item"]: r.parent for r in clouds}
+    for k, (_, e) in enumerate(m.passes()):
+        g = load_arrays(by_item[e.pass_id] / "cloud.zarr", "points")["points"].reshape(-1, 3).astype(np.float64)
+        g = g[np.isfinite(g).all(1)]
+        pts.append(g @ T[k][:3, :3].T + T[k][:3, 3])
+    pts = np.concatenate(pts)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    rows.append({"stage": "merge", "points": len(pts),
+                 "ours_s": timed(lambda: merge_box_grid(pts, cell_mm=cfg.merge.cell_mm)),
+                 "peer": "o3d voxel_down_sample", "peer_s": timed(lambda: cloud.voxel_down_sample(cfg.merge.cell_mm))})
+    # meshing: the specimen cloud, same normals, same depth
+    spec = load_arrays(next((stages_dir / "segment").glob("*/specimen.zarr")))
+    normals = estimate_normals(spec["points"], spec["sensor_positions"], k=cfg.surface.normals_k)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(spec["points"]))
+    pc.normals = o3d.utility.Vector3dVector(normals)
+    sc = cfg.surface
+    rows.append({"stage": "mesh (Poisson)", "points": len(spec["points"]),
+                 "ours_s": timed(lambda: screened_poisson(spec["points"], normals, depth=sc.poisson_depth,
+                                                          samples_per_node=sc.samples_per_node,
+                                                          point_weight=sc.point_weight, scale=sc.poisson_scale)),
+                 "peer": "o3d create_from_point_cloud_poisson",
+                 "peer_s": timed(lambda: o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+                     pc, depth=sc.poisson_depth, scale=sc.poisson_scale))})
+    for r in rows:
+        r["ratio"] = r["ours_s"] / r["peer_s"]
+    return rows
+
+
+def main() -> int:
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        _stage_child(*sys.argv[2:5])
+        return 0
+    sample = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "out" / "demo" / "sample"
+    if not (sample / "manifest.json").is_file():
+        print(f"{sample}: no sample there; run `make demo` first", file=sys.stderr)
+        return 2
+    with tempfile.TemporaryDirectory() as tmp:
+        stage_rows = []
+        for stage in STAGES:
+            done = subprocess.run([sys.executable, __file__, "--child", str(sample), tmp, stage], check=True,
+                                  capture_output=True, text=True, cwd=ROOT)
+            stage_rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+        peer_rows = _peers(sample, Path(tmp))
+    print(f"{'stage':<10}{'seconds':>9}{'peak RSS MiB':>14}")
+    for r in stage_rows:
+        print(f"{r['stage']:<10}{r['seconds']:>9}{r['peak_rss_mib']:>14,}")
+    print(f"\n{'stage':<16}{'points':>12}{'ours s':>9}{'peer s':>9}{'ours/peer':>10}  peer")
+    for r in peer_rows:
+        print(f"{r['stage']:<16}{r['points']:>12,}{r['ours_s']:>9.2f}{r['peer_s']:>9.2f}{r['ratio']:>10.2f}  {r['peer']}")
+    results = ROOT / "bench" / "results"
+    results.mkdir(exist_ok=True)
+    (results / "reconstruct.json").write_text(json.dumps({"stages": stage_rows, "peers": peer_rows}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
