@@ -53,7 +53,7 @@ class PassData:
 def create_chunked_array(group: zarr.Group, name: str, shape: tuple[int, ...], chunk_rows: int,
                          dtype: str, fill_value) -> zarr.Array:
     """An array chunked along its first axis only, with every chunk written even if empty."""
-    chunks = (min(chunk_rows, shape[0]),) + tuple(shape[1:])
+    chunks = (max(1, min(chunk_rows, shape[0])),) + tuple(shape[1:])
     return group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill_value,
                               config={"write_empty_chunks": True})
 

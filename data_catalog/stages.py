@@ -25,6 +25,7 @@ import zarr
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_tree
+from data_catalog.passes import create_chunked_array
 from schemas.provenance import StageRecord
 
 __all__ = ["StageStore", "cache_key", "save_arrays", "load_arrays", "RECORD_NAME"]
@@ -43,10 +44,10 @@ def save_arrays(path: Path, *, chunk_rows: int = 65536, **arrays: np.ndarray) ->
     group = zarr.open_group(str(path), mode="w-")
     for name, value in arrays.items():
         value = np.asarray(value)
-        chunks = (max(1, min(chunk_rows, value.shape[0])),) + value.shape[1:] if value.ndim else ()
-        array = group.create_array(name, shape=value.shape, chunks=chunks or None, dtype=value.dtype,
-                                   config={"write_empty_chunks": True})
-        array[...] = value
+        if value.ndim == 0:
+            raise ValueError(f"{name}: save_arrays stores arrays of at least one dimension")
+        fill = np.nan if value.dtype.kind == "f" else 0
+        create_chunked_array(group, name, value.shape, chunk_rows, value.dtype.str, fill)[...] = value
 
 
 def load_arrays(path: Path, *names: str) -> dict[str, np.ndarray]:
