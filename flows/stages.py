@@ -77,7 +77,8 @@ def pass_hash(sample_dir: Path, entry: PassEntry) -> str:
 def _run(store: StageStore, *, sample_id: str, stage: str, item: str | None, inputs: dict[str, str],
          parameters: dict[str, Any], body: Callable[[Path], dict[str, Any]], outputs: list[str],
          code_of: Callable) -> Ref:
-    key = cache_key(stage if item is None else f"{stage}/{item}", inputs, parameters, _code_version(stage, code_of))
+    code_version = _code_version(stage, code_of)
+    key = cache_key(stage if item is None else f"{stage}/{item}", inputs, parameters, code_version)
     found = store.lookup(stage, key)
     if found is not None:
         return {"stage": stage, "key": key, "path": str(store.path(stage, key)), "outputs": found.outputs,
@@ -89,7 +90,7 @@ def _run(store: StageStore, *, sample_id: str, stage: str, item: str | None, inp
     metrics["seconds"] = round(time.perf_counter() - t0, 3)
     record = StageRecord(sample_id=sample_id, stage=stage, item=item, cache_key=key, inputs=inputs,
                          outputs={name: "" for name in outputs}, parameters=parameters,
-                         code_version=_code_version(stage, code_of), host=socket.gethostname(),
+                         code_version=code_version, host=socket.gethostname(),
                          started=started, finished=datetime.now(timezone.utc), metrics=metrics)
     final = store.commit(build, record)
     committed = store.lookup(stage, key)
@@ -111,14 +112,19 @@ def _sensor_poses(data, manifest: SampleManifest, entry: PassEntry) -> np.ndarra
     return T @ T_flange_sensor
 
 
+def _pass_points(sample_dir: Path, manifest: SampleManifest, entry: PassEntry):
+    """The pass, its sensor poses (n, 4, 4) and its organized points (n, m, 3), coarse world frame."""
+    data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+    T = _sensor_poses(data, manifest, entry)
+    return data, T, profile_points(data.x_mm, data.z_mm, T)
+
+
 def cloud_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry: PassEntry,
                 config: ReconstructionConfig) -> Ref:
     """Ingest one pass (coarse alignment by the robot's poses) and remove its outliers."""
 
     def body(out: Path) -> dict[str, Any]:
-        data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
-        T = _sensor_poses(data, manifest, entry)
-        points = profile_points(data.x_mm, data.z_mm, T)
+        _, T, points = _pass_points(sample_dir, manifest, entry)
         result = remove_statistical_outliers(points, **config.denoise.model_dump())
         kept = np.where(result.keep[..., None], points, np.nan).astype(np.float32)
         save_arrays(out / "cloud.zarr", points=kept, sensor_origins=T[:, :3, 3])
@@ -136,9 +142,7 @@ def targets_stage(store: StageStore, sample_dir: Path, manifest: SampleManifest,
     """Detect the pass's sticker targets (3-D centres, coarse world frame)."""
 
     def body(out: Path) -> dict[str, Any]:
-        data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
-        T = _sensor_poses(data, manifest, entry)
-        points = profile_points(data.x_mm, data.z_mm, T)
+        data, T, points = _pass_points(sample_dir, manifest, entry)
         found = detect_targets(data.intensity, points, sticker_diameter_mm=manifest.sticker_diameter_mm,
                                sensor_origins_mm=T[:, :3, 3], **config.targets.model_dump())
         k = len(found.targets)

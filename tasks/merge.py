@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tasks.checks import check_points
+
 __all__ = ["MergeResult", "merge_box_grid"]
 
 
@@ -42,17 +44,6 @@ class MergeResult:
     @property
     def n_points(self) -> int:
         return len(self.points_mm)
-
-
-def _check_points(name: str, values, n: int | None) -> np.ndarray:
-    array = np.asarray(values, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
-    if n is not None and len(array) != n:
-        raise ValueError(f"{name} must have one row per point ({n}), got {len(array)}")
-    if not np.isfinite(array).all():
-        raise ValueError(f"{name} holds NaN or inf")
-    return array
 
 
 def _cell_keys(points: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -96,13 +87,13 @@ def merge_box_grid(points_mm: np.ndarray, *, cell_mm: float, normals: np.ndarray
     -------
     MergeResult with m <= n points sorted by cell index (i, j, k).
     """
-    points = _check_points("points_mm", points_mm, None)
+    points = check_points("points_mm", points_mm, None)
     cell = float(cell_mm)
     if not (np.isfinite(cell) and cell > 0):
         raise ValueError(f"cell_mm must be positive and finite, got {cell_mm}")
     n = len(points)
-    normal_in = None if normals is None else _check_points("normals", normals, n)
-    sensor_in = None if sensor_positions_mm is None else _check_points("sensor_positions_mm", sensor_positions_mm, n)
+    normal_in = None if normals is None else check_points("normals", normals, n)
+    sensor_in = None if sensor_positions_mm is None else check_points("sensor_positions_mm", sensor_positions_mm, n)
     if n == 0:
         empty = np.zeros((0, 3))
         return MergeResult(points_mm=empty, normals=None if normal_in is None else empty,

@@ -22,6 +22,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from tasks.checks import check_points
+
 __all__ = ["SegmentResult", "keep_specimen_components"]
 
 
@@ -41,15 +43,6 @@ class SegmentResult:
     kept_counts: np.ndarray
     target_hit: np.ndarray | None
     extent_mm: np.ndarray
-
-
-def _check_cloud(name: str, values) -> np.ndarray:
-    array = np.asarray(values, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
-    if not np.isfinite(array).all():
-        raise ValueError(f"{name} holds NaN or inf")
-    return array
 
 
 def _components(tree: cKDTree, n: int, link: float) -> tuple[int, np.ndarray]:
@@ -93,7 +86,7 @@ def keep_specimen_components(points_mm: np.ndarray, *, link_mm: float, target_po
 
     Exactly one of target_points_mm and min_extent_mm must be given.
     """
-    points = _check_cloud("points_mm", points_mm)
+    points = check_points("points_mm", points_mm)
     if len(points) == 0:
         raise ValueError("points_mm is empty")
     link = float(link_mm)
@@ -105,7 +98,7 @@ def keep_specimen_components(points_mm: np.ndarray, *, link_mm: float, target_po
         raise ValueError("give only one of target_points_mm and min_extent_mm, not both")
     targets = None
     if target_points_mm is not None:
-        targets = _check_cloud("target_points_mm", target_points_mm)
+        targets = check_points("target_points_mm", target_points_mm)
         if len(targets) == 0:
             raise ValueError("target_points_mm is empty")
     elif not (np.isfinite(min_extent_mm) and min_extent_mm >= 0):

@@ -17,6 +17,8 @@ import numpy as np
 import open3d as o3d
 import pymeshlab
 
+from tasks.checks import check_points
+
 __all__ = ["MeshReport", "SurfaceResult", "estimate_normals", "mesh_report", "screened_poisson", "write_mesh"]
 
 
@@ -54,19 +56,8 @@ class SurfaceResult:
     note: str
 
 
-def _check_array(name: str, values, n: int | None = None) -> np.ndarray:
-    array = np.asarray(values, dtype=np.float64)
-    if array.ndim != 2 or array.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (n, 3), got {array.shape}")
-    if n is not None and len(array) != n:
-        raise ValueError(f"{name} must have one row per point ({n}), got {len(array)}")
-    if not np.isfinite(array).all():
-        raise ValueError(f"{name} holds NaN or inf")
-    return array
-
-
 def _check_mesh(vertices, triangles) -> tuple[np.ndarray, np.ndarray]:
-    v = _check_array("vertices", vertices)
+    v = check_points("vertices", vertices)
     t = np.asarray(triangles)
     if t.ndim != 2 or t.shape[1] != 3:
         raise ValueError(f"triangles must have shape (t, 3), got {t.shape}")
@@ -86,8 +77,8 @@ def estimate_normals(points_mm: np.ndarray, sensor_positions_mm: np.ndarray, *, 
     k : neighbours per point, including the point itself (Open3D's KNN search), >= 3.
     Returns (n, 3) float64 unit normals with dot(normal, sensor - point) >= 0.
     """
-    points = _check_array("points_mm", points_mm)
-    sensors = _check_array("sensor_positions_mm", sensor_positions_mm, len(points))
+    points = check_points("points_mm", points_mm)
+    sensors = check_points("sensor_positions_mm", sensor_positions_mm, len(points))
     if not isinstance(k, (int, np.integer)) or k < 3:
         raise ValueError(f"k must be an integer >= 3 (a plane needs three points), got {k}")
     if len(points) < k:
@@ -175,8 +166,8 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         19 s instead of 3 s with 1 thread; on idle cores 2 threads saved about 25 %). The output
         is put in a canonical order (vertices by coordinates), since the threaded order varies.
     """
-    points = _check_array("points_mm", points_mm)
-    normal_array = _check_array("normals", normals, len(points))
+    points = check_points("points_mm", points_mm)
+    normal_array = check_points("normals", normals, len(points))
     if len(points) < 3:
         raise ValueError(f"need at least 3 points, got {len(points)}")
     if not isinstance(depth, (int, np.integer)) or not 1 <= depth <= 16:
