@@ -80,15 +80,17 @@ def _quiet_prefect() -> None:
 
 def _print_report(report: dict, out: Path) -> None:
     stages = report["stages"]
-    reg, mesh = stages["register"], report["mesh"]
+    refined, mesh = stages["refine"], report["mesh"]
     print(f"{report['sample_id']}: {len(report['passes'])} passes")
     for name, value in stages.items():
         if isinstance(value, list):
             cached = sum(v["cached"] for v in value)
             print(f"  {name:<9} {len(value)} passes, {sum(v['seconds'] for v in value):.1f} s of work, {cached} cached")
         else:
-            extra = {k: v for k, v in value.items() if k in ("points_in", "points_out", "residual_median_mm",
-                                                              "residual_max_mm", "vertices", "watertight")}
+            extra = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in value.items()
+                     if k in ("points_in", "points_out", "residual_median_mm", "residual_max_mm", "vertices",
+                              "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
+                              "target_residual_median_mm")}
             took = "cached" if value["cached"] else f"{value['seconds']:.1f} s"
             print(f"  {name:<9} {took}  {extra}")
     weak = report["registration"]["pairs_below_min_common"]
@@ -97,7 +99,7 @@ def _print_report(report: dict, out: Path) -> None:
               + ", ".join(f"{w['a']}|{w['b']} ({w['common_targets']})" for w in weak))
     print(f"mesh: {mesh['vertices']:,} vertices, {mesh['triangles']:,} triangles, "
           f"{'watertight' if mesh['watertight'] else 'NOT watertight'}; target residual median "
-          f"{reg['residual_median_mm'] * 1000:.0f} um, max {reg['residual_max_mm'] * 1000:.0f} um")
+          f"{refined['target_residual_median_mm'] * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um")
     for name, item in report["outputs"].items():
         print(f"  {item['path']}")
     print(f"  {out / 'results' / 'report.json'}")

@@ -75,14 +75,19 @@ def register(store, manifest, target_refs, config) -> stages.Ref:
     return stages.register_stage(store, manifest, target_refs, config)
 
 
+@task(name="refine-poses", **_TASK)
+def refine(store, manifest, cloud_refs, register_ref, config) -> stages.Ref:
+    return stages.refine_stage(store, manifest, cloud_refs, register_ref, config)
+
+
 @task(name="merge", **_TASK)
-def merge(store, manifest, cloud_refs, register_ref, config) -> stages.Ref:
-    return stages.merge_stage(store, manifest, cloud_refs, register_ref, config)
+def merge(store, manifest, cloud_refs, refine_ref, config) -> stages.Ref:
+    return stages.merge_stage(store, manifest, cloud_refs, refine_ref, config)
 
 
 @task(name="remove-unwanted-objects", **_TASK)
-def segment(store, manifest, merge_ref, register_ref, config) -> stages.Ref:
-    return stages.segment_stage(store, manifest, merge_ref, register_ref, config)
+def segment(store, manifest, merge_ref, refine_ref, config) -> stages.Ref:
+    return stages.segment_stage(store, manifest, merge_ref, refine_ref, config)
 
 
 @task(name="mesh", **_TASK)
@@ -110,6 +115,7 @@ def _publish(out_dir: Path, manifest: SampleManifest, refs: dict[str, Any], conf
         tmp.replace(results / name)
         outputs[name] = {"path": str(results / name), "sha256": sha256_file(results / name)}
     registration = json.loads((Path(refs["register"]["path"]) / "registration.json").read_text())
+    registration["refinement"] = json.loads((Path(refs["refine"]["path"]) / "refine.json").read_text())
 
     def metrics(ref):
         return [dict(r["metrics"], cached=r["cached"]) for r in ref] if isinstance(ref, list) else \
@@ -162,12 +168,15 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     target_refs = _gather(targets, "target detection")
     register_ref = register.submit(store, manifest, target_refs, config).result()
     log.info("registration: %s", register_ref["metrics"])
-    merge_ref = merge.submit(store, manifest, cloud_refs, register_ref, config).result()
-    segment_ref = segment.submit(store, manifest, merge_ref, register_ref, config).result()
+    refine_ref = refine.submit(store, manifest, cloud_refs, register_ref, config).result()
+    log.info("refinement: %s", refine_ref["metrics"])
+    merge_ref = merge.submit(store, manifest, cloud_refs, refine_ref, config).result()
+    segment_ref = segment.submit(store, manifest, merge_ref, refine_ref, config).result()
     log.info("specimen: %s", segment_ref["metrics"])
     mesh_ref = mesh.submit(store, manifest, segment_ref, config).result()
     log.info("mesh: %s", mesh_ref["metrics"])
     export_ref = export.submit(store, manifest, mesh_ref).result()
-    refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "merge": merge_ref,
+    refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "refine": refine_ref,
+            "merge": merge_ref,
             "segment": segment_ref, "mesh": mesh_ref, "export": export_ref}
     return _publish(Path(out_dir), manifest, refs, config)

@@ -25,18 +25,20 @@ from data_catalog.stages import StageStore, cache_key, load_arrays, save_arrays
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.provenance import StageRecord
 from schemas.reconstruction import ReconstructionConfig
+
 # Imported here, in the main thread: open3d, pymeshlab and OpenCV first imported inside a
 # Prefect worker thread corrupt the heap at interpreter exit (seen: malloc_consolidate abort).
 from tasks.denoise import remove_statistical_outliers
 from tasks.graph import register_passes
-from tasks.registration import RegistrationError
 from tasks.ingest import profile_points
 from tasks.merge import merge_box_grid
+from tasks.refine import refine_poses, surface_sample
+from tasks.registration import RegistrationError
 from tasks.segment import keep_specimen_components
 from tasks.surface import estimate_normals, screened_poisson, write_mesh
 from tasks.targets import detect_targets
 
-__all__ = ["Ref", "pass_hash", "cloud_stage", "targets_stage", "register_stage", "merge_stage",
+__all__ = ["Ref", "pass_hash", "cloud_stage", "targets_stage", "register_stage", "refine_stage", "merge_stage",
            "segment_stage", "surface_stage", "export_stage", "STAGE_MODULES"]
 
 Ref = dict[str, Any]
@@ -45,6 +47,7 @@ STAGE_MODULES = {
     "cloud": ("tasks.ingest", "tasks.denoise"),
     "targets": ("tasks.ingest", "tasks.targets"),
     "register": ("tasks.matching", "tasks.registration", "tasks.graph"),
+    "refine": ("tasks.refine",),
     "merge": ("tasks.merge",),
     "segment": ("tasks.segment",),
     "surface": ("tasks.surface",),
@@ -180,9 +183,13 @@ def register_stage(store: StageStore, manifest: SampleManifest, target_refs: lis
             weak = [f"{names[p.pass_a]}|{names[p.pass_b]} ({p.n_common})" for p in exc.weak_pairs]
             raise RegistrationError(f"{exc}; overlapping pass pairs with fewer than {rc.min_common_targets} common "
                                     f"targets: {', '.join(weak) or 'none'}", exc.unregistered) from None
+        members = np.array([(k, p) for k, track in enumerate(reg.tracks) for p, _ in track], dtype=np.int64)
+        centres = np.array([targets[p][t] for track in reg.tracks for p, t in track], dtype=np.float64)
         save_arrays(out / "registration.zarr", T_common_pass=reg.T_common_pass, residual_mm=reg.result.residual_mm,
-                    inlier=reg.result.inlier, edge_passes=reg.graph.edge_passes,
-                    track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track)
+                    inlier=reg.result.inlier, edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a,
+                    points_b=reg.graph.points_b, track_positions_mm=reg.track_positions_mm,
+                    specimen_track=reg.specimen_track, track_members=members.reshape(-1, 2),
+                    track_centres_mm=centres.reshape(-1, 3))
         res = reg.result.residual_mm[reg.result.inlier]
         summary = {
             "pairs": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common} for p in reg.pairs],
@@ -201,14 +208,69 @@ def register_stage(store: StageStore, manifest: SampleManifest, target_refs: lis
                 outputs=["registration.zarr", "registration.json"], code_of=register_stage)
 
 
-def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Ref], register_ref: Ref,
+def refine_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Ref], register_ref: Ref,
+                 config: ReconstructionConfig) -> Ref:
+    """Refine every pass pose on the targets and the overlapping surfaces together (or, when
+    disabled, keep the target registration's poses)."""
+
+    names = [e.pass_id for _, e in manifest.passes()]
+    rc = config.refine
+
+    def body(out: Path) -> dict[str, Any]:
+        reg = load_arrays(Path(register_ref["path"]) / "registration.zarr")
+        T_targets = reg["T_common_pass"]
+        inlier = reg["inlier"].astype(bool)
+        pairs, counts, steps, samples = {}, {}, [], []
+        T = T_targets
+        target_res = reg["residual_mm"][inlier]
+        if rc.enabled:
+            samples = [surface_sample(load_arrays(Path(r["path"]) / "cloud.zarr", "points")["points"],
+                                      spacing_mm=rc.sample_spacing_mm, normal_radius_mm=rc.neighbour_mm,
+                                      neighbours=rc.normal_neighbours, max_plane_rms_mm=rc.max_plane_rms_mm)
+                       for r in cloud_refs]
+            options = rc.model_dump(exclude={"enabled", "sample_spacing_mm"})
+            result = refine_poses(samples, T_targets, reg["edge_passes"][inlier], reg["points_a"][inlier],
+                                  reg["points_b"][inlier], **options)
+            T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
+            target_res = result.target_residual_mm
+        # each physical target where the refined poses put it: the mean of its observations
+        track, pass_of = reg["track_members"][:, 0], reg["track_members"][:, 1]
+        seen = np.einsum("nij,nj->ni", T[pass_of, :3, :3], reg["track_centres_mm"]) + T[pass_of, :3, 3]
+        n_tracks = len(reg["track_positions_mm"])
+        counts_per_track = np.bincount(track, minlength=n_tracks)[:, None]
+        positions = np.stack([np.bincount(track, seen[:, i], minlength=n_tracks) for i in range(3)], axis=1)
+        positions /= np.maximum(counts_per_track, 1)
+        moved = max((float(np.abs(np.einsum("ij,nj->ni", (T[k] - T_targets[k])[:3, :3], s.points_mm)
+                                  + (T[k] - T_targets[k])[:3, 3]).max(initial=0.0)) for k, s in enumerate(samples)),
+                    default=0.0)
+        save_arrays(out / "refined.zarr", T_common_pass=T, track_positions_mm=positions,
+                    specimen_track=reg["specimen_track"], target_residual_mm=np.asarray(target_res, dtype=np.float64))
+        summary = {"surface_pairs": [{"a": names[a], "b": names[b], "points": counts[(a, b)],
+                                      "rms_mm": pairs[(a, b)]} for a, b in sorted(pairs)],
+                   "step_mm": steps}
+        atomic_write_text(out / "refine.json", json.dumps(summary, indent=1) + "\n")
+        surface_rms = list(pairs.values())
+        return {"enabled": rc.enabled, "iterations": len(steps), "last_step_mm": steps[-1] if steps else 0.0,
+                "surface_pairs": len(pairs), "surface_points": int(sum(counts.values())),
+                "largest_pose_change_mm": moved,
+                "surface_rms_median_mm": float(np.median(surface_rms)) if surface_rms else None,
+                "target_residual_median_mm": float(np.median(target_res)) if len(target_res) else None,
+                "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None}
+
+    inputs = {f"cloud/{n}": r["outputs"]["cloud.zarr"] for n, r in zip(names, cloud_refs)}
+    inputs["registration"] = register_ref["outputs"]["registration.zarr"]
+    return _run(store, sample_id=manifest.sample_id, stage="refine", item=None, inputs=inputs,
+                parameters=rc.model_dump(), body=body, outputs=["refined.zarr", "refine.json"], code_of=refine_stage)
+
+
+def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Ref], refine_ref: Ref,
                 config: ReconstructionConfig) -> Ref:
     """Bring every pass into the common frame and merge them with the box-grid filter."""
 
     names = [e.pass_id for _, e in manifest.passes()]
 
     def body(out: Path) -> dict[str, Any]:
-        T_all = load_arrays(Path(register_ref["path"]) / "registration.zarr", "T_common_pass")["T_common_pass"]
+        T_all = load_arrays(Path(refine_ref["path"]) / "refined.zarr", "T_common_pass")["T_common_pass"]
         points, sensors = [], []
         for ref, T in zip(cloud_refs, T_all):
             cloud = load_arrays(Path(ref["path"]) / "cloud.zarr", "points", "sensor_origins")
@@ -225,18 +287,18 @@ def merge_stage(store: StageStore, manifest: SampleManifest, cloud_refs: list[Re
         return {"points_in": int(sum(len(p) for p in points)), "points_out": result.n_points}
 
     inputs = {f"cloud/{n}": r["outputs"]["cloud.zarr"] for n, r in zip(names, cloud_refs)}
-    inputs["registration"] = register_ref["outputs"]["registration.zarr"]
+    inputs["refined"] = refine_ref["outputs"]["refined.zarr"]
     return _run(store, sample_id=manifest.sample_id, stage="merge", item=None, inputs=inputs,
                 parameters=config.merge.model_dump(), body=body, outputs=["merged.zarr"], code_of=merge_stage)
 
 
-def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, register_ref: Ref,
+def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, refine_ref: Ref,
                   config: ReconstructionConfig) -> Ref:
     """Keep the connected components that carry the specimen's targets; the fixture goes."""
 
     def body(out: Path) -> dict[str, Any]:
         merged = load_arrays(Path(merge_ref["path"]) / "merged.zarr")
-        reg = load_arrays(Path(register_ref["path"]) / "registration.zarr", "track_positions_mm", "specimen_track")
+        reg = load_arrays(Path(refine_ref["path"]) / "refined.zarr", "track_positions_mm", "specimen_track")
         anchors = reg["track_positions_mm"][reg["specimen_track"]]
         if len(anchors) == 0:
             raise ValueError("no target was seen in more than one setup: the specimen cannot be told from the fixture")
@@ -246,7 +308,7 @@ def segment_stage(store: StageStore, manifest: SampleManifest, merge_ref: Ref, r
         return {"points_in": int(len(keep)), "points_out": int(keep.sum()), "components": int(result.n_components),
                 "kept_components": int(len(result.kept_labels))}
 
-    inputs = {"merged": merge_ref["outputs"]["merged.zarr"], "registration": register_ref["outputs"]["registration.zarr"]}
+    inputs = {"merged": merge_ref["outputs"]["merged.zarr"], "refined": refine_ref["outputs"]["refined.zarr"]}
     return _run(store, sample_id=manifest.sample_id, stage="segment", item=None, inputs=inputs,
                 parameters=config.segment.model_dump(), body=body, outputs=["specimen.zarr"], code_of=segment_stage)
 

@@ -139,6 +139,10 @@ class ScannerConfig(StrictModel):
     camera_offset_mm: Vector3 = Field(default=(0.0, 115.0, 0.0), description="30 deg triangulation at 200 mm")
     range_noise_mm: float = Field(default=0.006, ge=0, le=1, description="1-sigma along the laser ray, sprayed steel")
     intensity_noise: float = Field(default=10.0, ge=0, description="1-sigma, in 10-bit counts")
+    line_width_mm: float = Field(default=0.1, ge=0, le=2, description=(
+        "laser line thickness (1/e^2 full width). A point's intensity integrates the surface over "
+        "this thickness and the pixel's width along the line, so points on a sticker's rim read "
+        "partly bright"))
     grazing_limit_deg: float = Field(default=82.0, gt=0, lt=90)
     dropout_rate: float = Field(default=0.002, ge=0, le=1)
     reflective_dropout_rate: float = Field(default=0.35, ge=0, le=1)

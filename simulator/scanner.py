@@ -95,6 +95,7 @@ class LineScanner:
         sticker[on_specimen] = scene.specimen_stickers.lookup(apply(scene.T_specimen_world, top[on_specimen]))
         sticker[on_fixture] = scene.fixture_stickers.lookup(top[on_fixture])
         has_sticker = sticker != NO_STICKER
+        base = material.copy()  # what lies under a sticker
         material[has_sticker & on_specimen] = Material.STICKER
         material[has_sticker & on_fixture] = Material.FIXTURE_STICKER
         t_surf = np.where(has_sticker, t_top, t_safe)
@@ -148,14 +149,28 @@ class LineScanner:
         z_q = np.round(z_meas / cfg.z_resolution_mm) * cfg.z_resolution_mm
         x_q = z_q * fan_x / fan_z
 
+        # Reflectance over each point's footprint: a rim point reads partly sticker, partly metal.
+        line_dirs = np.repeat(R[:, :, 0], n, axis=0)
+        scan_dirs = np.repeat(R[:, :, 1], n, axis=0)
+        box = cfg.x_spacing_mm * np.maximum(t_surf * fan_z, 1.0) / cfg.reference_distance_mm
+        sigma = cfg.line_width_mm / 4
+        share = np.zeros(m * n)
+        S = scene.T_specimen_world[:3, :3]
+        share[on_specimen] = scene.specimen_stickers.coverage(
+            apply(scene.T_specimen_world, top[on_specimen]), d[on_specimen] @ S.T, line_dirs[on_specimen] @ S.T,
+            scan_dirs[on_specimen] @ S.T, box[on_specimen], sigma)
+        share[on_fixture] = scene.fixture_stickers.coverage(top[on_fixture], d[on_fixture], line_dirs[on_fixture],
+                                                            scan_dirs[on_fixture], box[on_fixture], sigma)
         reflectance = np.zeros(m * n)
         for mat, rho in _REFLECTANCE.items():
-            reflectance[material == mat] = rho
+            reflectance[base == mat] = rho
+        reflectance += share * (_REFLECTANCE[Material.STICKER] - reflectance)
         distance_gain = (cfg.reference_distance_mm / np.maximum(t_surf * fan_z, 1.0)) ** 2
         level = 900 * reflectance * np.clip(cos_l, 0, 1) ** 0.8 * distance_gain
         mirror = d + 2 * cos_l[:, None] * normal
         spec_angle = np.arccos(np.clip(np.einsum("ij,ij->i", mirror, to_cam), -1, 1))
-        level += np.where(material == Material.GROUND, 1500 * np.exp(-0.5 * (spec_angle / np.radians(6)) ** 2), 0)
+        level += np.where(base == Material.GROUND,
+                          (1 - share) * 1500 * np.exp(-0.5 * (spec_angle / np.radians(6)) ** 2), 0)
         intensity = np.clip(np.round(level + intensity_noise), 1, 1023).astype(np.uint16)
 
         shape = (m, n)

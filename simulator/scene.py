@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
+from scipy.special import ndtr
 
 from simulator.specimen import SurfaceMesh
 from simulator.transforms import apply, invert
@@ -47,6 +48,52 @@ class StickerSet:
         hit = np.flatnonzero(near)[on]
         out[hit] = self.ids[idx[hit]]
         return out
+
+    def coverage(self, points: np.ndarray, rays: np.ndarray, line_dirs: np.ndarray, scan_dirs: np.ndarray,
+                 line_box_mm: np.ndarray, scan_sigma_mm: float) -> np.ndarray:
+        """Share (n,) of each point's laser footprint that falls on a sticker, 0..1.
+
+        The footprint is what one profile point's intensity integrates: the camera pixel's width
+        along the laser line (a box, ``line_box_mm`` (n,) wide across the ray, along
+        ``line_dirs``) times the laser line's thickness (a Gaussian of ``scan_sigma_mm`` along
+        ``scan_dirs``). Both are projected along the ray (``rays``, unit, (n, 3)) onto the
+        sticker's plane and compared with the signed distance to the nearest sticker's rim.
+        """
+        frac = np.zeros(len(points))
+        if len(self.ids) == 0 or len(points) == 0:
+            return frac
+        tree = self._tree
+        if tree is None:
+            tree = cKDTree(self.centres)
+            object.__setattr__(self, "_tree", tree)
+        reach = float(np.max(line_box_mm, initial=0.0)) * 4 + 4 * scan_sigma_mm + 0.1
+        dist, idx = tree.query(points, k=1, distance_upper_bound=self.radius_mm + reach)
+        near = np.flatnonzero(np.isfinite(dist))
+        if len(near) == 0:
+            return frac
+        n = self.normals[idx[near]]
+        d = points[near] - self.centres[idx[near]]
+        h = np.einsum("ij,ij->i", d, n)
+        radial = d - h[:, None] * n
+        planar = np.linalg.norm(radial, axis=1)
+        u = radial / np.maximum(planar, 1e-9)[:, None]
+        inside = self.radius_mm - planar  # signed: > 0 on the sticker
+        ray = rays[near]
+        ray_n = np.einsum("ij,ij->i", ray, n)
+        ray_n = np.where(np.abs(ray_n) < 0.1, np.copysign(0.1, ray_n), ray_n)
+
+        def along_u(v: np.ndarray) -> np.ndarray:  # a footprint direction, cast onto the plane, along u
+            onto = v - (np.einsum("ij,ij->i", v, n) / ray_n)[:, None] * ray
+            return np.abs(np.einsum("ij,ij->i", onto, u))
+
+        half_box = 0.5 * line_box_mm[near] * along_u(line_dirs[near])
+        sigma = np.maximum(scan_sigma_mm * along_u(scan_dirs[near]), 1e-6)
+        share = np.zeros(len(near))
+        offsets = (np.arange(8) + 0.5) / 8 * 2 - 1  # the box, sampled
+        for o in offsets:
+            share += ndtr((inside + o * half_box) / sigma)
+        frac[near] = np.where(np.abs(h) < 0.5, share / len(offsets), 0.0)
+        return frac
 
 
 class Scene:

@@ -73,13 +73,42 @@ def _on_plane(points: np.ndarray, origins: np.ndarray, plane_point: np.ndarray, 
     return origins + t[..., None] * ray
 
 
-def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: float,
+def _plateau(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A plane a + b*row + c*col fitted to ``values`` where ``mask`` (2-D), evaluated everywhere;
+    the median where too few points say otherwise."""
+    rows, cols = np.nonzero(mask)
+    if len(rows) < 12:
+        return np.full(values.shape, np.median(values[mask]) if mask.any() else np.nan)
+    A = np.column_stack([np.ones(len(rows)), rows, cols])
+    coef, *_ = np.linalg.lstsq(A, values[mask].astype(np.float64), rcond=None)
+    r, c = np.indices(values.shape)
+    return coef[0] + coef[1] * r + coef[2] * c
+
+
+def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """Per pixel, the intensity halfway between the sticker's and the metal's, each a plane over
+    the window: the light falls off with distance and angle across an obliquely seen sticker, and
+    one level for all of it would move the near rim out and the far rim in. ``near``: the pixels
+    close enough to the sticker to serve (other faces in the window are lit otherwise)."""
+    valid = (local > 0) & near
+    pad_b = np.pad(bright, 1, mode="edge")
+    interior = bright.copy()
+    exterior = ~bright & valid
+    for dr, dc in ((0, 1), (2, 1), (1, 0), (1, 2)):  # away from the rim: all four neighbours alike
+        shifted = pad_b[dr:dr + bright.shape[0], dc:dc + bright.shape[1]]
+        interior &= shifted
+        exterior &= ~shifted
+    return 0.5 * (_plateau(local, interior & valid) + _plateau(local, exterior))
+
+
+def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: np.ndarray,
                  window: tuple[slice, slice]) -> np.ndarray:
-    """Sub-pixel edge points where bright and dark grid neighbours meet inside ``window``."""
-    I = intensity[window].astype(np.float64)
+    """Sub-pixel edge points where bright and dark grid neighbours meet inside ``window``; the
+    edge is where the intensity crosses ``level`` (per pixel of the window)."""
+    I = intensity[window].astype(np.float64) - level
     P = points[window]
     B = bright[window]
-    valid = np.isfinite(P).all(axis=-1) & (I > 0)
+    valid = np.isfinite(P).all(axis=-1) & (intensity[window] > 0)
     out = []
     for axis in (0, 1):
         a = [slice(None), slice(None)]
@@ -91,7 +120,7 @@ def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, 
             continue
         ia, ib = I[a][pair], I[b][pair]
         pa, pb = P[a][pair], P[b][pair]
-        f = np.clip((ia - level) / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
+        f = np.clip(ia / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
         out.append(pa + f[:, None] * (pb - pa))
     return np.concatenate(out) if out else np.zeros((0, 3))
 
@@ -163,36 +192,54 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
         bright = np.zeros(intensity.shape, bool)
         bright[window] = intensity[window] >= split
         local = intensity[window]
-        # the edge lies where the intensity crosses halfway between the two plateaus
-        level = 0.5 * (np.median(local[local >= split]) + np.median(local[(local < split) & (local > 0)])) \
-            if np.any((local < split) & (local > 0)) else split
+        window_points = points[window]
+        blob = window_points[bright[window] & np.isfinite(window_points).all(axis=-1)]
+        close = np.linalg.norm(window_points - (blob.mean(axis=0) if len(blob) else 0.0), axis=-1) < 1.5 * radius
+        level = _edge_level(local, bright[window], close)
+        if not np.isfinite(level).all():
+            level = np.full(local.shape, float(split))
         inside = bright[window] & np.isfinite(points[window]).all(axis=-1)
         if np.count_nonzero(inside) < 12:
             rejected["points"] += 1
             continue
-        origin, normal = _plane(points[window][inside])
-        side = origins[window[0]].mean(axis=0) if origins is not None else origin + np.array([0.0, 0.0, 1.0])
-        if normal @ (side - origin) < 0:
-            normal = -normal
-        grid = points
-        if origins is not None:
-            grid = points.copy()
-            grid[window] = _on_plane(points[window], origins[window[0]][:, None, :], origin, normal)
-        edges = _edge_points(intensity, grid, bright, level, window)
-        if len(edges) < 12:
+        # Twice: the plane of all bright points first; then of those well inside the rim only
+        # (rim points read bright while their 3-D point lies on the metal, 0.1 mm lower, which
+        # tilts and lowers the plane and, at oblique views, shifts every rim ray the same way).
+        plane_points = points[window][inside]
+        for attempt in range(2):
+            origin, normal = _plane(plane_points)
+            side = origins[window[0]].mean(axis=0) if origins is not None else origin + np.array([0.0, 0.0, 1.0])
+            if normal @ (side - origin) < 0:
+                normal = -normal
+            grid = points
+            if origins is not None:
+                grid = points.copy()
+                grid[window] = _on_plane(points[window], origins[window[0]][:, None, :], origin, normal)
+            edges = _edge_points(intensity, grid, bright, level, window)
+            if len(edges) < 12:
+                break
+            e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(normal, e1)
+            uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
+            # keep edge points near the rim of the circle suggested by the bright blob
+            near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
+            uv = uv[near]
+            if len(uv) < 12:
+                break
+            centre_uv, _, rms = _fit_circle(uv, radius)
+            if attempt == 0:
+                centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+                candidates = points[window][inside]
+                radial = candidates - centre
+                radial -= np.outer(radial @ normal, normal)
+                core = np.linalg.norm(radial, axis=1) < 0.75 * radius
+                if core.sum() < 12:
+                    break
+                plane_points = candidates[core]
+        if len(edges) < 12 or len(uv) < 12:
             rejected["points"] += 1
             continue
-        e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(normal, e1)
-        uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
-        # keep edge points near the rim of the circle suggested by the bright blob
-        near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
-        uv = uv[near]
-        if len(uv) < 12:
-            rejected["points"] += 1
-            continue
-        centre_uv, _, rms = _fit_circle(uv, radius)
         _, free_r, _ = _fit_circle(uv, None)
         angles = np.arctan2(uv[:, 1] - centre_uv[1], uv[:, 0] - centre_uv[0])
         coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS

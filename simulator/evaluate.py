@@ -1,0 +1,101 @@
+"""Reconstructions measured against the simulator's ground truth (tests and benchmarks only;
+the pipeline never reads truth).
+
+The reconstruction lives in its own frame (the first pass's coarse frame); the *gauge* is the
+rigid transform from the specimen frame into it, fitted on the true specimen sticker centres
+against the registered specimen targets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from data_catalog.manifests import load_manifest
+from data_catalog.passes import read_pass
+from data_catalog.truth import TRUTH_DIR, read_truth, read_truth_pass
+from schemas.truth import Material, PointLabel
+from tasks.ingest import profile_points
+from tasks.matching import kabsch, match_rotation_invariant
+
+__all__ = ["STICKER_LIFT_MM", "Gauge", "fit_gauge", "PassMisalignment", "pass_misalignment"]
+
+STICKER_LIFT_MM = 0.1  # the paper sticker's thickness: its visible centre is this far off the surface
+_SPECIMEN = (Material.STEEL, Material.GROUND, Material.STICKER)
+
+
+@dataclass(frozen=True)
+class Gauge:
+    T_recon_specimen: np.ndarray  # (4, 4)
+    n_targets: int  # true specimen stickers matched to registered targets
+    n_true: int  # true specimen stickers
+    residual_mm: np.ndarray  # (n_targets,) after the fit
+
+
+def _true_sticker_centres(truth) -> np.ndarray:
+    return np.array([np.array(s.centre_mm) + STICKER_LIFT_MM * np.array(s.normal)
+                     for s in truth.stickers if s.on == "specimen"])
+
+
+def fit_gauge(sample_dir: Path, specimen_targets_mm: np.ndarray, all_targets_mm: np.ndarray | None = None, *,
+              match_mm: float = 1.0) -> Gauge:
+    """Pair the registered targets with the true specimen stickers and fit the rigid transform.
+    ``specimen_targets_mm``: targets known to be on the specimen (seen in both setups), for a
+    rough fit; ``all_targets_mm``: every registered target, paired by nearness after it."""
+    truth = read_truth(Path(sample_dir) / TRUTH_DIR / "truth.json")
+    true = _true_sticker_centres(truth)
+    found = specimen_targets_mm if all_targets_mm is None else all_targets_mm
+    T = match_rotation_invariant(specimen_targets_mm, true).T_a_b  # rough; then nearest pairs, refit
+    ok = np.zeros(len(found), bool)
+    k = np.zeros(len(found), int)
+    for _ in range(3):
+        moved = true @ T[:3, :3].T + T[:3, 3]
+        d = np.linalg.norm(found[:, None] - moved[None], axis=-1)
+        k = d.argmin(axis=1)
+        ok = d.min(axis=1) < match_mm
+        T = kabsch(true[k[ok]], found[ok])
+    moved = true[k[ok]] @ T[:3, :3].T + T[:3, 3]
+    return Gauge(T_recon_specimen=T, n_targets=int(ok.sum()), n_true=len(true),
+                 residual_mm=np.linalg.norm(moved - found[ok], axis=1))
+
+
+@dataclass(frozen=True)
+class PassMisalignment:
+    """Per pass, over the specimen surface it measured: the largest and the median distance
+    between where the reconstruction puts a measured point and where that point truly is, after
+    ``T_recon_specimen`` (the gauge: given, or else the rigid fit over all those points)."""
+
+    pass_ids: list[str]
+    max_mm: np.ndarray
+    median_mm: np.ndarray
+    T_recon_specimen: np.ndarray
+
+
+def pass_misalignment(sample_dir: Path, T_common_pass: np.ndarray, gauge: Gauge | None = None, *,
+                      every: int = 10) -> PassMisalignment:
+    """``T_common_pass`` (n, 4, 4) maps each pass's coarse points (the logged robot poses) into the
+    reconstruction; truth says where each of those points really is on the specimen. Without a
+    gauge, the reconstruction's frame is fitted to the truth over all points, so the figures are
+    the passes' misalignment alone, free of any error in where the targets put the whole."""
+    sample_dir = Path(sample_dir)
+    manifest = load_manifest(sample_dir)
+    truth = read_truth(sample_dir / TRUTH_DIR / "truth.json")
+    T_flange_sensor = np.array(manifest.scanner.T_flange_sensor)
+    ids, ours, true = [], [], []
+    for k, (setup, entry) in enumerate(manifest.passes()):
+        data = read_pass(sample_dir / entry.file)
+        tp = read_truth_pass(sample_dir / TRUTH_DIR / "passes" / f"{entry.pass_id}.zarr")
+        coarse = profile_points(data.x_mm, data.z_mm, data.T_world_flange @ T_flange_sensor)
+        on_specimen = np.isin(tp.material, _SPECIMEN) & (tp.label == PointLabel.VALID)
+        p = coarse[on_specimen][::every]
+        E = np.array(next(t.T_nominal_true for t in truth.passes if t.pass_id == entry.pass_id))
+        M = np.linalg.inv(np.array(truth.T_world_specimen[setup])) @ E  # coarse -> true, specimen frame
+        ids.append(entry.pass_id)
+        ours.append(p @ T_common_pass[k][:3, :3].T + T_common_pass[k][:3, 3])
+        true.append(p @ M[:3, :3].T + M[:3, 3])
+    G = gauge.T_recon_specimen if gauge is not None else kabsch(np.concatenate(true), np.concatenate(ours))
+    dist = [np.linalg.norm(o - (t @ G[:3, :3].T + G[:3, 3]), axis=1) for o, t in zip(ours, true)]
+    return PassMisalignment(ids, np.array([d.max() if len(d) else np.nan for d in dist]),
+                            np.array([np.median(d) if len(d) else np.nan for d in dist]), G)

@@ -1,0 +1,119 @@
+"""Joint pose refinement on targets and surfaces (tasks.refine), on synthetic passes whose true
+poses are known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tasks.refine import SurfaceSample, refine_poses, surface_sample
+
+
+def _surface(x, y):
+    """A plate with a weld-like cap across it (sharp toes at x = +-5 mm) and a gentle wave."""
+    return 2.0 * np.clip(1 - (x / 5.0) ** 2, 0, None) + 0.3 * np.sin(y / 7.0)
+
+
+def _pass(offset: float, rng: np.random.Generator, spacing: float = 0.3, noise: float = 0.005) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(-40, 40, spacing) + offset, np.arange(-15, 15, spacing) + offset, indexing="ij")
+    z = _surface(x, y) + noise * rng.standard_normal(x.shape)
+    return np.stack([x, y, z], axis=-1)  # organized (rows, cols, 3)
+
+
+def _transform(rotvec, t) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotvec).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def _apply(T, p):
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+@pytest.fixture(scope="module")
+def two_passes():
+    """Pass b saw the same surface on another grid, and its frame is off by ``T_true_b`` (its
+    points are recorded as T_true_b^-1 applied to where they truly are)."""
+    rng = np.random.default_rng(3)
+    a = _pass(0.0, rng)
+    b_true = _pass(0.13, rng)
+    T_true_b = _transform([4e-4, -3e-4, 5e-4], [0.06, -0.05, 0.04])
+    b = _apply(np.linalg.inv(T_true_b), b_true.reshape(-1, 3)).reshape(b_true.shape)
+    targets_true = np.array([[-30.0, -10, 0.3], [-25, 9, 0.1], [5, -8, 1.5], [28, 11, 0.5], [33, -12, 0.2]])
+    return a, b, T_true_b, targets_true, _apply(np.linalg.inv(T_true_b), targets_true)
+
+
+def _error(T_b, T_true_b, b):
+    """Largest distance between where the refined pose puts pass b's points and the truth."""
+    pts = b.reshape(-1, 3)
+    return np.linalg.norm(_apply(T_b, pts) - _apply(T_true_b, pts), axis=1).max()
+
+
+def test_surface_sample_thins_and_drops_curved_neighbourhoods(two_passes):
+    a = two_passes[0]
+    s = surface_sample(a, spacing_mm=1.0, normal_radius_mm=1.0)
+    assert 0.5 * 80 * 30 < len(s.points_mm) < 1.1 * 80 * 30  # about one per mm^2
+    assert np.allclose(np.linalg.norm(s.normals, axis=1), 1.0)
+    assert len(s.dense_mm) == a.shape[0] * a.shape[1]
+    loose = surface_sample(a, spacing_mm=1.0, normal_radius_mm=1.0, max_plane_rms_mm=10.0)
+    assert len(loose.points_mm) > len(s.points_mm)  # the bead's toes were dropped, not the plate
+    dropped = np.setdiff1d(loose.points_mm[:, 0].round(3), s.points_mm[:, 0].round(3))
+    assert len(dropped) and np.all(np.abs(np.abs(dropped) - 5) < 1.5)
+
+
+def test_refinement_recovers_the_true_pose(two_passes):
+    a, b, T_true_b, targets_a, targets_b = two_passes
+    samples = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
+    start = np.repeat(np.eye(4)[None], 2, axis=0)
+    edges = np.array([[0, 1]] * len(targets_a))
+    result = refine_poses(samples, start, edges, targets_a, targets_b)
+    assert np.allclose(result.T_common_pass[0], np.eye(4))  # the fixed pass stays
+    # measured 2.8 um: 5 um of noise per point, targets weighted as if they had 30 um
+    assert _error(result.T_common_pass[1], T_true_b, b) < 0.006
+    assert _error(start[1], T_true_b, b) > 0.09
+    assert result.step_mm[-1] < 0.005 and len(result.step_mm) < 10
+    assert set(result.pair_count) == {(0, 1), (1, 0)}
+    assert all(r < 0.015 for r in result.pair_rms_mm.values())  # noise of 5 um per point
+
+
+def test_surfaces_fix_what_noisy_targets_leave_loose(two_passes):
+    """With 30 um of error on each target, targets alone tilt pass b; the surfaces hold it."""
+    a, b, T_true_b, targets_a, targets_b = two_passes
+    rng = np.random.default_rng(5)
+    noisy_b = targets_b + 0.03 * rng.standard_normal(targets_b.shape)
+    samples = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
+    edges = np.array([[0, 1]] * len(targets_a))
+    start = np.repeat(np.eye(4)[None], 2, axis=0)
+    from tasks.matching import kabsch
+
+    targets_only = kabsch(noisy_b, targets_a)
+    refined = refine_poses(samples, start, edges, targets_a, noisy_b).T_common_pass[1]
+    assert _error(refined, T_true_b, b) < 0.5 * _error(targets_only, T_true_b, b)
+
+
+def test_curved_patches_would_bias_the_poses(two_passes):
+    """Point-to-plane distances on the bead's toes are biased; matching them anyway turns pass b
+    away from the truth, which is why they are left out."""
+    a, b, T_true_b, targets_a, targets_b = two_passes
+    edges = np.array([[0, 1]] * len(targets_a))
+    start = np.repeat(np.eye(4)[None], 2, axis=0)
+    loose = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0, max_plane_rms_mm=10.0) for g in (a, b)]
+    biased = refine_poses(loose, start, edges, targets_a, targets_b, max_plane_rms_mm=10.0, min_normal_cos=0.5)
+    strict = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
+    clean = refine_poses(strict, start, edges, targets_a, targets_b)
+    assert _error(clean.T_common_pass[1], T_true_b, b) < 0.5 * _error(biased.T_common_pass[1], T_true_b, b)
+
+
+def test_bad_input_is_named():
+    s = SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="T_common_pass"):
+        refine_poses([s, s], np.eye(4)[None], np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
+    bad = np.repeat(np.eye(4)[None], 2, axis=0)
+    bad[1, 0, 3] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        refine_poses([s, s], bad, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="points_a"):
+        refine_poses([s, s], np.repeat(np.eye(4)[None], 2, axis=0), np.array([[0, 1]]), np.full((1, 3), np.nan),
+                     np.zeros((1, 3)))
