@@ -86,13 +86,14 @@ def test_registration_recovers_the_true_pass_poses(run, ci_sample):
     # reconstruction puts each measured point against where that point really is, after the one
     # rigid fit of the whole reconstruction to the specimen.
     m = pass_misalignment(ci_sample, T_common)
-    # measured on the ci sample (0.32 mm points): worst 27 um, pass medians 4-14 um; the paper
+    # measured on the ci sample (0.32 mm points): worst 18 um, pass medians 4-8 um; the paper
     # saw < 50 um between overlapping scans
-    assert m.max_mm.max() < 0.040, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
-    assert np.median(m.median_mm) < 0.015, dict(zip(m.pass_ids, np.round(1000 * m.median_mm)))
-    # the same with the frame fixed by the targets instead: no error hides in the whole's placement
+    assert m.max_mm.max() < 0.030, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
+    assert np.median(m.median_mm) < 0.010, dict(zip(m.pass_ids, np.round(1000 * m.median_mm)))
+    # the same with the frame fixed by the targets instead (measured 17 um): no error hides in
+    # where the targets put the whole
     by_targets = pass_misalignment(ci_sample, T_common, _gauge(report, ci_sample))
-    assert by_targets.max_mm.max() < 0.045
+    assert by_targets.max_mm.max() < 0.030
 
 
 def test_refinement_beats_targets_alone(run, ci_sample):
@@ -100,7 +101,8 @@ def test_refinement_beats_targets_alone(run, ci_sample):
     targets_only = load_arrays(Path(report["stage_paths"]["register"]) / "registration.zarr")["T_common_pass"]
     before = pass_misalignment(ci_sample, targets_only)
     after = pass_misalignment(ci_sample, _refined(report)["T_common_pass"])
-    assert after.max_mm.max() < 0.85 * before.max_mm.max(), (before.max_mm.max(), after.max_mm.max())
+    # measured: worst 39 um on targets alone, 18 um refined
+    assert after.max_mm.max() < 0.7 * before.max_mm.max(), (before.max_mm.max(), after.max_mm.max())
     assert np.median(after.median_mm) < np.median(before.median_mm)
     assert report["stages"]["refine"]["surface_pairs"] >= 20
 
