@@ -17,6 +17,7 @@ import json
 import os
 import shutil
 import tempfile
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -64,11 +65,40 @@ class StageStore:
 
     def lookup(self, stage: str, key: str) -> StageRecord | None:
         """The record of a finished run with this key, or None. A folder without its record (a
-        run killed before the end) does not count."""
+        run killed before the end) does not count. Outputs are not re-hashed (see ``verified``)."""
         record = self.path(stage, key) / RECORD_NAME
         if not record.is_file():
             return None
         return StageRecord.model_validate_json(record.read_text())
+
+    def verified(self, stage: str, key: str) -> tuple[StageRecord | None, str | None]:
+        """Like ``lookup``, but every output is re-hashed against its record first. A stage whose
+        outputs changed (or whose record does not parse) is moved aside to
+        ``stages/<stage>/.corrupt-<key>-<time>`` and reported, so that it is recomputed, never
+        trusted: returns (None, what was wrong)."""
+        folder = self.path(stage, key)
+        if not (folder / RECORD_NAME).is_file():
+            return None, None
+        problem = None
+        try:
+            record = StageRecord.model_validate_json((folder / RECORD_NAME).read_text())
+        except ValueError as exc:
+            record, problem = None, f"its record does not parse ({str(exc).splitlines()[0]})"
+        if record is not None:
+            for name, digest in record.outputs.items():
+                try:
+                    actual = sha256_tree(folder / name)
+                except (FileNotFoundError, ValueError) as exc:
+                    problem = f"output {name}: {exc}"
+                    break
+                if actual != digest:
+                    problem = f"output {name} no longer matches its recorded sha256 ({digest[:12]}…)"
+                    break
+        if problem is None:
+            return record, None
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
+        os.rename(folder, folder.parent / f".corrupt-{key}-{stamp}")
+        return None, problem
 
     def build_dir(self, stage: str) -> Path:
         parent = self.root / "stages" / stage

@@ -107,11 +107,16 @@ def _print_report(report: dict, out: Path) -> None:
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
     _quiet_prefect()
-    from flows.reconstruct import reconstruct_sample
+    import getpass
+
+    from data_catalog.manifests import check_sample_files, load_manifest
+    from flows.reconstruct import load_config, reconstruct_sample
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
-    report = reconstruct_sample(str(sample), str(out), args.config)
+    check_sample_files(sample, load_manifest(sample))  # bad input is refused here, before a flow run
+    load_config(args.config)
+    report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})")
     _print_report(report, out)
     return 0
 
@@ -142,6 +147,122 @@ def _cmd_schema(args: argparse.Namespace) -> int:
     return 0
 
 
+def _workspace(args: argparse.Namespace) -> Path:
+    import os
+
+    return Path(args.workspace or os.environ.get("WELDRECON_WORKSPACE", "workspace"))
+
+
+def _cmd_catalog(args: argparse.Namespace) -> int:
+    from data_catalog.catalog import Catalog
+
+    catalog = Catalog(_workspace(args))
+    if args.action == "register":
+        status = 0
+        for path in args.paths:
+            folder = Path(path)
+            if (folder / "manifest.json").is_file():
+                record = catalog.register(folder)
+                print(f"{record.sample_id}: {record.state}{' (changed)' if record.due and record.state == 'done' else ''}")
+                continue
+            records, refused = catalog.scan(folder)
+            for record in records:
+                print(f"{record.sample_id}: {record.state}")
+            for line in refused:
+                print(f"not registered: {line}", file=sys.stderr)
+                status = 2
+        return status
+    if args.action == "list":
+        records = catalog.list()
+        if not records:
+            print(f"no samples in {catalog.path}")
+        for r in records:
+            state = r.state + (f" at {r.failed_stage}" if r.state == "failed" and r.failed_stage else "")
+            if r.state == "done" and r.due:
+                state += " (changed since)"
+            print(f"{r.sample_id:<24} {state:<28} {r.updated}  {r.sample_dir}")
+        return 0
+    record = catalog.get(args.sample)
+    print(f"sample      {record.sample_id}")
+    print(f"folder      {record.sample_dir}")
+    print(f"state       {record.state}" + (f" at stage {record.failed_stage}" if record.failed_stage else ""))
+    if record.error:
+        print(f"error       {record.error}")
+    print(f"fingerprint {record.fingerprint}" + ("" if not record.done_fingerprint or not record.due else
+                                                 f" (last done with {record.done_fingerprint[:12]}…)"))
+    print(f"run folder  {record.out_dir or '-'}")
+    print(f"registered  {record.registered}   updated {record.updated}")
+    for name, digest in sorted(record.artefacts.items()):
+        print(f"  {name}  sha256 {digest}")
+    return 0
+
+
+def _run_folder(args: argparse.Namespace) -> Path:
+    """A run folder given directly, or a sample id looked up in the catalog."""
+    target = Path(args.target)
+    if (target / "audit").is_dir() or target.is_dir():
+        return target
+    from data_catalog.catalog import Catalog
+
+    record = Catalog(_workspace(args)).get(args.target)
+    if not record.out_dir:
+        raise ValueError(f"sample {args.target} has not been reconstructed yet")
+    return Path(record.out_dir)
+
+
+def _cmd_audit(args: argparse.Namespace) -> int:
+    import json
+
+    from data_catalog.audit import read_trail, verify_trail
+
+    folder = _run_folder(args)
+    if args.action == "verify":
+        problems = verify_trail(folder)
+        entries = read_trail(folder)
+        if problems:
+            print(f"{folder}: audit trail NOT intact ({len(problems)} problem(s)):")
+            for problem in problems:
+                print(f"  {problem}")
+            return 1
+        n_artefacts = len({k for e in entries for k in (e.get("artefacts") or {})})
+        print(f"{folder}: audit trail intact: {len(entries)} entries chained, {n_artefacts} artefacts re-hashed")
+        return 0
+    for e in read_trail(folder):
+        if "_unreadable" in e:
+            print(f"   ?  unreadable: {e['_unreadable']}")
+            continue
+        head = f"{e['seq']:>4}  {e['time'][:19]}  {e['kind']:<17}"
+        if e["kind"] == "run-started":
+            print(f"{head} {e.get('sample_id')} by {e.get('started_by')}, flow run {e.get('flow_run_id')}"
+                  + (f", deployment {e.get('deployment_name')}" if e.get("deployment_name") else ""))
+        elif e["kind"] == "stage":
+            record = e.get("record") or {}
+            took = "reused" if e.get("cached") else f"{(record.get('metrics') or {}).get('seconds', '?')} s"
+            what = e["stage"] + (f" {e['item']}" if e.get("item") else "")
+            print(f"{head} {what:<22} {took:<9} key {e['cache_key'][:12]}  code {record.get('code_version')}  "
+                  f"host {record.get('host')}")
+        elif e["kind"] == "run-finished":
+            print(f"{head} " + ", ".join(f"{k} {v[:12]}" for k, v in (e.get("artefacts") or {}).items()))
+        elif e["kind"] == "run-failed":
+            print(f"{head} at {e.get('stage')}: {e.get('error')}")
+        else:
+            print(f"{head} " + json.dumps({k: v for k, v in e.items() if k not in ("seq", "time", "kind", "hash", "prev")}))
+    return 0
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    _quiet_prefect()
+    from flows.batch import reconstruct_batch
+
+    summary = reconstruct_batch(str(_workspace(args)), args.samples, args.config, args.max_concurrent,
+                                started_by="cli batch")
+    print(f"done: {', '.join(summary['done']) or 'none'}")
+    for sample_id, why in summary["failed"].items():
+        print(f"FAILED {sample_id} at {why['stage']}: {why['error']}")
+    print(f"up to date: {', '.join(summary['up_to_date']) or 'none'}")
+    return 1 if summary["failed"] else 0
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="weldrecon", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -161,15 +282,44 @@ def _parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="simulate the demo sample (once) and reconstruct it")
     demo.add_argument("--out", default="out/demo", help="folder for the sample and its reconstruction")
     demo.set_defaults(func=_cmd_demo)
+    ws = argparse.ArgumentParser(add_help=False)
+    ws.add_argument("--workspace", metavar="DIR", help="catalog and run folders (default: $WELDRECON_WORKSPACE "
+                                                       "or ./workspace)")
+    cat = sub.add_parser("catalog", help="the sample catalog: register, list, show")
+    cat_sub = cat.add_subparsers(dest="action", required=True)
+    reg = cat_sub.add_parser("register", parents=[ws], help="register sample folders, or every sample under a folder")
+    reg.add_argument("paths", nargs="+", metavar="PATH")
+    cat_sub.add_parser("list", parents=[ws], help="every sample and its state")
+    show = cat_sub.add_parser("show", parents=[ws], help="one sample: state, run folder, artefacts and hashes")
+    show.add_argument("sample", metavar="SAMPLE")
+    cat.set_defaults(func=_cmd_catalog)
+    batch = sub.add_parser("batch", parents=[ws], help="reconstruct every new, failed or changed sample")
+    batch.add_argument("--samples", metavar="DIR", help="register the sample folders under DIR first")
+    batch.add_argument("--config", metavar="FILE", help="YAML file of reconstruction settings")
+    batch.add_argument("--max-concurrent", type=int, default=1, help="samples reconstructed at once (default 1)")
+    batch.set_defaults(func=_cmd_batch)
+    aud = sub.add_parser("audit", help="a sample's audit trail: verify it, or show it")
+    aud_sub = aud.add_subparsers(dest="action", required=True)
+    for action, text in (("verify", "re-hash the chain and every recorded artefact; say what differs"),
+                         ("show", "print the trail readably")):
+        a = aud_sub.add_parser(action, parents=[ws], help=text)
+        a.add_argument("target", metavar="SAMPLE", help="a sample id in the catalog, or a run folder")
+    aud.set_defaults(func=_cmd_audit)
     schema = sub.add_parser("schema", help="print the sample manifest's JSON schema")
     schema.set_defaults(func=_cmd_schema)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    import signal
+
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `weldrecon audit show X | head` ends quietly
     args = _parser().parse_args(argv)
     try:
         return args.func(args)
+    except KeyError as exc:
+        print(f"weldrecon {args.command}: error: {exc.args[0]}", file=sys.stderr)
+        return 2
     except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as exc:
         print(f"weldrecon {args.command}: error: {exc}", file=sys.stderr)
         return 2

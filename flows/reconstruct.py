@@ -18,7 +18,9 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from pydantic import ValidationError
 
 from data_catalog.atomic import atomic_write_text
-from data_catalog.manifests import load_manifest
+from data_catalog import audit
+from data_catalog.hashing import sha256_file
+from data_catalog.manifests import check_sample_files, load_manifest
 from data_catalog.stages import StageStore
 from flows import stages
 from schemas.manifest import SampleManifest
@@ -104,8 +106,6 @@ def _publish(out_dir: Path, manifest: SampleManifest, refs: dict[str, Any], conf
     """Copy the deliverables into ``results/`` and write the sample's report."""
     import shutil
 
-    from data_catalog.hashing import sha256_file
-
     results = out_dir / "results"
     results.mkdir(exist_ok=True)
     outputs = {}
@@ -150,33 +150,91 @@ def _gather(futures, what: str) -> list[stages.Ref]:
     return results
 
 
+def _trigger(started_by: str | None) -> dict[str, Any]:
+    """Who or what started this run: the caller's word, the deployment and its schedule, the
+    parent flow run (a batch), and the Prefect run ids."""
+    import getpass
+    import socket
+
+    from prefect.runtime import deployment, flow_run
+
+    info: dict[str, Any] = {"flow_run_id": str(flow_run.id) if flow_run.id else None,
+                            "flow_run_name": flow_run.name, "parent_flow_run_id": flow_run.parent_flow_run_id,
+                            "deployment_id": deployment.id, "deployment_name": deployment.name,
+                            "host": socket.gethostname(), "user": getpass.getuser()}
+    auto_scheduled = False
+    if deployment.id and flow_run.id:
+        try:
+            from prefect.client.orchestration import get_client
+
+            with get_client(sync_client=True) as client:
+                auto_scheduled = bool(client.read_flow_run(flow_run.id).auto_scheduled)
+        except Exception:  # noqa: BLE001 - the trigger is recorded as well as it can be
+            pass
+    if started_by:
+        info["started_by"] = started_by
+    elif deployment.id:
+        info["started_by"] = "schedule" if auto_scheduled else "deployment"
+    elif flow_run.parent_flow_run_id:
+        info["started_by"] = "batch"
+    else:
+        info["started_by"] = "python"
+    return info
+
+
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
-def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None) -> dict[str, Any]:
-    """Reconstruct one sample folder (manifest + passes) into ``out_dir``."""
+def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None,
+                       started_by: str | None = None) -> dict[str, Any]:
+    """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
+
+    The manifest and the pass files' sizes and paths are checked before any work; every stage
+    and the run itself go into ``out_dir``'s audit trail (data_catalog.audit)."""
     log = get_run_logger()
     sample = Path(sample_dir)
     manifest = load_manifest(sample)
+    check_sample_files(sample, manifest)
     config = load_config(config_path)
     store = StageStore(Path(out_dir))
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     atomic_write_text(Path(out_dir) / "config.json", config.model_dump_json(indent=2) + "\n")
-    entries = [e for _, e in manifest.passes()]
-    log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
-    clouds = denoise_pass.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
-    targets = detect_pass_targets.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
-    cloud_refs = _gather(clouds, "denoising")
-    target_refs = _gather(targets, "target detection")
-    register_ref = register.submit(store, manifest, target_refs, config).result()
-    log.info("registration: %s", register_ref["metrics"])
-    refine_ref = refine.submit(store, manifest, cloud_refs, register_ref, config).result()
-    log.info("refinement: %s", refine_ref["metrics"])
-    merge_ref = merge.submit(store, manifest, cloud_refs, refine_ref, config).result()
-    segment_ref = segment.submit(store, manifest, merge_ref, refine_ref, config).result()
-    log.info("specimen: %s", segment_ref["metrics"])
-    mesh_ref = mesh.submit(store, manifest, segment_ref, config).result()
-    log.info("mesh: %s", mesh_ref["metrics"])
-    export_ref = export.submit(store, manifest, mesh_ref).result()
-    refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "refine": refine_ref,
-            "merge": merge_ref,
-            "segment": segment_ref, "mesh": mesh_ref, "export": export_ref}
-    return _publish(Path(out_dir), manifest, refs, config)
+    audit.append(Path(out_dir), "run-started", sample_id=manifest.sample_id, sample_dir=str(sample.resolve()),
+                 config=config.model_dump(mode="json"), **_trigger(started_by))
+    stage = "cloud"
+    try:
+        entries = [e for _, e in manifest.passes()]
+        log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
+        clouds = denoise_pass.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
+        targets = detect_pass_targets.map(unmapped(store), unmapped(sample), unmapped(manifest), entries,
+                                          unmapped(config))
+        cloud_refs = _gather(clouds, "denoising")
+        stage = "targets"
+        target_refs = _gather(targets, "target detection")
+        stage = "register"
+        register_ref = register.submit(store, manifest, target_refs, config).result()
+        log.info("registration: %s", register_ref["metrics"])
+        stage = "refine"
+        refine_ref = refine.submit(store, manifest, cloud_refs, register_ref, config).result()
+        log.info("refinement: %s", refine_ref["metrics"])
+        stage = "merge"
+        merge_ref = merge.submit(store, manifest, cloud_refs, refine_ref, config).result()
+        stage = "segment"
+        segment_ref = segment.submit(store, manifest, merge_ref, refine_ref, config).result()
+        log.info("specimen: %s", segment_ref["metrics"])
+        stage = "mesh"
+        mesh_ref = mesh.submit(store, manifest, segment_ref, config).result()
+        log.info("mesh: %s", mesh_ref["metrics"])
+        stage = "export"
+        export_ref = export.submit(store, manifest, mesh_ref).result()
+        refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "refine": refine_ref,
+                "merge": merge_ref, "segment": segment_ref, "mesh": mesh_ref, "export": export_ref}
+        stage = "report"
+        report = _publish(Path(out_dir), manifest, refs, config)
+    except BaseException as exc:
+        audit.append(Path(out_dir), "run-failed", sample_id=manifest.sample_id, stage=stage,
+                     error=f"{type(exc).__name__}: {exc}")
+        raise
+    results = {f"results/{name}": item["sha256"] for name, item in report["outputs"].items()}
+    results["results/report.json"] = sha256_file(Path(out_dir) / "results" / "report.json")
+    audit.append(Path(out_dir), "run-finished", sample_id=manifest.sample_id, artefacts=results,
+                 cached={k: v for k, v in report["cached"].items()})
+    return report

@@ -12,16 +12,17 @@ import json
 import socket
 import time
 from collections.abc import Callable
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from data_catalog import audit
 from data_catalog.atomic import atomic_write_text
-from data_catalog.hashing import sha256_tree
+from data_catalog.hashing import sha256_file, sha256_tree
 from data_catalog.passes import PassFormatError, read_pass
-from data_catalog.stages import StageStore, cache_key, load_arrays, save_arrays
+from data_catalog.stages import RECORD_NAME, StageStore, cache_key, load_arrays, save_arrays
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.provenance import StageRecord
 from schemas.reconstruction import ReconstructionConfig
@@ -77,26 +78,58 @@ def pass_hash(sample_dir: Path, entry: PassEntry) -> str:
     return actual
 
 
+def _run_ids() -> dict[str, str | None]:
+    """The Prefect flow run and task run this stage runs in (None outside Prefect)."""
+    try:
+        from prefect.runtime import flow_run, task_run
+
+        return {"flow_run_id": str(flow_run.id) if flow_run.id else None,
+                "task_run_id": str(task_run.id) if task_run.id else None}
+    except Exception:  # noqa: BLE001 - provenance is best effort outside a run
+        return {"flow_run_id": None, "task_run_id": None}
+
+
+def _artefacts(store: StageStore, stage: str, key: str, outputs: dict[str, str]) -> dict[str, str]:
+    """Run-folder-relative path -> sha256 of a stage's outputs, for the audit trail."""
+    folder = store.path(stage, key).relative_to(store.root)
+    found = {(folder / name).as_posix(): digest for name, digest in outputs.items()}
+    found[(folder / RECORD_NAME).as_posix()] = sha256_file(store.root / folder / RECORD_NAME)
+    return found
+
+
 def _run(store: StageStore, *, sample_id: str, stage: str, item: str | None, inputs: dict[str, str],
          parameters: dict[str, Any], body: Callable[[Path], dict[str, Any]], outputs: list[str],
          code_of: Callable) -> Ref:
+    """Run a stage body unless the store holds its outputs (verified by hash); either way the
+    stage's provenance goes into the sample's audit trail."""
     code_version = _code_version(stage, code_of)
     key = cache_key(stage if item is None else f"{stage}/{item}", inputs, parameters, code_version)
-    found = store.lookup(stage, key)
+    ids = _run_ids()
+    found, problem = store.verified(stage, key)
+    if problem is not None:
+        audit.append(store.root, "stage-recomputed", stage=stage, item=item, cache_key=key,
+                     reason=f"cached outputs failed their hash check: {problem}; set aside and recomputed", **ids)
     if found is not None:
+        audit.append(store.root, "stage", stage=stage, item=item, cache_key=key, cached=True,
+                     record=found.model_dump(mode="json"), artefacts=_artefacts(store, stage, key, found.outputs),
+                     **ids)
         return {"stage": stage, "key": key, "path": str(store.path(stage, key)), "outputs": found.outputs,
                 "cached": True, "metrics": found.metrics}
     build = store.build_dir(stage)
-    started = datetime.now(timezone.utc)
+    started = datetime.now(UTC)
     t0 = time.perf_counter()
     metrics = body(build)
     metrics["seconds"] = round(time.perf_counter() - t0, 3)
     record = StageRecord(sample_id=sample_id, stage=stage, item=item, cache_key=key, inputs=inputs,
                          outputs={name: "" for name in outputs}, parameters=parameters,
                          code_version=code_version, host=socket.gethostname(),
-                         started=started, finished=datetime.now(timezone.utc), metrics=metrics)
+                         started=started, finished=datetime.now(UTC), metrics=metrics,
+                         flow_run_id=ids["flow_run_id"])
     final = store.commit(build, record)
     committed = store.lookup(stage, key)
+    audit.append(store.root, "stage", stage=stage, item=item, cache_key=key, cached=False,
+                 record=committed.model_dump(mode="json"), artefacts=_artefacts(store, stage, key, committed.outputs),
+                 **ids)
     return {"stage": stage, "key": key, "path": str(final), "outputs": committed.outputs, "cached": False,
             "metrics": committed.metrics}
 

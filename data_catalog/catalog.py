@@ -1,0 +1,207 @@
+"""The sample catalog: which samples exist, what state each is in, what it produced.
+
+An embedded SQLite database (``<workspace>/catalog.sqlite``, WAL mode): no server, safe for the
+threads and processes of one machine. Several machines sharing one catalog need a database
+server instead (see the README); the schema is plain SQL.
+
+A sample is registered from its folder (manifest + passes). Its *fingerprint* is the sha256 of
+the manifest file and of every pass file's content: a sample is due for reconstruction when it is
+new, when its last run failed, or when its fingerprint differs from the one its last successful
+run saw (a repaired or re-scanned pass).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sqlite3
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from data_catalog.hashing import sha256_file, sha256_tree
+from data_catalog.manifests import MANIFEST_NAME, check_sample_files, load_manifest
+
+__all__ = ["CATALOG_NAME", "SampleState", "SampleRecord", "Catalog", "fingerprint"]
+
+CATALOG_NAME = "catalog.sqlite"
+
+
+class SampleState:
+    NEW = "new"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples (
+    sample_id TEXT PRIMARY KEY,
+    sample_dir TEXT NOT NULL,
+    fingerprint TEXT NOT NULL,
+    state TEXT NOT NULL,
+    failed_stage TEXT,
+    error TEXT,
+    out_dir TEXT,
+    done_fingerprint TEXT,
+    artefacts TEXT NOT NULL DEFAULT '{}',
+    flow_run_id TEXT,
+    registered TEXT NOT NULL,
+    updated TEXT NOT NULL
+)
+"""
+
+
+@dataclass(frozen=True)
+class SampleRecord:
+    sample_id: str
+    sample_dir: str
+    fingerprint: str
+    state: str
+    failed_stage: str | None
+    error: str | None
+    out_dir: str | None
+    done_fingerprint: str | None
+    artefacts: dict[str, str]
+    flow_run_id: str | None
+    registered: str
+    updated: str
+
+    @property
+    def due(self) -> bool:
+        """New, failed, interrupted, or changed since its last successful run."""
+        return self.state != SampleState.DONE or self.fingerprint != self.done_fingerprint
+
+
+def fingerprint(sample_dir: Path) -> str:
+    """sha256 over the manifest file and every pass file's content (in manifest order)."""
+    sample_dir = Path(sample_dir)
+    manifest = load_manifest(sample_dir)
+    digest = hashlib.sha256(sha256_file(sample_dir / MANIFEST_NAME).encode())
+    for _, entry in manifest.passes():
+        path = sample_dir / entry.file
+        digest.update(f"{entry.pass_id}:{sha256_tree(path) if path.exists() else 'missing'}\n".encode())
+    return digest.hexdigest()
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+class Catalog:
+    """The catalog in ``workspace`` (created on first use)."""
+
+    def __init__(self, workspace: Path) -> None:
+        self.workspace = Path(workspace)
+        self.path = self.workspace / CATALOG_NAME
+        self.workspace.mkdir(parents=True, exist_ok=True)
+        with self._connect() as db:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.execute(_SCHEMA)
+
+    @contextmanager
+    def _connect(self) -> Iterator[sqlite3.Connection]:
+        db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        db.row_factory = sqlite3.Row
+        try:
+            yield db
+        finally:
+            db.close()
+
+    def out_dir_for(self, sample_id: str) -> Path:
+        return self.workspace / "runs" / sample_id
+
+    # -- registration -------------------------------------------------------------------------
+
+    def register(self, sample_dir: Path) -> SampleRecord:
+        """Register (or refresh) one sample folder; its manifest and files are checked first."""
+        sample_dir = Path(sample_dir).resolve()
+        manifest = load_manifest(sample_dir)
+        check_sample_files(sample_dir, manifest)
+        digest = fingerprint(sample_dir)
+        now = _now()
+        with self._connect() as db:
+            row = db.execute("SELECT sample_dir FROM samples WHERE sample_id = ?", (manifest.sample_id,)).fetchone()
+            if row is not None and Path(row["sample_dir"]) != sample_dir:
+                raise ValueError(f"sample {manifest.sample_id} is already registered from {row['sample_dir']}; "
+                                 f"{sample_dir} holds another sample with the same id")
+            if row is None:
+                db.execute("INSERT INTO samples (sample_id, sample_dir, fingerprint, state, registered, updated) "
+                           "VALUES (?, ?, ?, ?, ?, ?)",
+                           (manifest.sample_id, str(sample_dir), digest, SampleState.NEW, now, now))
+            else:
+                db.execute("UPDATE samples SET fingerprint = ?, updated = ? WHERE sample_id = ?",
+                           (digest, now, manifest.sample_id))
+        return self.get(manifest.sample_id)
+
+    def scan(self, folder: Path) -> tuple[list[SampleRecord], list[str]]:
+        """Register every sample folder (one holding a manifest) directly under ``folder``.
+        Returns the registered samples and, per folder that could not be, why."""
+        registered, refused = [], []
+        for child in sorted(Path(folder).iterdir()):
+            if (child / MANIFEST_NAME).is_file():
+                try:
+                    registered.append(self.register(child))
+                except (ValueError, OSError) as exc:
+                    refused.append(f"{child}: {exc}")
+        return registered, refused
+
+    # -- queries ------------------------------------------------------------------------------
+
+    @staticmethod
+    def _record(row: sqlite3.Row) -> SampleRecord:
+        values = dict(row)
+        values["artefacts"] = json.loads(values["artefacts"] or "{}")
+        return SampleRecord(**values)
+
+    def get(self, sample_id: str) -> SampleRecord:
+        with self._connect() as db:
+            row = db.execute("SELECT * FROM samples WHERE sample_id = ?", (sample_id,)).fetchone()
+        if row is None:
+            raise KeyError(f"sample {sample_id!r} is not in the catalog {self.path}")
+        return self._record(row)
+
+    def list(self) -> list[SampleRecord]:
+        with self._connect() as db:
+            return [self._record(r) for r in db.execute("SELECT * FROM samples ORDER BY sample_id")]
+
+    def due(self) -> list[SampleRecord]:
+        """Samples to reconstruct: their fingerprints are refreshed from disk first."""
+        out = []
+        for record in self.list():
+            try:
+                current = fingerprint(Path(record.sample_dir))
+            except (ValueError, OSError) as exc:
+                self._set(record.sample_id, state=SampleState.FAILED, failed_stage="register",
+                          error=f"cannot read the sample: {exc}")
+                continue
+            if current != record.fingerprint:
+                self._set(record.sample_id, fingerprint=current)
+            refreshed = self.get(record.sample_id)
+            if refreshed.due:
+                out.append(refreshed)
+        return out
+
+    # -- state changes ------------------------------------------------------------------------
+
+    def _set(self, sample_id: str, **fields: Any) -> None:
+        fields["updated"] = _now()
+        if "artefacts" in fields:
+            fields["artefacts"] = json.dumps(fields["artefacts"], sort_keys=True)
+        columns = ", ".join(f"{k} = ?" for k in fields)
+        with self._connect() as db:
+            db.execute(f"UPDATE samples SET {columns} WHERE sample_id = ?", (*fields.values(), sample_id))  # noqa: S608
+
+    def mark_running(self, sample_id: str, out_dir: Path, flow_run_id: str | None = None) -> None:
+        self._set(sample_id, state=SampleState.RUNNING, out_dir=str(out_dir), failed_stage=None, error=None,
+                  flow_run_id=flow_run_id)
+
+    def mark_done(self, sample_id: str, fingerprint_seen: str, artefacts: dict[str, str]) -> None:
+        self._set(sample_id, state=SampleState.DONE, done_fingerprint=fingerprint_seen, artefacts=artefacts,
+                  failed_stage=None, error=None)
+
+    def mark_failed(self, sample_id: str, stage: str | None, error: str) -> None:
+        self._set(sample_id, state=SampleState.FAILED, failed_stage=stage, error=error)

@@ -1,0 +1,105 @@
+"""The ``reconstruct_batch`` flow: every sample in the catalog that is new, failed or changed is
+reconstructed, each as a subflow run of ``reconstruct_sample``, at most ``max_concurrent`` at a
+time; one sample failing never stops the others. Returns (and logs) a summary.
+"""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from pathlib import Path
+from typing import Any
+
+from prefect import flow, get_run_logger, task
+from prefect.cache_policies import NO_CACHE
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from data_catalog import audit
+from data_catalog.catalog import Catalog, SampleRecord, fingerprint
+from flows.reconstruct import reconstruct_sample
+
+__all__ = ["reconstruct_batch", "reconstruct_one"]
+
+
+def _failed_stage(out_dir: Path) -> str | None:
+    """The stage the sample's last run failed in, from its audit trail."""
+    try:
+        entries = audit.read_trail(out_dir)
+    except FileNotFoundError:
+        return None
+    for entry in reversed(entries):
+        if entry.get("kind") == "run-failed":
+            return entry.get("stage")
+        if entry.get("kind") == "run-started":
+            return None
+    return None
+
+
+@task(name="reconstruct-one", task_run_name="sample {record.sample_id}", cache_policy=NO_CACHE)
+def reconstruct_one(workspace: str, record: SampleRecord, config_path: str | None, started_by: str,
+                    slots: str | None = None) -> dict[str, Any]:
+    """One sample as a subflow run; its outcome goes into the catalog and is returned, never raised.
+    ``slots`` names the batch's concurrency limit (a semaphore in this process)."""
+    limit = _SLOTS.get(slots) if slots else None
+    if limit is None:
+        return _reconstruct_one(workspace, record, config_path, started_by)
+    with limit:
+        return _reconstruct_one(workspace, record, config_path, started_by)
+
+
+def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | None, started_by: str) -> dict[str, Any]:
+    from prefect.runtime import flow_run
+
+    catalog = Catalog(Path(workspace))
+    out_dir = catalog.out_dir_for(record.sample_id)
+    seen = record.fingerprint
+    catalog.mark_running(record.sample_id, out_dir, str(flow_run.id) if flow_run.id else None)
+    try:
+        seen = fingerprint(Path(record.sample_dir))
+        report = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by)
+    except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
+        stage = _failed_stage(out_dir)
+        message = f"{type(exc).__name__}: {exc}"
+        catalog.mark_failed(record.sample_id, stage, message)
+        return {"sample_id": record.sample_id, "state": "failed", "stage": stage, "error": message}
+    artefacts = {name: item["sha256"] for name, item in report["outputs"].items()}
+    catalog.mark_done(record.sample_id, seen, artefacts)
+    return {"sample_id": record.sample_id, "state": "done", "out_dir": str(out_dir),
+            "cached_stages": sorted(k for k, v in report["cached"].items() if v)}
+
+
+_SLOTS: dict[str, threading.BoundedSemaphore] = {}
+
+
+@flow(name="reconstruct-batch", task_runner=ThreadPoolTaskRunner(max_workers=8), log_prints=False)
+def reconstruct_batch(workspace: str, samples_root: str | None = None, config_path: str | None = None,
+                      max_concurrent: int = 1, started_by: str | None = None) -> dict[str, Any]:
+    """Register the sample folders under ``samples_root`` (when given) in ``workspace``'s catalog,
+    then reconstruct every sample that is due. ``max_concurrent`` samples run at once."""
+    log = get_run_logger()
+    catalog = Catalog(Path(workspace))
+    refused: list[str] = []
+    if samples_root is not None:
+        _, refused = catalog.scan(Path(samples_root))
+        for line in refused:
+            log.warning("not registered: %s", line)
+    due = catalog.due()
+    log.info("%d sample(s) due: %s", len(due), ", ".join(r.sample_id for r in due) or "none")
+    trigger = started_by or "batch"
+    slots = str(uuid.uuid4())
+    _SLOTS[slots] = threading.BoundedSemaphore(max(1, max_concurrent))
+    try:
+        futures = [reconstruct_one.submit(workspace, record, config_path, trigger, slots) for record in due]
+        results = [f.result() for f in futures]
+    finally:
+        _SLOTS.pop(slots, None)
+    summary = {"done": [r["sample_id"] for r in results if r["state"] == "done"],
+               "failed": {r["sample_id"]: {"stage": r["stage"], "error": r["error"]}
+                          for r in results if r["state"] == "failed"},
+               "not_registered": refused,
+               "up_to_date": sorted({r.sample_id for r in catalog.list()} - {r.sample_id for r in due})}
+    for sample_id, why in summary["failed"].items():
+        log.error("sample %s failed at %s: %s", sample_id, why["stage"], why["error"])
+    log.info("batch: %d done, %d failed, %d up to date", len(summary["done"]), len(summary["failed"]),
+             len(summary["up_to_date"]))
+    return summary
