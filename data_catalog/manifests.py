@@ -57,7 +57,10 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
     to the stages, which name every missing pass at once."""
     root = Path(sample_dir)
     real_root = root.resolve()
-    total = 0
+    total = sum(entry.n_profiles for _, entry in manifest.passes()) * manifest.scanner.points_per_profile
+    if total > MAX_POINTS_PER_SAMPLE:
+        raise ManifestError(f"{root}: the manifest's passes declare {total:,} points (n_profiles x "
+                            f"points_per_profile), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
     for setup, entry in manifest.passes():
         path = root / entry.file
         where = f"pass {entry.pass_id} (setup {setup})"
@@ -67,10 +70,6 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
                 leaves = real_root not in target.parents and target != real_root
                 raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
                                     f"(to {target}); a sample must hold its own pass files")
-        total += entry.n_profiles * manifest.scanner.points_per_profile
-        if total > MAX_POINTS_PER_SAMPLE:
-            raise ManifestError(f"{where}: the passes up to here declare {total:,} points, more than "
-                                f"{MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
         meta = path / "x_mm" / "zarr.json"
         if meta.is_file():
             try:

@@ -10,6 +10,7 @@ unless the caller asks for the open mesh.
 from __future__ import annotations
 
 import os
+import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,6 +19,8 @@ import open3d as o3d
 import pymeshlab
 
 from tasks.checks import check_points
+
+_MESHLAB = threading.Lock()
 
 __all__ = ["MeshReport", "SurfaceResult", "estimate_normals", "mesh_report", "screened_poisson", "write_mesh"]
 
@@ -182,16 +185,18 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         raise ValueError("normals holds zero vectors")
     if not isinstance(threads, (int, np.integer)) or threads < 1:
         raise ValueError(f"threads must be an integer >= 1, got {threads}")
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(points),
-                               v_normals_matrix=np.ascontiguousarray(normal_array)))
-    ms.generate_surface_reconstruction_screened_poisson(
-        depth=int(depth), samplespernode=float(samples_per_node), pointweight=float(point_weight),
-        scale=float(scale), preclean=False, confidence=False, threads=int(threads))
-    mesh = ms.current_mesh()
-    vertices = np.array(mesh.vertex_matrix(), dtype=np.float64)
-    triangles = np.array(mesh.face_matrix(), dtype=np.int64)
-    density = np.array(mesh.vertex_scalar_array(), dtype=np.float64)
+    with _MESHLAB:  # pymeshlab is not thread-safe: two Poisson runs at once crash (seen: SIGSEGV)
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(points),
+                                   v_normals_matrix=np.ascontiguousarray(normal_array)))
+        ms.generate_surface_reconstruction_screened_poisson(
+            depth=int(depth), samplespernode=float(samples_per_node), pointweight=float(point_weight),
+            scale=float(scale), preclean=False, confidence=False, threads=int(threads))
+        mesh = ms.current_mesh()
+        vertices = np.array(mesh.vertex_matrix(), dtype=np.float64)
+        triangles = np.array(mesh.face_matrix(), dtype=np.int64)
+        density = np.array(mesh.vertex_scalar_array(), dtype=np.float64)
+        del mesh, ms
     vertices, triangles, density = _canonical_order(*_drop_unused_vertices(vertices, triangles, density))
     report = mesh_report(vertices, triangles)
     notes = [] if report.watertight else [

@@ -7,6 +7,8 @@ from pathlib import Path
 import pytest
 
 from simulator.presets import preset_config
+
+CI_CONFIG = Path(__file__).resolve().parents[1] / "deploy" / "configs" / "ci.yaml"
 from simulator.run import simulate
 
 
@@ -20,3 +22,16 @@ def ci_sample(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def ci_config():
     return preset_config("ci")
+
+
+@pytest.fixture(scope="session")
+def ci_run(ci_sample, tmp_path_factory):
+    """The ``ci`` sample reconstructed once (real Prefect engine, ci settings): (run folder, report)."""
+    import os
+
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    from flows.reconstruct import reconstruct_sample
+
+    out = tmp_path_factory.mktemp("recon") / "run"
+    report = reconstruct_sample(str(ci_sample), str(out), str(CI_CONFIG), started_by="pytest")
+    return out, report

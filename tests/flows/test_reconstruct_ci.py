@@ -23,12 +23,8 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 
 @pytest.fixture(scope="module")
-def run(ci_sample, tmp_path_factory):
-    from flows.reconstruct import reconstruct_sample
-
-    out = tmp_path_factory.mktemp("recon") / "run"
-    report = reconstruct_sample(str(ci_sample), str(out), CI_CONFIG)
-    return out, report
+def run(ci_run):
+    return ci_run
 
 
 def _stage_path(report, out, stage):

@@ -1,0 +1,135 @@
+"""The sample catalog and the ``reconstruct_batch`` flow: three ``ci`` samples, one with a
+truncated pass file; then the repair; and bad sample folders refused before any work."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from data_catalog.catalog import Catalog
+from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
+
+REPO = Path(__file__).resolve().parents[2]
+CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+
+
+def _copy_sample(ci_sample: Path, dst: Path, sample_id: str) -> Path:
+    dst.mkdir(parents=True)
+    manifest = json.loads((ci_sample / "manifest.json").read_text())
+    manifest["sample_id"] = sample_id
+    shutil.copytree(ci_sample / "passes", dst / "passes")
+    (dst / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return dst
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING")
+    return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True, text=True, cwd=REPO,
+                          env=env, timeout=600)
+
+
+def _largest_chunk(pass_dir: Path) -> Path:
+    return max((p for p in (pass_dir / "x_mm").rglob("*") if p.is_file() and p.name != "zarr.json"),
+               key=lambda p: p.stat().st_size)
+
+
+def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repair(ci_sample, tmp_path):
+    from flows.batch import reconstruct_batch
+
+    samples = tmp_path / "samples"
+    for name in ("a", "b", "c"):
+        _copy_sample(ci_sample, samples / name, f"batch-{name}")
+    chunk = _largest_chunk(samples / "c" / "passes" / "bottom-L03.zarr")
+    original = chunk.read_bytes()
+    chunk.write_bytes(original[: len(original) // 2])  # truncated
+    workspace = tmp_path / "ws"
+
+    first = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")
+    assert sorted(first["done"]) == ["batch-a", "batch-b"]
+    assert list(first["failed"]) == ["batch-c"]
+    why = first["failed"]["batch-c"]
+    assert why["stage"] == "cloud" and "bottom-L03" in why["error"]
+    catalog = Catalog(workspace)
+    states = {r.sample_id: (r.state, r.failed_stage) for r in catalog.list()}
+    assert states == {"batch-a": ("done", None), "batch-b": ("done", None), "batch-c": ("failed", "cloud")}
+    for sample_id in ("batch-a", "batch-b"):
+        record = catalog.get(sample_id)
+        stl = Path(record.out_dir) / "results" / f"{sample_id}.stl"
+        assert record.artefacts[f"{sample_id}.stl"] and stl.is_file()
+    listed = _cli("catalog", "list", "--workspace", str(workspace))
+    assert "batch-c" in listed.stdout and "failed at cloud" in listed.stdout
+    shown = _cli("catalog", "show", "batch-c", "--workspace", str(workspace))
+    assert "bottom-L03" in shown.stdout and "state       failed at stage cloud" in shown.stdout
+
+    chunk.write_bytes(original)  # repaired
+    second = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")
+    assert second["done"] == ["batch-c"] and second["failed"] == {}
+    assert sorted(second["up_to_date"]) == ["batch-a", "batch-b"]
+    assert catalog.get("batch-c").state == "done"
+    third = reconstruct_batch(str(workspace), None, CI_CONFIG, started_by="pytest")
+    assert third["done"] == [] and len(third["up_to_date"]) == 3
+
+
+def test_catalog_refuses_a_second_folder_with_the_same_sample_id(ci_sample, tmp_path):
+    catalog = Catalog(tmp_path / "ws")
+    catalog.register(_copy_sample(ci_sample, tmp_path / "one", "dup"))
+    with pytest.raises(ValueError, match="already registered"):
+        catalog.register(_copy_sample(ci_sample, tmp_path / "two", "dup"))
+    with pytest.raises(KeyError, match="nope"):
+        catalog.get("nope")
+    shown = _cli("catalog", "show", "nope", "--workspace", str(tmp_path / "ws"))
+    assert shown.returncode == 2 and "'nope' is not in the catalog" in shown.stderr
+
+
+def _edit_manifest(sample: Path, edit) -> None:
+    manifest = json.loads((sample / "manifest.json").read_text())
+    edit(manifest)
+    (sample / "manifest.json").write_text(json.dumps(manifest))
+
+
+def _first_pass(manifest):
+    return manifest["setups"][0]["passes"][0]
+
+
+@pytest.mark.parametrize("case", ["traversal", "symlink-out", "symlink-dir", "absurd-size", "size-mismatch",
+                                  "nan-pose"])
+def test_bad_sample_folders_are_refused_before_any_work(ci_sample, tmp_path, case):
+    sample = _copy_sample(ci_sample, tmp_path / "s", "bad")
+    outside = tmp_path / "elsewhere"
+    if case == "traversal":
+        _edit_manifest(sample, lambda m: _first_pass(m).update(file="../../etc/passwd"))
+        expect = "must not leave the sample folder"
+    elif case == "symlink-out":
+        first = sample / _first_pass(json.loads((sample / "manifest.json").read_text()))["file"]
+        shutil.move(first, outside)
+        first.symlink_to(outside)
+        expect = "symbolic link leading out of the sample folder"
+    elif case == "symlink-dir":
+        shutil.move(sample / "passes", outside)
+        (sample / "passes").symlink_to(outside)
+        expect = "symbolic link leading out of the sample folder"
+    elif case == "absurd-size":
+        _edit_manifest(sample, lambda m: [p.update(n_profiles=9_000_000) for s in m["setups"] for p in s["passes"]])
+        expect = "that is not a scan of one specimen"
+    elif case == "size-mismatch":
+        _edit_manifest(sample, lambda m: _first_pass(m).update(n_profiles=_first_pass(m)["n_profiles"] + 1))
+        expect = "the manifest declares n_profiles"
+    else:
+        _edit_manifest(sample, lambda m: m["scanner"]["T_flange_sensor"][0].__setitem__(3, float("nan")))
+        expect = "T_flange_sensor"
+    with pytest.raises(ManifestError, match=expect):
+        check_sample_files(sample, load_manifest(sample))
+    out = tmp_path / "out"
+    done = _cli("reconstruct", str(sample), "--config", CI_CONFIG, "--out", str(out))
+    assert done.returncode == 2, done.stdout + done.stderr
+    assert expect in done.stderr and "Traceback" not in done.stderr
+    assert not out.exists()  # refused before any work
+    with pytest.raises(ManifestError, match=expect):
+        Catalog(tmp_path / "ws").register(sample)

@@ -1,0 +1,168 @@
+"""Surviving failures and proving what happened: kill -9 in the middle of meshing, corrupted
+cached artefacts, and the tamper-evident audit trail (real flows on the ``ci`` sample)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from data_catalog.audit import TRAIL, read_trail, verify_trail
+from data_catalog.hashing import sha256_file
+
+REPO = Path(__file__).resolve().parents[2]
+CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+
+
+def _flip_byte(path: Path, offset: int = 40) -> None:
+    data = bytearray(path.read_bytes())
+    data[min(offset, len(data) - 1)] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True, text=True, cwd=REPO,
+                          env=env, timeout=600)
+
+
+@pytest.fixture()
+def run_copy(ci_run, tmp_path):
+    """A private copy of the reconstructed ci run folder, free to tamper with."""
+    out, report = ci_run
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    return copy, report
+
+
+def _stl(run: Path, report) -> Path:
+    return run / "results" / f"{report['sample_id']}.stl"
+
+
+def test_an_untouched_run_verifies(run_copy):
+    run, _ = run_copy
+    assert verify_trail(run) == []
+    done = _cli("audit", "verify", str(run))
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "audit trail intact" in done.stdout
+
+
+def test_the_trail_says_who_started_the_run_and_every_stage(run_copy):
+    run, report = run_copy
+    entries = read_trail(run)
+    started = entries[0]
+    assert started["kind"] == "run-started" and started["started_by"] == "pytest"
+    assert len(started["flow_run_id"]) == 36  # the Prefect flow run id
+    stages = [e for e in entries if e["kind"] == "stage"]
+    assert {e["stage"] for e in stages} >= {"cloud", "targets", "register", "refine", "merge", "segment",
+                                             "surface", "export"}
+    assert all(e["record"]["outputs"] and e["task_run_id"] for e in stages)
+    assert any(e["kind"] == "run-finished" for e in entries)
+    shown = _cli("audit", "show", str(run))
+    assert shown.returncode == 0
+    assert "run-started" in shown.stdout and "by pytest" in shown.stdout and "refine" in shown.stdout
+
+
+@pytest.mark.parametrize("victim", ["chunk", "stl", "record"])
+def test_a_changed_artefact_is_named(run_copy, victim):
+    run, report = run_copy
+    if victim == "chunk":
+        merged = Path(report["stage_paths"]["merge"]).name
+        chunk = next(p for p in sorted((run / "stages" / "merge" / merged / "merged.zarr" / "points").rglob("*"))
+                     if p.is_file() and p.name != "zarr.json")
+        target = chunk
+    elif victim == "stl":
+        target = _stl(run, report)
+    else:
+        target = run / "stages" / "register" / Path(report["stage_paths"]["register"]).name / "record.json"
+    _flip_byte(target)
+    problems = verify_trail(run)
+    assert problems, "a flipped byte went unnoticed"
+    named = str(target.relative_to(run))
+    artefact = named if victim != "chunk" else str(Path(*target.relative_to(run).parts[:4]))
+    assert any(p.where == artefact for p in problems), [str(p) for p in problems]
+    done = _cli("audit", "verify", str(run))
+    assert done.returncode == 1 and artefact in done.stdout and "content changed" in done.stdout
+
+
+def test_an_edited_provenance_record_breaks_the_chain_where_it_was_edited(run_copy):
+    run, _ = run_copy
+    lines = (run / TRAIL).read_text().splitlines()
+    k = next(i for i, line in enumerate(lines) if json.loads(line)["kind"] == "stage"
+             and json.loads(line)["stage"] == "register")
+    entry = json.loads(lines[k])
+    entry["record"]["metrics"]["residual_max_mm"] = 0.001  # a nicer figure, hash left as it was
+    lines[k] = json.dumps(entry, sort_keys=True)
+    (run / TRAIL).write_text("\n".join(lines) + "\n")
+    problems = verify_trail(run, artefacts=False)
+    assert [p.where for p in problems] == [f"trail line {k + 1} (seq {k}, stage)"]
+    assert "edited" in problems[0].what
+    # dropping a line instead: the next line no longer chains
+    del lines[k]
+    (run / TRAIL).write_text("\n".join(lines) + "\n")
+    problems = verify_trail(run, artefacts=False)
+    assert problems and problems[0].where.startswith(f"trail line {k + 1} ")
+    done = _cli("audit", "verify", str(run))
+    assert done.returncode == 1 and f"trail line {k + 1}" in done.stdout
+
+
+def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample):
+    from flows.reconstruct import reconstruct_sample
+
+    run, report = run_copy
+    merged = Path(report["stage_paths"]["merge"]).name
+    chunk = next(p for p in sorted((run / "stages" / "merge" / merged / "merged.zarr" / "points").rglob("*"))
+                 if p.is_file() and p.name != "zarr.json")
+    _flip_byte(chunk)
+    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
+    assert again["cached"]["merge"] is False  # recomputed
+    assert again["cached"]["register"] is True and again["cached"]["refine"] is True
+    assert again["stage_keys"]["merge"] == report["stage_keys"]["merge"]  # same inputs, same key
+    assert again["outputs"][f"{report['sample_id']}.stl"]["sha256"] == \
+        report["outputs"][f"{report['sample_id']}.stl"]["sha256"]
+    set_aside = list((run / "stages" / "merge").glob(".corrupt-*"))
+    assert len(set_aside) == 1
+    recomputed = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
+    assert len(recomputed) == 1 and "merged.zarr" in recomputed[0]["reason"]
+    assert verify_trail(run) == []  # the recomputed outputs match what the trail recorded
+
+
+def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_sample, tmp_path):
+    from flows.reconstruct import reconstruct_sample
+
+    _, report = ci_run
+    run = tmp_path / "killed"
+    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(ci_sample), "--config", CI_CONFIG,
+                             "--out", str(run)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 300
+    try:
+        while not list((run / "stages" / "surface").glob(".build-*")):
+            assert proc.poll() is None, "the run ended before meshing started"
+            assert time.monotonic() < deadline, "meshing never started"
+            time.sleep(0.05)
+        time.sleep(0.5)  # well inside the Poisson reconstruction
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    assert not list((run / "stages" / "surface").glob("*/record.json"))  # meshing did not finish
+    assert not (run / "results").exists()
+    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
+    stl = f"{report['sample_id']}.stl"
+    assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
+    assert again["stage_keys"] == report["stage_keys"]
+    ran = {k for k, cached in again["cached"].items() if not cached}
+    assert ran == {"mesh", "export"}  # the finished stages were not rerun
+    entries = read_trail(run)
+    assert [e["kind"] for e in entries].count("run-started") == 2
+    assert verify_trail(run) == []
+    assert sha256_file(run / "results" / stl) == report["outputs"][stl]["sha256"]
