@@ -110,13 +110,15 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     import getpass
 
     from data_catalog.manifests import check_sample_files, load_manifest
-    from flows.reconstruct import load_config, reconstruct_sample
+    from flows.reconstruct import load_config, reconstruct_sample, task_runner
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
     check_sample_files(sample, load_manifest(sample))  # bad input is refused here, before a flow run
     load_config(args.config)
-    report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})")
+    flow = reconstruct_sample.with_options(task_runner=task_runner(args.dask)) if getattr(args, "dask", None) \
+        else reconstruct_sample
+    report = flow(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})")
     _print_report(report, out)
     return 0
 
@@ -278,6 +280,9 @@ def _parser() -> argparse.ArgumentParser:
     rec.add_argument("sample_dir", metavar="SAMPLE_DIR", help="folder with manifest.json and the passes")
     rec.add_argument("--config", metavar="FILE", help="YAML file of reconstruction settings (schemas/reconstruction.py)")
     rec.add_argument("--out", metavar="DIR", help="output folder (default: SAMPLE_DIR-reconstruction beside it)")
+    rec.add_argument("--dask", metavar="ADDRESS", help="run the per-pass work on a Dask cluster: a scheduler "
+                                                       "address, or local:N for N local worker processes "
+                                                       "(default: $WELDRECON_DASK, else threads here)")
     rec.set_defaults(func=_cmd_reconstruct)
     demo = sub.add_parser("demo", help="simulate the demo sample (once) and reconstruct it")
     demo.add_argument("--out", default="out/demo", help="folder for the sample and its reconstruction")

@@ -182,7 +182,30 @@ def _trigger(started_by: str | None) -> dict[str, Any]:
     return info
 
 
-@flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
+def task_runner(dask: str | None = None):
+    """The per-pass work's task runner: threads in this process by default; with ``dask`` (or the
+    environment's WELDRECON_DASK), a Dask cluster through prefect-dask: ``local:N`` starts N
+    worker processes here, anything else is a scheduler address (``tcp://host:8786``). Workers
+    exchange only store references; the data goes through the zarr stage store, which must then
+    be on a path every worker sees."""
+    import os
+
+    dask = dask or os.environ.get("WELDRECON_DASK") or None
+    if not dask:
+        return ThreadPoolTaskRunner(max_workers=2)
+    from prefect_dask import DaskTaskRunner
+
+    if dask.startswith("local:"):
+        workers = int(dask.split(":", 1)[1])
+        if workers < 1:
+            raise ValueError(f"WELDRECON_DASK={dask!r}: local:N needs N >= 1 worker processes")
+        return DaskTaskRunner(cluster_class="distributed.LocalCluster",
+                              cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
+                                              "dashboard_address": None})
+    return DaskTaskRunner(address=dask)
+
+
+@flow(name="reconstruct-sample", task_runner=task_runner(), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None,
                        started_by: str | None = None) -> dict[str, Any]:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.

@@ -9,6 +9,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import os
 import socket
 import time
 from collections.abc import Callable
@@ -84,9 +85,9 @@ def _run_ids() -> dict[str, str | None]:
         from prefect.runtime import flow_run, task_run
 
         return {"flow_run_id": str(flow_run.id) if flow_run.id else None,
-                "task_run_id": str(task_run.id) if task_run.id else None}
+                "task_run_id": str(task_run.id) if task_run.id else None, "pid": os.getpid()}
     except Exception:  # noqa: BLE001 - provenance is best effort outside a run
-        return {"flow_run_id": None, "task_run_id": None}
+        return {"flow_run_id": None, "task_run_id": None, "pid": os.getpid()}
 
 
 def _artefacts(store: StageStore, stage: str, key: str, outputs: dict[str, str]) -> dict[str, str]:
