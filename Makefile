@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test bench clean-demo
+.PHONY: setup demo test bench service-up service-down service-status clean-demo
 
 $(STAMP): pyproject.toml deploy/install-system-deps.sh
 	bash deploy/install-system-deps.sh
@@ -24,3 +24,13 @@ test: setup
 
 bench: setup
 	$(BIN)/python bench/bench_simulator.py
+
+# a scheduled service on this machine (Prefect server on 127.0.0.1, process pool, worker): see README
+service-up: setup
+	deploy/service.sh up
+
+service-down:
+	deploy/service.sh down
+
+service-status:
+	deploy/service.sh status
