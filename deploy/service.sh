@@ -64,8 +64,9 @@ down() {
   for name in worker server; do
     if running "$name"; then
       pid="$(cat "$STATE/$name.pid")"
-      kill -- "-$pid" 2>/dev/null || kill "$pid"
-      for _ in $(seq 1 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+      kill -- "-$pid" 2>/dev/null || kill "$pid" 2>/dev/null || true
+      for _ in $(seq 1 150); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
+      kill -9 -- "-$pid" 2>/dev/null || kill -9 "$pid" 2>/dev/null || true
     fi
     rm -f "$STATE/$name.pid"
   done

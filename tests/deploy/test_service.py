@@ -34,9 +34,11 @@ def test_server_worker_and_deployments_on_loopback(ci_sample, tmp_path):
     for key in ("PREFECT_API_URL", "PREFECT_HOME"):
         env.pop(key, None)
     service = [str(REPO / "deploy" / "service.sh")]
+    pids = {}
     try:
         up = subprocess.run([*service, "up"], env=env, cwd=REPO, capture_output=True, text=True, timeout=300)
         assert up.returncode == 0, up.stdout[-3000:] + up.stderr[-3000:]
+        pids = {name: int((tmp_path / "ws" / "service" / f"{name}.pid").read_text()) for name in ("server", "worker")}
         env.update(PREFECT_HOME=str(tmp_path / "ws" / "service" / "prefect"),
                    PREFECT_API_URL=f"http://127.0.0.1:{port}/api")
         nightly = subprocess.run([str(PREFECT), "deployment", "inspect", "reconstruct-batch/nightly"], env=env,
@@ -58,3 +60,5 @@ def test_server_worker_and_deployments_on_loopback(ci_sample, tmp_path):
     finally:
         down = subprocess.run([*service, "down"], env=env, cwd=REPO, capture_output=True, text=True, timeout=60)
         assert down.returncode == 0, down.stderr
+        for name, pid in pids.items():  # nothing left running
+            assert not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text(), name
