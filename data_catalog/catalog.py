@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import sqlite3
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -168,10 +168,16 @@ class Catalog:
         with self._connect() as db:
             return [self._record(r) for r in db.execute("SELECT * FROM samples ORDER BY sample_id")]
 
-    def due(self) -> list[SampleRecord]:
-        """Samples to reconstruct: their fingerprints are refreshed from disk first."""
+    def due(self, fresh: Iterable[str] = ()) -> list[SampleRecord]:
+        """Samples to reconstruct. Their fingerprints are refreshed from disk first, except for
+        the ``fresh`` sample ids (just registered: their fingerprints are current)."""
+        fresh = set(fresh)
         out = []
         for record in self.list():
+            if record.sample_id in fresh:
+                if record.due:
+                    out.append(record)
+                continue
             try:
                 current = fingerprint(Path(record.sample_dir))
             except (ValueError, OSError) as exc:

@@ -15,7 +15,7 @@ from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from data_catalog import audit
-from data_catalog.catalog import Catalog, SampleRecord, fingerprint
+from data_catalog.catalog import Catalog, SampleRecord
 from flows.reconstruct import reconstruct_sample
 
 __all__ = ["reconstruct_batch", "reconstruct_one"]
@@ -52,10 +52,8 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
 
     catalog = Catalog(Path(workspace))
     out_dir = catalog.out_dir_for(record.sample_id)
-    seen = record.fingerprint
     catalog.mark_running(record.sample_id, out_dir, str(flow_run.id) if flow_run.id else None)
     try:
-        seen = fingerprint(Path(record.sample_dir))
         report = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by)
     except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
         stage = _failed_stage(out_dir)
@@ -63,7 +61,7 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
         catalog.mark_failed(record.sample_id, stage, message)
         return {"sample_id": record.sample_id, "state": "failed", "stage": stage, "error": message}
     artefacts = {name: item["sha256"] for name, item in report["outputs"].items()}
-    catalog.mark_done(record.sample_id, seen, artefacts)
+    catalog.mark_done(record.sample_id, record.fingerprint, artefacts)  # as taken just before the run
     return {"sample_id": record.sample_id, "state": "done", "out_dir": str(out_dir),
             "cached_stages": sorted(k for k, v in report["cached"].items() if v)}
 
@@ -79,11 +77,12 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
     log = get_run_logger()
     catalog = Catalog(Path(workspace))
     refused: list[str] = []
+    registered: list[SampleRecord] = []
     if samples_root is not None:
-        _, refused = catalog.scan(Path(samples_root))
+        registered, refused = catalog.scan(Path(samples_root))
         for line in refused:
             log.warning("not registered: %s", line)
-    due = catalog.due()
+    due = catalog.due(fresh=[r.sample_id for r in registered])
     log.info("%d sample(s) due: %s", len(due), ", ".join(r.sample_id for r in due) or "none")
     trigger = started_by or "batch"
     slots = str(uuid.uuid4())

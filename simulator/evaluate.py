@@ -20,7 +20,8 @@ from schemas.truth import Material, PointLabel
 from tasks.ingest import profile_points
 from tasks.matching import kabsch, match_rotation_invariant
 
-__all__ = ["STICKER_LIFT_MM", "Gauge", "fit_gauge", "PassMisalignment", "pass_misalignment"]
+__all__ = ["STICKER_LIFT_MM", "true_sticker_centres", "Gauge", "fit_gauge", "PassMisalignment",
+           "pass_misalignment"]
 
 STICKER_LIFT_MM = 0.1  # the paper sticker's thickness: its visible centre is this far off the surface
 _SPECIMEN = (Material.STEEL, Material.GROUND, Material.STICKER)
@@ -34,7 +35,8 @@ class Gauge:
     residual_mm: np.ndarray  # (n_targets,) after the fit
 
 
-def _true_sticker_centres(truth) -> np.ndarray:
+def true_sticker_centres(truth) -> np.ndarray:
+    """(k, 3) the visible centres (top of the paper) of the true specimen stickers, specimen frame."""
     return np.array([np.array(s.centre_mm) + STICKER_LIFT_MM * np.array(s.normal)
                      for s in truth.stickers if s.on == "specimen"])
 
@@ -45,7 +47,7 @@ def fit_gauge(sample_dir: Path, specimen_targets_mm: np.ndarray, all_targets_mm:
     ``specimen_targets_mm``: targets known to be on the specimen (seen in both setups), for a
     rough fit; ``all_targets_mm``: every registered target, paired by nearness after it."""
     truth = read_truth(Path(sample_dir) / TRUTH_DIR / "truth.json")
-    true = _true_sticker_centres(truth)
+    true = true_sticker_centres(truth)
     found = specimen_targets_mm if all_targets_mm is None else all_targets_mm
     T = match_rotation_invariant(specimen_targets_mm, true).T_a_b  # rough; then nearest pairs, refit
     ok = np.zeros(len(found), bool)

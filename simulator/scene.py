@@ -30,16 +30,18 @@ class StickerSet:
     thickness_mm: float
     _tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
 
+    def _centre_tree(self) -> cKDTree:
+        """A k-d tree of the sticker centres, built on first use (the set itself is frozen)."""
+        if self._tree is None:
+            object.__setattr__(self, "_tree", cKDTree(self.centres))
+        return self._tree
+
     def lookup(self, points: np.ndarray) -> np.ndarray:
         """Sticker id under each point (n, 3) (same frame), NO_STICKER where none."""
         out = np.full(len(points), NO_STICKER, dtype=np.int32)
         if len(self.ids) == 0 or len(points) == 0:
             return out
-        tree = self._tree
-        if tree is None:
-            tree = cKDTree(self.centres)
-            object.__setattr__(self, "_tree", tree)
-        dist, idx = tree.query(points, k=1, distance_upper_bound=self.radius_mm + 0.6)
+        dist, idx = self._centre_tree().query(points, k=1, distance_upper_bound=self.radius_mm + 0.6)
         near = np.isfinite(dist)
         d = points[near] - self.centres[idx[near]]
         h = np.einsum("ij,ij->i", d, self.normals[idx[near]])
@@ -62,12 +64,8 @@ class StickerSet:
         frac = np.zeros(len(points))
         if len(self.ids) == 0 or len(points) == 0:
             return frac
-        tree = self._tree
-        if tree is None:
-            tree = cKDTree(self.centres)
-            object.__setattr__(self, "_tree", tree)
         reach = float(np.max(line_box_mm, initial=0.0)) * 4 + 4 * scan_sigma_mm + 0.1
-        dist, idx = tree.query(points, k=1, distance_upper_bound=self.radius_mm + reach)
+        dist, idx = self._centre_tree().query(points, k=1, distance_upper_bound=self.radius_mm + reach)
         near = np.flatnonzero(np.isfinite(dist))
         if len(near) == 0:
             return frac

@@ -40,11 +40,17 @@ __all__ = ["SurfaceSample", "RefineResult", "surface_sample", "refine_poses"]
 class SurfaceSample:
     """One pass's surface in the pass's own (coarse) frame: ``points_mm`` (m, 3), a thinned set
     with unit ``normals`` (m, 3), matched against the other passes; ``dense_mm`` (k, 3) all its
-    points, which the other passes are matched against."""
+    points, which the other passes are matched against; ``tree`` a k-d tree of ``dense_mm``
+    (built here when not given)."""
 
     points_mm: np.ndarray
     normals: np.ndarray
     dense_mm: np.ndarray
+    tree: cKDTree | None = None
+
+    def __post_init__(self) -> None:
+        if self.tree is None and len(self.dense_mm):
+            object.__setattr__(self, "tree", cKDTree(self.dense_mm))
 
 
 @dataclass(frozen=True)
@@ -75,16 +81,12 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
         return SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), pts)
     cells = np.floor(pts / spacing_mm).astype(np.int64)
     _, first = np.unique(cells, axis=0, return_index=True)
-    centres = pts[np.sort(first)]
-    dist, idx = cKDTree(pts).query(centres, k=neighbours, workers=1)
-    keep = dist[:, -1] <= normal_radius_mm  # a full neighbourhood close by: not an edge or a lone point
-    local = pts[idx[keep]]
-    local -= local.mean(axis=1, keepdims=True)
-    values, vectors = np.linalg.eigh(np.einsum("kni,knj->kij", local, local))
-    flat = np.sqrt(np.maximum(values[:, 0], 0) / neighbours) <= max_plane_rms_mm
-    normals = vectors[flat, :, 0]
-    centres = centres[keep][flat]
-    return SurfaceSample(centres, normals, pts)
+    first = np.sort(first)
+    tree = cKDTree(pts)
+    planes = _planes_at(pts, tree, first, neighbours)
+    # a full neighbourhood close by (not an edge or a lone point), and a flat one
+    keep = (planes[:, 6] <= normal_radius_mm) & (planes[:, 7] <= max_plane_rms_mm)
+    return SurfaceSample(pts[first[keep]], planes[keep, 3:6], pts, tree)
 
 
 def _planes_at(dense: np.ndarray, tree: cKDTree, idx: np.ndarray, k: int) -> np.ndarray:
@@ -144,7 +146,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     edge_passes = np.asarray(edge_passes, dtype=np.int64).reshape(-1, 2)
     points_a = check_points("points_a", points_a) if len(edge_passes) else np.zeros((0, 3))
     points_b = check_points("points_b", points_b) if len(edge_passes) else np.zeros((0, 3))
-    trees = [cKDTree(s.dense_mm) if len(s.dense_mm) >= normal_neighbours else None for s in samples]
+    trees = [s.tree if len(s.dense_mm) >= normal_neighbours else None for s in samples]
     free = np.flatnonzero(np.arange(n) != fixed)
     column = np.full(n, -1)
     column[free] = np.arange(len(free))

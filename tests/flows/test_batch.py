@@ -6,14 +6,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from data_catalog.catalog import Catalog
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
+from tests.flows.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -27,12 +26,6 @@ def _copy_sample(ci_sample: Path, dst: Path, sample_id: str) -> Path:
     shutil.copytree(ci_sample / "passes", dst / "passes")
     (dst / "manifest.json").write_text(json.dumps(manifest, indent=1))
     return dst
-
-
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING")
-    return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          env=env, timeout=600)
 
 
 def _largest_chunk(pass_dir: Path) -> Path:
@@ -63,9 +56,9 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
         record = catalog.get(sample_id)
         stl = Path(record.out_dir) / "results" / f"{sample_id}.stl"
         assert record.artefacts[f"{sample_id}.stl"] and stl.is_file()
-    listed = _cli("catalog", "list", "--workspace", str(workspace))
+    listed = run_cli("catalog", "list", "--workspace", str(workspace))
     assert "batch-c" in listed.stdout and "failed at cloud" in listed.stdout
-    shown = _cli("catalog", "show", "batch-c", "--workspace", str(workspace))
+    shown = run_cli("catalog", "show", "batch-c", "--workspace", str(workspace))
     assert "bottom-L03" in shown.stdout and "state       failed at stage cloud" in shown.stdout
 
     chunk.write_bytes(original)  # repaired
@@ -84,7 +77,7 @@ def test_catalog_refuses_a_second_folder_with_the_same_sample_id(ci_sample, tmp_
         catalog.register(_copy_sample(ci_sample, tmp_path / "two", "dup"))
     with pytest.raises(KeyError, match="nope"):
         catalog.get("nope")
-    shown = _cli("catalog", "show", "nope", "--workspace", str(tmp_path / "ws"))
+    shown = run_cli("catalog", "show", "nope", "--workspace", str(tmp_path / "ws"))
     assert shown.returncode == 2 and "'nope' is not in the catalog" in shown.stderr
 
 
@@ -127,7 +120,7 @@ def test_bad_sample_folders_are_refused_before_any_work(ci_sample, tmp_path, cas
     with pytest.raises(ManifestError, match=expect):
         check_sample_files(sample, load_manifest(sample))
     out = tmp_path / "out"
-    done = _cli("reconstruct", str(sample), "--config", CI_CONFIG, "--out", str(out))
+    done = run_cli("reconstruct", str(sample), "--config", CI_CONFIG, "--out", str(out))
     assert done.returncode == 2, done.stdout + done.stderr
     assert expect in done.stderr and "Traceback" not in done.stderr
     assert not out.exists()  # refused before any work

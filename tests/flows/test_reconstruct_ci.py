@@ -13,7 +13,7 @@ import pytest
 
 from data_catalog.stages import load_arrays
 from data_catalog.truth import read_truth
-from simulator.evaluate import STICKER_LIFT_MM, fit_gauge, pass_misalignment
+from simulator.evaluate import fit_gauge, pass_misalignment, true_sticker_centres
 from tasks.surface import mesh_report
 
 REPO = Path(__file__).resolve().parents[2]
@@ -66,8 +66,7 @@ def test_every_true_specimen_sticker_was_found(run, ci_sample):
     _, report = run
     truth = read_truth(ci_sample / "truth" / "truth.json")
     gauge = _gauge(report, ci_sample)
-    true = np.array([np.array(s.centre_mm) + STICKER_LIFT_MM * np.array(s.normal)
-                     for s in truth.stickers if s.on == "specimen"])
+    true = true_sticker_centres(truth)
     G = gauge.T_recon_specimen
     found = _refined(report)["track_positions_mm"]
     nearest = np.linalg.norm((true @ G[:3, :3].T + G[:3, 3])[:, None] - found[None], axis=-1).min(axis=1)

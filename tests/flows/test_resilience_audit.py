@@ -16,6 +16,7 @@ import pytest
 
 from data_catalog.audit import TRAIL, read_trail, verify_trail
 from data_catalog.hashing import sha256_file
+from tests.flows.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -26,12 +27,6 @@ def _flip_byte(path: Path, offset: int = 40) -> None:
     data = bytearray(path.read_bytes())
     data[min(offset, len(data) - 1)] ^= 0xFF
     path.write_bytes(bytes(data))
-
-
-def _cli(*args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
-    return subprocess.run([sys.executable, "-m", "flows.cli", *args], capture_output=True, text=True, cwd=REPO,
-                          env=env, timeout=600)
 
 
 @pytest.fixture()
@@ -50,7 +45,7 @@ def _stl(run: Path, report) -> Path:
 def test_an_untouched_run_verifies(run_copy):
     run, _ = run_copy
     assert verify_trail(run) == []
-    done = _cli("audit", "verify", str(run))
+    done = run_cli("audit", "verify", str(run))
     assert done.returncode == 0, done.stdout + done.stderr
     assert "audit trail intact" in done.stdout
 
@@ -66,7 +61,7 @@ def test_the_trail_says_who_started_the_run_and_every_stage(run_copy):
                                              "surface", "export"}
     assert all(e["record"]["outputs"] and e["task_run_id"] for e in stages)
     assert any(e["kind"] == "run-finished" for e in entries)
-    shown = _cli("audit", "show", str(run))
+    shown = run_cli("audit", "show", str(run))
     assert shown.returncode == 0
     assert "run-started" in shown.stdout and "by pytest" in shown.stdout and "refine" in shown.stdout
 
@@ -89,7 +84,7 @@ def test_a_changed_artefact_is_named(run_copy, victim):
     named = str(target.relative_to(run))
     artefact = named if victim != "chunk" else str(Path(*target.relative_to(run).parts[:4]))
     assert any(p.where == artefact for p in problems), [str(p) for p in problems]
-    done = _cli("audit", "verify", str(run))
+    done = run_cli("audit", "verify", str(run))
     assert done.returncode == 1 and artefact in done.stdout and "content changed" in done.stdout
 
 
@@ -110,7 +105,7 @@ def test_an_edited_provenance_record_breaks_the_chain_where_it_was_edited(run_co
     (run / TRAIL).write_text("\n".join(lines) + "\n")
     problems = verify_trail(run, artefacts=False)
     assert problems and problems[0].where.startswith(f"trail line {k + 1} ")
-    done = _cli("audit", "verify", str(run))
+    done = run_cli("audit", "verify", str(run))
     assert done.returncode == 1 and f"trail line {k + 1}" in done.stdout
 
 
