@@ -1,13 +1,18 @@
-"""The ``reconstruct_sample`` Prefect flow: per-pass denoising and target detection in parallel,
-then the registration graph, merging, segmentation, meshing, export and the report.
+"""The ``reconstruct_sample`` Prefect flow: the stages of ``flows.stages.STAGES`` wired in their
+order. Per-pass stages are mapped over the passes and run in parallel (threads here, or worker
+processes on a Dask cluster); each whole-sample stage starts when the stages it needs are done.
 
-Tasks are thin: they call ``flows.stages`` and pass small references (store path + content
-hash), never point arrays. IO failures are retried with back-off; bad input is not.
+Tasks are thin: each runs one stage through ``flows.stages.run_stage`` and passes on a small
+``StageRef`` (store path + content hashes), never point arrays. IO failures are retried with
+back-off; bad input is not.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -17,20 +22,27 @@ from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ThreadPoolTaskRunner
 from pydantic import ValidationError
 
-from data_catalog.atomic import atomic_write_text
 from data_catalog import audit
-from data_catalog.hashing import sha256_file
+from data_catalog.atomic import atomic_write_text
 from data_catalog.manifests import check_sample_files, load_manifest
 from data_catalog.stages import StageStore
-from flows import stages
-from schemas.manifest import SampleManifest
+from flows.stages import STAGES, Stage, StageFailed, StageRef, run_stage
+from flows.stages.report import publish
+from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 
-__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed"]
+__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers"]
 
 
 class ReconstructionFailed(RuntimeError):
-    """A stage failed; the message names the passes or the stage and why."""
+    """A stage failed; ``stage`` names it, the message names the passes and why."""
+
+    def __init__(self, stage: str | None, message: str) -> None:
+        super().__init__(message)
+        self.stage = stage
+
+    def __reduce__(self):
+        return (ReconstructionFailed, (self.stage, str(self)))
 
 
 def load_config(path: str | Path | None) -> ReconstructionConfig:
@@ -52,6 +64,8 @@ def _io_failure(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's retr
     """Retry only what may pass on a second try: IO errors, not bad input."""
     try:
         state.result()
+    except StageFailed as exc:
+        return exc.retryable
     except OSError:
         return True
     except Exception:  # noqa: BLE001 - anything else is final
@@ -62,91 +76,40 @@ def _io_failure(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's retr
 _TASK = dict(cache_policy=NO_CACHE, retries=2, retry_delay_seconds=[1, 4], retry_condition_fn=_io_failure)
 
 
-@task(name="denoise-pass", task_run_name="denoise {entry.pass_id}", **_TASK)
-def denoise_pass(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry, config) -> stages.Ref:
-    return stages.cloud_stage(store, sample_dir, manifest, entry, config)
+def _stage_task(stage: Stage):
+    """The Prefect task of one stage, named as the stage (per pass: ``<stage> <pass>``)."""
+
+    def run(store: StageStore, sample_dir: Path, manifest: SampleManifest, config: ReconstructionConfig,
+            inputs: dict[str, Any], entry: PassEntry | None = None) -> StageRef:
+        return run_stage(stage, store=store, sample_dir=sample_dir, manifest=manifest, config=config, inputs=inputs,
+                         entry=entry)
+
+    def run_and_publish(store, sample_dir, manifest, config, inputs, entry=None) -> tuple[StageRef, dict]:
+        ref = run(store, sample_dir, manifest, config, inputs, entry)
+        return ref, publish(store.root, manifest.sample_id, ref, inputs["export"])
+
+    run_name = f"{stage.name} {{entry.pass_id}}" if stage.per_pass else stage.name
+    fn = run_and_publish if stage.name == "report" else run
+    fn.__name__ = fn.__qualname__ = f"stage_{stage.name}"
+    return task(name=stage.name, task_run_name=run_name, description=stage.summary, **_TASK)(fn)
 
 
-@task(name="detect-targets", task_run_name="targets {entry.pass_id}", **_TASK)
-def detect_pass_targets(store: StageStore, sample_dir: Path, manifest: SampleManifest, entry, config) -> stages.Ref:
-    return stages.targets_stage(store, sample_dir, manifest, entry, config)
+STAGE_TASKS = {s.name: _stage_task(s) for s in STAGES}
 
 
-@task(name="registration-graph", **_TASK)
-def register(store, manifest, target_refs, config) -> stages.Ref:
-    return stages.register_stage(store, manifest, target_refs, config)
-
-
-@task(name="refine-poses", **_TASK)
-def refine(store, manifest, cloud_refs, register_ref, config) -> stages.Ref:
-    return stages.refine_stage(store, manifest, cloud_refs, register_ref, config)
-
-
-@task(name="merge", **_TASK)
-def merge(store, manifest, cloud_refs, refine_ref, config) -> stages.Ref:
-    return stages.merge_stage(store, manifest, cloud_refs, refine_ref, config)
-
-
-@task(name="remove-unwanted-objects", **_TASK)
-def segment(store, manifest, merge_ref, refine_ref, config) -> stages.Ref:
-    return stages.segment_stage(store, manifest, merge_ref, refine_ref, config)
-
-
-@task(name="mesh", **_TASK)
-def mesh(store, manifest, segment_ref, config) -> stages.Ref:
-    return stages.surface_stage(store, manifest, segment_ref, config)
-
-
-@task(name="export", **_TASK)
-def export(store, manifest, surface_ref) -> stages.Ref:
-    return stages.export_stage(store, manifest, surface_ref)
-
-
-def _publish(out_dir: Path, manifest: SampleManifest, refs: dict[str, Any], config: ReconstructionConfig) -> dict:
-    """Copy the deliverables into ``results/`` and write the sample's report."""
-    import shutil
-
-    results = out_dir / "results"
-    results.mkdir(exist_ok=True)
-    outputs = {}
-    for name in refs["export"]["outputs"]:
-        tmp = results / f".{name}.partial"
-        shutil.copyfile(Path(refs["export"]["path"]) / name, tmp)
-        tmp.replace(results / name)
-        outputs[name] = {"path": str(results / name), "sha256": sha256_file(results / name)}
-    registration = json.loads((Path(refs["register"]["path"]) / "registration.json").read_text())
-    registration["refinement"] = json.loads((Path(refs["refine"]["path"]) / "refine.json").read_text())
-
-    def metrics(ref):
-        return [dict(r["metrics"], cached=r["cached"]) for r in ref] if isinstance(ref, list) else \
-            dict(ref["metrics"], cached=ref["cached"])
-
-    report = {
-        "sample_id": manifest.sample_id,
-        "passes": [e.pass_id for _, e in manifest.passes()],
-        "config": config.model_dump(),
-        "stages": {name: metrics(ref) for name, ref in refs.items()},
-        "registration": registration,
-        "mesh": refs["mesh"]["metrics"],
-        "outputs": outputs,
-        "stage_keys": {k: ([r["key"] for r in v] if isinstance(v, list) else v["key"]) for k, v in refs.items()},
-        "stage_paths": {k: ([r["path"] for r in v] if isinstance(v, list) else v["path"]) for k, v in refs.items()},
-        "cached": {k: (all(r["cached"] for r in v) if isinstance(v, list) else v["cached"]) for k, v in refs.items()},
-    }
-    atomic_write_text(results / "report.json", json.dumps(report, indent=1, default=str) + "\n")
-    return report
-
-
-def _gather(futures, what: str) -> list[stages.Ref]:
-    """Results of mapped per-pass tasks; every failure is named, not just the first."""
+def _gather(stage: str, pending) -> Any:
+    """The refs of a submitted stage; for per-pass stages every failing pass is named."""
+    if not isinstance(pending, list):
+        return pending.result()
     results, failures = [], []
-    for future in futures:
+    for future in pending:
         try:
             results.append(future.result())
-        except Exception as exc:  # noqa: BLE001 - collected and re-raised below
+        except Exception as exc:  # noqa: BLE001 - collected and raised below
             failures.append(str(exc))
     if failures:
-        raise ReconstructionFailed(f"{what} failed for {len(failures)} pass(es):\n  " + "\n  ".join(failures))
+        raise ReconstructionFailed(stage, f"stage {stage} failed for {len(failures)} pass(es):\n  "
+                                   + "\n  ".join(failures))
     return results
 
 
@@ -182,82 +145,121 @@ def _trigger(started_by: str | None) -> dict[str, Any]:
     return info
 
 
-def task_runner(dask: str | None = None):
-    """The per-pass work's task runner: threads in this process by default; with ``dask`` (or the
-    environment's WELDRECON_DASK), a Dask cluster through prefect-dask: ``local:N`` starts N
-    worker processes here, anything else is a scheduler address (``tcp://host:8786``). Workers
-    exchange only store references; the data goes through the zarr stage store, which must then
-    be on a path every worker sees."""
-    import os
-
-    dask = dask or os.environ.get("WELDRECON_DASK") or None
+def task_runner(dask: str | None):
+    """The per-pass work's task runner: threads in this process without ``dask``; with it, a Dask
+    cluster through prefect-dask: ``local:N`` starts N worker processes here, anything else is a
+    scheduler address (``tcp://host:8786``). Workers exchange only stage references; the data
+    goes through the zarr stage store, which must then be on a path every worker sees, and the
+    workers must reach the Prefect API (``prefect_api_for_workers``)."""
     if not dask:
         return ThreadPoolTaskRunner(max_workers=2)
     from prefect_dask import DaskTaskRunner
 
     if dask.startswith("local:"):
-        workers = int(dask.split(":", 1)[1])
+        try:
+            workers = int(dask.split(":", 1)[1])
+        except ValueError:
+            workers = 0
         if workers < 1:
-            raise ValueError(f"WELDRECON_DASK={dask!r}: local:N needs N >= 1 worker processes")
+            raise ValueError(f"dask {dask!r}: local:N needs a number N >= 1 of worker processes")
         return DaskTaskRunner(cluster_class="distributed.LocalCluster",
                               cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                               "dashboard_address": None})
     return DaskTaskRunner(address=dask)
 
 
-@flow(name="reconstruct-sample", task_runner=task_runner(), log_prints=False)
-def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None,
-                       started_by: str | None = None) -> dict[str, Any]:
+@contextlib.contextmanager
+def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
+    """A Prefect API that worker processes reach: ``PREFECT_API_URL`` when it is set; otherwise one
+    temporary local server for this run, exported to the environment that worker processes
+    inherit (without it every worker would start a server of its own, which on a busy machine
+    times out). Yields the API URL."""
+    from prefect.settings import PREFECT_API_URL
+
+    configured = os.environ.get("PREFECT_API_URL") or PREFECT_API_URL.value()
+    if configured:
+        yield configured
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+
+    server = SubprocessASGIServer()
+    try:
+        server.start(timeout=startup_timeout_s)
+    except Exception as exc:  # noqa: BLE001 - said in one line
+        raise RuntimeError(f"could not start a local Prefect API server for the workers within "
+                           f"{startup_timeout_s} s: {exc}") from None
+    os.environ["PREFECT_API_URL"] = server.api_url
+    try:
+        yield server.api_url
+    finally:
+        os.environ.pop("PREFECT_API_URL", None)
+        server.stop()
+
+
+def _on_dask() -> bool:
+    from prefect.context import FlowRunContext
+
+    context = FlowRunContext.get()
+    return context is not None and type(context.task_runner).__name__ == "DaskTaskRunner"
+
+
+@flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
+def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
+                       dask: str | None = None) -> dict[str, Any]:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
-    and the run itself go into ``out_dir``'s audit trail (data_catalog.audit)."""
+    and the run itself go into ``out_dir``'s audit trail (data_catalog.audit). ``dask`` (or, when
+    not given, ``$WELDRECON_DASK`` read at run time): run the stages on a Dask cluster (see
+    ``task_runner``)."""
+    dask = dask or os.environ.get("WELDRECON_DASK") or None
+    if dask and not _on_dask():
+        return reconstruct_sample.with_options(task_runner=task_runner(dask))(
+            sample_dir, out_dir, config_path, started_by, dask)
     log = get_run_logger()
-    sample = Path(sample_dir)
+    sample, out = Path(sample_dir), Path(out_dir)
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)
     config = load_config(config_path)
-    store = StageStore(Path(out_dir))
-    Path(out_dir).mkdir(parents=True, exist_ok=True)
-    atomic_write_text(Path(out_dir) / "config.json", config.model_dump_json(indent=2) + "\n")
-    audit.append(Path(out_dir), "run-started", sample_id=manifest.sample_id, sample_dir=str(sample.resolve()),
+    store = StageStore(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "config.json", config.model_dump_json(indent=2) + "\n")
+    audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample.resolve()),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
-    stage = "cloud"
+    entries = [e for _, e in manifest.passes()]
+    log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
+    pending: dict[str, Any] = {}
+    refs: dict[str, Any] = {}
+
+    def outputs_of(name: str) -> Any:
+        if name not in refs:
+            refs[name] = _gather(name, pending.pop(name))
+        return refs[name]
+
     try:
-        entries = [e for _, e in manifest.passes()]
-        log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
-        clouds = denoise_pass.map(unmapped(store), unmapped(sample), unmapped(manifest), entries, unmapped(config))
-        targets = detect_pass_targets.map(unmapped(store), unmapped(sample), unmapped(manifest), entries,
-                                          unmapped(config))
-        cloud_refs = _gather(clouds, "denoising")
-        stage = "targets"
-        target_refs = _gather(targets, "target detection")
-        stage = "register"
-        register_ref = register.submit(store, manifest, target_refs, config).result()
-        log.info("registration: %s", register_ref["metrics"])
-        stage = "refine"
-        refine_ref = refine.submit(store, manifest, cloud_refs, register_ref, config).result()
-        log.info("refinement: %s", refine_ref["metrics"])
-        stage = "merge"
-        merge_ref = merge.submit(store, manifest, cloud_refs, refine_ref, config).result()
-        stage = "segment"
-        segment_ref = segment.submit(store, manifest, merge_ref, refine_ref, config).result()
-        log.info("specimen: %s", segment_ref["metrics"])
-        stage = "mesh"
-        mesh_ref = mesh.submit(store, manifest, segment_ref, config).result()
-        log.info("mesh: %s", mesh_ref["metrics"])
-        stage = "export"
-        export_ref = export.submit(store, manifest, mesh_ref).result()
-        refs = {"cloud": cloud_refs, "targets": target_refs, "register": register_ref, "refine": refine_ref,
-                "merge": merge_ref, "segment": segment_ref, "mesh": mesh_ref, "export": export_ref}
-        stage = "report"
-        report = _publish(Path(out_dir), manifest, refs, config)
+        for stage in STAGES:
+            inputs = {name: outputs_of(name) for name in stage.needs}
+            run = STAGE_TASKS[stage.name]
+            if stage.per_pass:
+                pending[stage.name] = run.map(unmapped(store), unmapped(sample), unmapped(manifest), unmapped(config),
+                                              unmapped(inputs), entries)
+            else:
+                pending[stage.name] = run.submit(store, sample, manifest, config, inputs)
+        for name in list(pending):
+            outputs_of(name)
     except BaseException as exc:
-        audit.append(Path(out_dir), "run-failed", sample_id=manifest.sample_id, stage=stage,
+        audit.append(out, "run-failed", sample_id=manifest.sample_id, stage=getattr(exc, "stage", None),
                      error=f"{type(exc).__name__}: {exc}")
         raise
-    results = {f"results/{name}": item["sha256"] for name, item in report["outputs"].items()}
-    results["results/report.json"] = sha256_file(Path(out_dir) / "results" / "report.json")
-    audit.append(Path(out_dir), "run-finished", sample_id=manifest.sample_id, artefacts=results,
-                 cached={k: v for k, v in report["cached"].items()})
-    return report
+    report_ref, published = refs.pop("report")
+    result = dict(json.loads(Path(published["report.json"]["path"]).read_text()))
+    result["outputs"] = published
+    result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}
+    result["cached"] = {n: (all(r.cached for r in v) if isinstance(v, list) else v.cached) for n, v in refs.items()}
+    result["cached"]["report"] = report_ref.cached
+    result["seconds"] = {n: (sum(r.metrics.get("seconds", 0.0) for r in v) if isinstance(v, list)
+                             else v.metrics.get("seconds", 0.0)) for n, v in refs.items()}
+    audit.append(out, "run-finished", sample_id=manifest.sample_id,
+                 artefacts={f"results/{name}": item["sha256"] for name, item in published.items()},
+                 cached=result["cached"])
+    return result

@@ -1,0 +1,74 @@
+"""The stage registry: every stage of the reconstruction, declared once, in run order.
+
+The flow, the benchmark, the report, the audit trail and the tests iterate ``STAGES``; a stage's
+``name`` is its one name everywhere (Prefect task, ``stages/<name>/`` in the store, audit trail,
+catalog). Each stage's body lives in its own module (``flows/stages/<name>.py``) with the typed
+description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs any of them.
+"""
+
+from __future__ import annotations
+
+from flows.stages import denoise, export, mesh, merge, outputs, refine, register, report, segment, targets
+from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
+from flows.stages.passes import pass_view
+from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
+
+__all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
+           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of"]
+
+
+def _sample_wide(manifest, entry):
+    return {"passes": [e.pass_id for _, e in manifest.passes()]}
+
+
+STAGES: tuple[Stage, ...] = (
+    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), denoise.denoise, pass_view,
+          "ingest the pass (robot poses) and remove statistical outliers"),
+    Stage("targets", True, (), "targets", (outputs.TARGETS,), targets.targets, targets.targets_view,
+          "sticker targets: Hough circles, sub-pixel 3-D rim fit"),
+    Stage("register", False, ("targets",), "registration",
+          (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), register.register, register.setups_view,
+          "match targets between passes, solve all pass poses"),
+    Stage("refine", False, ("denoise", "register"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
+          refine.refine, _sample_wide, "all pass poses on targets and overlapping surfaces together"),
+    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, _sample_wide,
+          "box-grid merge in the common frame"),
+    Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, _sample_wide,
+          "remove unwanted objects (the fixture)"),
+    Stage("mesh", False, ("segment",), "surface", (outputs.MESH,), mesh.mesh, _sample_wide,
+          "normals and screened Poisson (MeshLab)"),
+    Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
+          "binary STL and PLY"),
+    Stage("report", False, ("denoise", "targets", "register", "refine", "merge", "segment", "mesh", "export"), "*",
+          (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
+)
+
+STAGE_NAMES: tuple[str, ...] = tuple(s.name for s in STAGES)
+
+
+def stage(name: str) -> Stage:
+    for s in STAGES:
+        if s.name == name:
+            return s
+    raise KeyError(f"no stage {name!r}; the stages are {', '.join(STAGE_NAMES)}")
+
+
+def downstream_of(name: str) -> list[str]:
+    """The stages that read ``name``'s outputs, directly or through others, in run order."""
+    below = {name}
+    for s in STAGES:
+        if below.intersection(s.needs):
+            below.add(s.name)
+    return [s for s in STAGE_NAMES if s in below and s != name]
+
+
+def _check_registry() -> None:
+    seen: set[str] = set()
+    for s in STAGES:
+        missing = [n for n in s.needs if n not in seen]
+        if missing or s.name in seen:
+            raise RuntimeError(f"stage registry: {s.name} needs {missing} before it or is declared twice")
+        seen.add(s.name)
+
+
+_check_registry()

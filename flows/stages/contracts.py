@@ -1,0 +1,97 @@
+"""What a stage hands on: a typed reference to its finished outputs, and typed descriptions of
+the files in a stage's folder (a zarr group of named arrays, a JSON document, a mesh file).
+
+Each output file is described once, next to the stage that writes it; readers go through the
+description, so a file name or an array name is spelled in exactly one place and a typo is an
+error, not a silently missing array.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from data_catalog.atomic import atomic_write_text
+from data_catalog.stages import load_arrays, save_arrays
+
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile"]
+
+A = TypeVar("A")
+
+
+@dataclass(frozen=True)
+class StageRef:
+    """A finished stage run: where its outputs are and their sha256, never the data itself.
+
+    ``stage`` its registry name; ``item`` the pass for per-pass stages; ``key`` the cache key;
+    ``path`` its folder in the stage store; ``outputs`` file name -> sha256; ``cached`` whether
+    it was reused; ``metrics`` what the stage measured (``seconds`` the time its body took)."""
+
+    stage: str
+    item: str | None
+    key: str
+    path: str
+    outputs: dict[str, str]
+    cached: bool
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    def file(self, name: str) -> Path:
+        if name not in self.outputs:
+            raise KeyError(f"stage {self.stage} has no output {name!r} (it has {sorted(self.outputs)})")
+        return Path(self.path) / name
+
+
+@dataclass(frozen=True)
+class ArrayFile(Generic[A]):
+    """A zarr group whose arrays are the fields of the frozen dataclass ``schema``."""
+
+    name: str
+    schema: type[A]
+
+    @property
+    def arrays(self) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(self.schema))
+
+    def write(self, out: Path, value: A) -> None:
+        if not isinstance(value, self.schema):
+            raise TypeError(f"{self.name}: expected a {self.schema.__name__}, got {type(value).__name__}")
+        save_arrays(Path(out) / self.name, **{n: np.asarray(getattr(value, n)) for n in self.arrays})
+
+    def read(self, ref: StageRef, *names: str) -> A:
+        """The named arrays (all when none are named); the others are None."""
+        unknown = set(names) - set(self.arrays)
+        if unknown:
+            raise KeyError(f"{self.name} of stage {ref.stage} has no array {sorted(unknown)} (it has {self.arrays})")
+        loaded = load_arrays(ref.file(self.name), *(names or self.arrays))
+        return self.schema(**{n: loaded.get(n) for n in self.arrays})
+
+
+@dataclass(frozen=True)
+class JsonFile:
+    """A JSON document (sorted keys, indented) in the stage's folder."""
+
+    name: str
+
+    def write(self, out: Path, value: dict[str, Any]) -> None:
+        atomic_write_text(Path(out) / self.name, json.dumps(value, indent=1, sort_keys=True) + "\n")
+
+    def read(self, ref: StageRef) -> dict[str, Any]:
+        return json.loads(ref.file(self.name).read_text())
+
+
+@dataclass(frozen=True)
+class MeshFile:
+    """A triangle mesh file (binary STL or PLY) in the stage's folder."""
+
+    name: str
+
+    def path(self, ref: StageRef) -> Path:
+        return ref.file(self.name)
+
+
+OutputFile = ArrayFile | JsonFile | MeshFile

@@ -1,0 +1,25 @@
+"""Stage ``mesh``: normals oriented toward the sensors, then MeshLab's screened Poisson surface."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+from flows.stages.outputs import MESH, Mesh, SPECIMEN
+from tasks.surface import estimate_normals, screened_poisson
+
+__all__ = ["mesh"]
+
+
+def mesh(ctx) -> dict[str, Any]:
+    s = ctx.settings
+    cloud = SPECIMEN.read(ctx.inputs["segment"])
+    normals = estimate_normals(cloud.points, cloud.sensor_positions, k=s.normals_k)
+    surface = screened_poisson(cloud.points, normals, depth=s.poisson_depth, samples_per_node=s.samples_per_node,
+                               point_weight=s.point_weight, scale=s.poisson_scale)
+    MESH.write(ctx.out, Mesh(vertices=surface.vertices, triangles=surface.triangles))
+    r = surface.report
+    return {"points": int(len(cloud.points)), "vertices": r.n_vertices, "triangles": r.n_triangles,
+            "watertight": r.watertight, "consistently_oriented": r.consistently_oriented,
+            "boundary_edges": r.n_boundary_edges, "non_manifold_edges": r.n_non_manifold_edges,
+            "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2, "note": surface.note}

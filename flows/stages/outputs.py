@@ -1,0 +1,101 @@
+"""The typed description of every stage's output files, one block per stage: a zarr group's
+arrays as the fields of a frozen dataclass (shape, type, unit, frame), JSON documents and mesh
+files by name. Readers and writers go through these, so each file and array name is spelled
+here only. (Kept apart from the stage bodies, so that a stage's code version does not include the
+compute code of the stages whose outputs it reads.)"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from flows.stages.contracts import ArrayFile, JsonFile, MeshFile
+
+
+# --- stage denoise ---
+@dataclass(frozen=True)
+class DenoisedPass:
+    points: np.ndarray  # (profiles, columns, 3) float32, mm, coarse world frame; NaN: no return or removed
+    sensor_origins: np.ndarray  # (profiles, 3) float64, mm: the sensor's origin at each profile
+
+CLOUD = ArrayFile("cloud.zarr", DenoisedPass)
+
+
+# --- stage targets ---
+@dataclass(frozen=True)
+class PassTargets:
+    centres: np.ndarray  # (k, 3) float64, mm, coarse world frame: each sticker's centre on its top face
+    normals: np.ndarray  # (k, 3) float64, unit, toward the sensor
+    rms_mm: np.ndarray  # (k,) float64, rim fit RMS
+    rim_coverage: np.ndarray  # (k,) float64, share of the rim seen
+    pixel: np.ndarray  # (k, 2) float64, (profile, column) of the Hough circle
+
+TARGETS = ArrayFile("targets.zarr", PassTargets)
+
+
+# --- stage register ---
+@dataclass(frozen=True)
+class Registration:
+    T_common_pass: np.ndarray  # (n, 4, 4) float64: pass (coarse frame) -> common frame
+    residual_mm: np.ndarray  # (e,) float64, per target pair after the solve
+    inlier: np.ndarray  # (e,) bool
+    edge_passes: np.ndarray  # (e, 2) int64, the passes of each target pair
+    points_a: np.ndarray  # (e, 3) float64, mm, the pair's centre in pass a's coarse frame
+    points_b: np.ndarray  # (e, 3) float64, mm, in pass b's
+    track_positions_mm: np.ndarray  # (t, 3) float64, each physical target in the common frame
+    specimen_track: np.ndarray  # (t,) bool: seen from more than one setup (so on the specimen)
+    track_members: np.ndarray  # (m, 2) int64: (track, pass) of every observation
+    track_centres_mm: np.ndarray  # (m, 3) float64: that observation's centre, coarse frame
+
+REGISTRATION = ArrayFile("registration.zarr", Registration)
+REGISTRATION_SUMMARY = JsonFile("registration.json")  # pairs, weak pairs, per-pass RMS
+
+
+# --- stage refine ---
+@dataclass(frozen=True)
+class RefinedPoses:
+    T_common_pass: np.ndarray  # (n, 4, 4) float64: pass (coarse frame) -> common frame
+    track_positions_mm: np.ndarray  # (t, 3) float64: each physical target where the refined poses put it
+    specimen_track: np.ndarray  # (t,) bool: seen from more than one setup
+    target_residual_mm: np.ndarray  # (e,) float64, inlier target pairs after refinement
+
+REFINED = ArrayFile("refined.zarr", RefinedPoses)
+REFINE_SUMMARY = JsonFile("refine.json")  # surface pairs (points, RMS), step per iteration
+
+
+# --- stage merge ---
+@dataclass(frozen=True)
+class MergedCloud:
+    points: np.ndarray  # (n, 3) float64, mm, common frame: one point per occupied cell
+    sensor_positions: np.ndarray  # (n, 3) float64, mm: where the sensors that saw the cell were (mean)
+    counts: np.ndarray  # (n,) int64: measured points merged into the cell
+
+MERGED = ArrayFile("merged.zarr", MergedCloud)
+
+
+# --- stage segment ---
+@dataclass(frozen=True)
+class SpecimenCloud:
+    points: np.ndarray  # (n, 3) float64, mm, common frame: the specimen's merged points
+    sensor_positions: np.ndarray  # (n, 3) float64, mm
+
+SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
+
+
+# --- stage mesh ---
+@dataclass(frozen=True)
+class Mesh:
+    vertices: np.ndarray  # (v, 3) float64, mm, common frame
+    triangles: np.ndarray  # (t, 3) int64, counter-clockwise seen from outside
+
+MESH = ArrayFile("mesh.zarr", Mesh)
+
+
+# --- stage export ---
+STL = MeshFile("mesh.stl")  # binary STL, mm
+PLY = MeshFile("mesh.ply")  # binary PLY, mm
+
+
+# --- stage report ---
+REPORT = JsonFile("report.json")

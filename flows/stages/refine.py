@@ -1,0 +1,62 @@
+"""Stage ``refine``: every pass pose again, on the target pairs and the overlapping measured
+surfaces together (or, disabled, the target registration's poses: the paper's method)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from tasks.refine import refine_poses, surface_sample
+
+__all__ = ["refine"]
+
+
+
+
+def refine(ctx) -> dict[str, Any]:
+    rc, names = ctx.settings, ctx.names
+    reg = REGISTRATION.read(ctx.inputs["register"])
+    T_targets = reg.T_common_pass
+    inlier = reg.inlier.astype(bool)
+    pairs, counts, steps, samples = {}, {}, [], []
+    T = T_targets
+    target_res = reg.residual_mm[inlier]
+    if rc.enabled:
+        samples = [surface_sample(CLOUD.read(r, "points").points, spacing_mm=rc.sample_spacing_mm,
+                                  normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
+                                  max_plane_rms_mm=rc.max_plane_rms_mm)
+                   for r in ctx.inputs["denoise"]]
+        result = refine_poses(samples, T_targets, reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier],
+                              max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm,
+                              max_distance_mm=rc.max_distance_mm, final_distance_mm=rc.final_distance_mm,
+                              neighbour_mm=rc.neighbour_mm, normal_neighbours=rc.normal_neighbours,
+                              target_sigma_mm=rc.target_sigma_mm, surface_sigma_mm=rc.surface_sigma_mm,
+                              max_points_per_pair=rc.max_points_per_pair, min_normal_cos=rc.min_normal_cos,
+                              max_plane_rms_mm=rc.max_plane_rms_mm)
+        T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
+        target_res = result.target_residual_mm
+    # each physical target where the refined poses put it: the mean of its observations
+    track, pass_of = reg.track_members[:, 0], reg.track_members[:, 1]
+    seen = np.einsum("nij,nj->ni", T[pass_of, :3, :3], reg.track_centres_mm) + T[pass_of, :3, 3]
+    n_tracks = len(reg.track_positions_mm)
+    counts_per_track = np.bincount(track, minlength=n_tracks)[:, None]
+    positions = np.stack([np.bincount(track, seen[:, i], minlength=n_tracks) for i in range(3)], axis=1)
+    positions /= np.maximum(counts_per_track, 1)
+    moved = max((float(np.abs(np.einsum("ij,nj->ni", (T[k] - T_targets[k])[:3, :3], s.points_mm)
+                              + (T[k] - T_targets[k])[:3, 3]).max(initial=0.0)) for k, s in enumerate(samples)),
+                default=0.0)
+    REFINED.write(ctx.out, RefinedPoses(T_common_pass=T, track_positions_mm=positions,
+                                        specimen_track=reg.specimen_track,
+                                        target_residual_mm=np.asarray(target_res, dtype=np.float64)))
+    REFINE_SUMMARY.write(ctx.out, {"surface_pairs": [{"a": names[a], "b": names[b], "points": counts[(a, b)],
+                                                      "rms_mm": pairs[(a, b)]} for a, b in sorted(pairs)],
+                                   "step_mm": steps})
+    surface_rms = list(pairs.values())
+    return {"enabled": rc.enabled, "iterations": len(steps), "last_step_mm": steps[-1] if steps else 0.0,
+            "surface_pairs": len(pairs), "surface_points": int(sum(counts.values())),
+            "largest_pose_change_mm": moved,
+            "surface_rms_median_mm": float(np.median(surface_rms)) if surface_rms else None,
+            "target_residual_median_mm": float(np.median(target_res)) if len(target_res) else None,
+            "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None}

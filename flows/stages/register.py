@@ -1,0 +1,51 @@
+"""Stage ``register``: match targets between passes (the registration graph) and solve all pass
+poses together."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from flows.stages.outputs import REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
+from tasks.graph import register_passes
+from tasks.registration import RegistrationError
+
+__all__ = ["register", "setups_view"]
+
+
+
+
+def setups_view(manifest, entry) -> dict[str, Any]:
+    """The passes in order, each with its setup."""
+    return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()]}
+
+
+def register(ctx) -> dict[str, Any]:
+    rc, names = ctx.settings, ctx.names
+    setups = [s for s, _ in ctx.manifest.passes()]
+    targets = [TARGETS.read(r, "centres").centres for r in ctx.inputs["targets"]]
+    try:
+        reg = register_passes(targets, setups, names=names, min_common=rc.min_common_targets,
+                              max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)
+    except RegistrationError as exc:
+        weak = [f"{names[p.pass_a]}|{names[p.pass_b]} ({p.n_common})" for p in exc.weak_pairs]
+        raise RegistrationError(f"{exc}; overlapping pass pairs with fewer than {rc.min_common_targets} common "
+                                f"targets: {', '.join(weak) or 'none'}", exc.unregistered) from None
+    members = np.array([(k, p) for k, track in enumerate(reg.tracks) for p, _ in track], dtype=np.int64)
+    centres = np.array([targets[p][t] for track in reg.tracks for p, t in track], dtype=np.float64)
+    REGISTRATION.write(ctx.out, Registration(
+        T_common_pass=reg.T_common_pass, residual_mm=reg.result.residual_mm, inlier=reg.result.inlier,
+        edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a, points_b=reg.graph.points_b,
+        track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track,
+        track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3)))
+    REGISTRATION_SUMMARY.write(ctx.out, {
+        "pairs": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common} for p in reg.pairs],
+        "pairs_below_min_common": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common}
+                                   for p in reg.weak_pairs],
+        "pass_rms_mm": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
+    })
+    res = reg.result.residual_mm[reg.result.inlier]
+    return {"target_pairs": int(reg.result.inlier.sum()), "outlier_pairs": int((~reg.result.inlier).sum()),
+            "residual_median_mm": float(np.median(res)), "residual_max_mm": float(res.max()),
+            "specimen_targets": int(reg.specimen_track.sum()), "weak_pairs": len(reg.weak_pairs)}

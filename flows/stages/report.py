@@ -1,0 +1,73 @@
+"""Stage ``report``: the sample's report (what every stage measured, the registration, the mesh,
+the settings, every stage's key) and the publishing of the deliverables into ``results/``.
+
+``report.json`` is a function of the stages' outputs and records only (no times, no paths, no
+cache flags: those are in the audit trail), so the same inputs give the same bytes."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+from flows.stages.contracts import StageRef
+from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
+from data_catalog.hashing import sha256_file
+
+__all__ = ["report", "report_view", "publish", "RESULTS"]
+
+RESULTS = "results"
+
+
+def report_view(manifest, entry) -> dict[str, Any]:
+    return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()]}
+
+
+def _deliverables(sample_id: str) -> dict[str, str]:
+    """results/ file name -> the export output it is a copy of."""
+    return {f"{sample_id}.stl": STL.name, f"{sample_id}.ply": PLY.name}
+
+
+def _metrics(ref: StageRef | list[StageRef]) -> Any:
+    if isinstance(ref, list):
+        return [_metrics(r) for r in ref]
+    return {k: v for k, v in ref.metrics.items() if k != "seconds"}
+
+
+def report(ctx) -> dict[str, Any]:
+    inputs = ctx.inputs
+    registration = REGISTRATION_SUMMARY.read(inputs["register"])
+    registration["refinement"] = REFINE_SUMMARY.read(inputs["refine"])
+    export = inputs["export"]
+    body = {
+        "sample_id": ctx.manifest.sample_id,
+        "passes": ctx.names,
+        "config": ctx.config.model_dump(mode="json"),
+        "stages": {name: _metrics(ref) for name, ref in inputs.items()},
+        "registration": registration,
+        "mesh": _metrics(inputs["mesh"]),
+        "deliverables": {name: export.outputs[source] for name, source in _deliverables(ctx.manifest.sample_id).items()},
+        "stage_keys": {name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
+    }
+    REPORT.write(ctx.out, body)
+    return {"deliverables": len(body["deliverables"])}
+
+
+def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: StageRef) -> dict[str, dict[str, str]]:
+    """Copy the deliverables and the report into ``out_dir/results/`` (each atomically: a temporary
+    name, then a rename); returns file name -> {path, sha256}, checked against the stage records."""
+    results = Path(out_dir) / RESULTS
+    results.mkdir(exist_ok=True)
+    sources = {name: (export_ref, source) for name, source in _deliverables(sample_id).items()}
+    sources[REPORT.name] = (report_ref, REPORT.name)
+    published = {}
+    for name, (ref, source) in sources.items():
+        tmp = results / f".{name}.partial"
+        shutil.copyfile(ref.file(source), tmp)
+        digest = sha256_file(tmp)
+        if digest != ref.outputs[source]:
+            tmp.unlink()
+            raise OSError(f"{ref.file(source)} changed while it was published (sha256 differs from its record)")
+        tmp.replace(results / name)
+        published[name] = {"path": str(results / name), "sha256": digest}
+    return published
