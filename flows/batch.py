@@ -1,17 +1,20 @@
 """The ``reconstruct_batch`` flow: every sample in the catalog that is new, failed or changed is
 reconstructed, each as a subflow run of ``reconstruct_sample``, at most ``max_concurrent`` at a
-time; one sample failing never stops the others. Returns (and logs) a summary.
+time (a Prefect global concurrency limit made for the batch run, visible in the UI, removed at its
+end); one sample failing never stops the others. Returns (and logs) a summary.
 """
 
 from __future__ import annotations
 
-import threading
+import contextlib
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from prefect import flow, get_run_logger, task
 from prefect.cache_policies import NO_CACHE
+from prefect.concurrency.sync import concurrency
 from prefect.task_runners import ThreadPoolTaskRunner
 
 from data_catalog import audit
@@ -37,13 +40,12 @@ def _failed_stage(out_dir: Path) -> str | None:
 
 @task(name="reconstruct-one", task_run_name="sample {record.sample_id}", cache_policy=NO_CACHE)
 def reconstruct_one(workspace: str, record: SampleRecord, config_path: str | None, started_by: str,
-                    slots: str | None = None) -> dict[str, Any]:
+                    limit: str | None = None) -> dict[str, Any]:
     """One sample as a subflow run; its outcome goes into the catalog and is returned, never raised.
-    ``slots`` names the batch's concurrency limit (a semaphore in this process)."""
-    limit = _SLOTS.get(slots) if slots else None
+    ``limit`` names the Prefect global concurrency limit that bounds how many run at once."""
     if limit is None:
         return _reconstruct_one(workspace, record, config_path, started_by)
-    with limit:
+    with concurrency(limit, occupy=1, strict=True):
         return _reconstruct_one(workspace, record, config_path, started_by)
 
 
@@ -56,7 +58,7 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
     try:
         report = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by)
     except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
-        stage = _failed_stage(out_dir)
+        stage = getattr(exc, "stage", None) or _failed_stage(out_dir)
         message = f"{type(exc).__name__}: {exc}"
         catalog.mark_failed(record.sample_id, stage, message)
         return {"sample_id": record.sample_id, "state": "failed", "stage": stage, "error": message}
@@ -66,7 +68,21 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
             "cached_stages": sorted(k for k, v in report["cached"].items() if v)}
 
 
-_SLOTS: dict[str, threading.BoundedSemaphore] = {}
+@contextlib.contextmanager
+def _batch_limit(slots: int) -> Iterator[str]:
+    """A Prefect global concurrency limit of ``slots`` for one batch run; deleted afterwards."""
+    from prefect.client.orchestration import get_client
+    from prefect.client.schemas.actions import GlobalConcurrencyLimitCreate
+    from prefect.runtime import flow_run
+
+    name = f"weldrecon-batch-{flow_run.id or uuid.uuid4()}"
+    with get_client(sync_client=True) as client:
+        client.create_global_concurrency_limit(GlobalConcurrencyLimitCreate(name=name, limit=slots))
+    try:
+        yield name
+    finally:
+        with get_client(sync_client=True) as client:
+            client.delete_global_concurrency_limit_by_name(name)
 
 
 @flow(name="reconstruct-batch", task_runner=ThreadPoolTaskRunner(max_workers=8), log_prints=False)
@@ -85,13 +101,11 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
     due = catalog.due(fresh=[r.sample_id for r in registered])
     log.info("%d sample(s) due: %s", len(due), ", ".join(r.sample_id for r in due) or "none")
     trigger = started_by or "batch"
-    slots = str(uuid.uuid4())
-    _SLOTS[slots] = threading.BoundedSemaphore(max(1, max_concurrent))
-    try:
-        futures = [reconstruct_one.submit(workspace, record, config_path, trigger, slots) for record in due]
+    if max_concurrent < 1:
+        raise ValueError(f"max_concurrent must be >= 1, got {max_concurrent}")
+    with _batch_limit(max_concurrent) as limit:
+        futures = [reconstruct_one.submit(workspace, record, config_path, trigger, limit) for record in due]
         results = [f.result() for f in futures]
-    finally:
-        _SLOTS.pop(slots, None)
     summary = {"done": [r["sample_id"] for r in results if r["state"] == "done"],
                "failed": {r["sample_id"]: {"stage": r["stage"], "error": r["error"]}
                           for r in results if r["state"] == "failed"},

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import sys
 import time
 from pathlib import Path
@@ -72,37 +74,39 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _quiet_prefect() -> None:
-    import os
-
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 
 
 def _print_report(report: dict, out: Path) -> None:
-    stages = report["stages"]
-    refined, mesh = stages["refine"], report["mesh"]
+    from flows.stages import STAGES
+
+    refined, mesh = report["stages"]["refine"], report["mesh"]
     print(f"{report['sample_id']}: {len(report['passes'])} passes")
-    for name, value in stages.items():
-        if isinstance(value, list):
-            cached = sum(v["cached"] for v in value)
-            print(f"  {name:<9} {len(value)} passes, {sum(v['seconds'] for v in value):.1f} s of work, {cached} cached")
+    for stage in STAGES:
+        name = stage.name
+        if name not in report["stages"]:
+            continue
+        value, seconds, cached = report["stages"][name], report["seconds"].get(name, 0.0), report["cached"][name]
+        if stage.per_pass:
+            print(f"  {name:<9} {len(value)} passes, {seconds:.1f} s of work{', all cached' if cached else ''}")
         else:
             extra = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in value.items()
                      if k in ("points_in", "points_out", "residual_median_mm", "residual_max_mm", "vertices",
                               "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
                               "target_residual_median_mm")}
-            took = "cached" if value["cached"] else f"{value['seconds']:.1f} s"
-            print(f"  {name:<9} {took}  {extra}")
+            print(f"  {name:<9} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
     weak = report["registration"]["pairs_below_min_common"]
     if weak:
         print("  pass pairs with fewer common targets than needed: "
               + ", ".join(f"{w['a']}|{w['b']} ({w['common_targets']})" for w in weak))
+    residual = refined.get("target_residual_median_mm")
     print(f"mesh: {mesh['vertices']:,} vertices, {mesh['triangles']:,} triangles, "
-          f"{'watertight' if mesh['watertight'] else 'NOT watertight'}; target residual median "
-          f"{refined['target_residual_median_mm'] * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um")
-    for name, item in report["outputs"].items():
+          f"{'watertight' if mesh['watertight'] else 'NOT watertight'}"
+          + (f"; target residual median {residual * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um"
+             if residual is not None else ""))
+    for item in report["outputs"].values():
         print(f"  {item['path']}")
-    print(f"  {out / 'results' / 'report.json'}")
 
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
@@ -110,15 +114,25 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     import getpass
 
     from data_catalog.manifests import check_sample_files, load_manifest
-    from flows.reconstruct import load_config, reconstruct_sample, task_runner
+    from flows.progress import TrailProgress
+    from flows.reconstruct import load_config, prefect_api_for_workers, reconstruct_sample
+    from flows.stages import STAGES
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
-    check_sample_files(sample, load_manifest(sample))  # bad input is refused here, before a flow run
+    manifest = load_manifest(sample)
+    check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
-    flow = reconstruct_sample.with_options(task_runner=task_runner(args.dask)) if getattr(args, "dask", None) \
-        else reconstruct_sample
-    report = flow(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})")
+    dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
+    n_passes = len(manifest.passes())
+    expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
+    with contextlib.ExitStack() as stack:
+        if dask:
+            api = stack.enter_context(prefect_api_for_workers())
+            print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
+        stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
+        report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
+                                    dask=dask)
     _print_report(report, out)
     return 0
 
@@ -150,8 +164,6 @@ def _cmd_schema(args: argparse.Namespace) -> int:
 
 
 def _workspace(args: argparse.Namespace) -> Path:
-    import os
-
     return Path(args.workspace or os.environ.get("WELDRECON_WORKSPACE", "workspace"))
 
 

@@ -17,7 +17,7 @@ from data_catalog.manifests import load_manifest
 from data_catalog.passes import read_pass
 from data_catalog.truth import TRUTH_DIR, read_truth, read_truth_pass
 from schemas.truth import Material, PointLabel
-from tasks.ingest import profile_points
+from tasks.ingest import profile_points, sensor_poses
 from tasks.matching import kabsch, match_rotation_invariant
 
 __all__ = ["STICKER_LIFT_MM", "true_sticker_centres", "Gauge", "fit_gauge", "PassMisalignment",
@@ -84,12 +84,13 @@ def pass_misalignment(sample_dir: Path, T_common_pass: np.ndarray, gauge: Gauge 
     sample_dir = Path(sample_dir)
     manifest = load_manifest(sample_dir)
     truth = read_truth(sample_dir / TRUTH_DIR / "truth.json")
-    T_flange_sensor = np.array(manifest.scanner.T_flange_sensor)
     ids, ours, true = [], [], []
     for k, (setup, entry) in enumerate(manifest.passes()):
         data = read_pass(sample_dir / entry.file)
         tp = read_truth_pass(sample_dir / TRUTH_DIR / "passes" / f"{entry.pass_id}.zarr")
-        coarse = profile_points(data.x_mm, data.z_mm, data.T_world_flange @ T_flange_sensor)
+        T_world_sensor = sensor_poses(manifest.scanner.T_flange_sensor, timestamp_s=data.timestamp_s,
+                                      T_world_flange=data.T_world_flange, motion=entry.nominal_motion)
+        coarse = profile_points(data.x_mm, data.z_mm, T_world_sensor)
         on_specimen = np.isin(tp.material, _SPECIMEN) & (tp.label == PointLabel.VALID)
         p = coarse[on_specimen][::every]
         E = np.array(next(t.T_nominal_true for t in truth.passes if t.pass_id == entry.pass_id))

@@ -48,8 +48,8 @@ def _mean_knn_distance(points: np.ndarray, valid: np.ndarray, k: int, rows: int,
     return mean
 
 
-def remove_statistical_outliers(points_mm: np.ndarray, *, k: int = 8, alpha: float = 1.0,
-                                window_rows: int = 2, window_cols: int = 2) -> DenoiseResult:
+def remove_statistical_outliers(points_mm: np.ndarray, *, k: int, alpha: float, window_rows: int,
+                                window_cols: int) -> DenoiseResult:
     """Flag outliers of an organized cloud.
 
     points_mm : (profiles, columns, 3) float, mm, any frame; NaN rows of 3 mark missing returns.

@@ -82,7 +82,7 @@ def _edges(targets, idx_pairs):
 
 
 def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
-                    min_common: int = 3, max_offset_mm: float = 3.0, tolerance_mm: float = 0.3) -> PassRegistration:
+                    min_common: int, max_offset_mm: float, tolerance_mm: float) -> PassRegistration:
     """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
     setups: per pass its setup name. The first pass is held fixed. A RegistrationError carries
     the pass pairs that matched fewer than ``min_common`` targets."""

@@ -68,7 +68,7 @@ class RefineResult:
 
 
 def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: float,
-                   neighbours: int = 16, max_plane_rms_mm: float = 0.02) -> SurfaceSample:
+                   neighbours: int, max_plane_rms_mm: float) -> SurfaceSample:
     """Thin a pass's points ((..., 3); NaN rows where nothing was measured) to the first point in
     each ``spacing_mm`` cube, with a normal from the plane through its ``neighbours`` nearest
     points of the whole pass (PCA); points whose neighbours reach beyond ``normal_radius_mm``
@@ -125,11 +125,10 @@ def _overlapping_pairs(boxes: np.ndarray, margin: float) -> list[tuple[int, int]
 
 
 def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_passes: np.ndarray,
-                 points_a: np.ndarray, points_b: np.ndarray, *, fixed: int = 0, max_iterations: int = 10,
-                 tolerance_mm: float = 0.001, max_distance_mm: float = 0.5, final_distance_mm: float = 0.1,
-                 neighbour_mm: float = 1.0, normal_neighbours: int = 16, target_sigma_mm: float = 0.03,
-                 surface_sigma_mm: float = 0.05, max_points_per_pair: int = 4000, min_normal_cos: float = 0.95,
-                 max_plane_rms_mm: float = 0.02) -> RefineResult:
+                 points_a: np.ndarray, points_b: np.ndarray, *, max_iterations: int, tolerance_mm: float,
+                 max_distance_mm: float, final_distance_mm: float, neighbour_mm: float, normal_neighbours: int,
+                 target_sigma_mm: float, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
+                 max_plane_rms_mm: float, fixed: int = 0) -> RefineResult:
     """Refine ``T_common_pass`` (n, 4, 4; pass frame -> common frame, from target registration).
 
     ``edge_passes`` (e, 2), ``points_a``/``points_b`` (e, 3): the inlier target pairs, each centre

@@ -7,16 +7,24 @@ import open3d as o3d
 import pytest
 
 from data_catalog.manifests import load_manifest
-from data_catalog.passes import read_pass
 from data_catalog.truth import read_truth_pass
+from flows.stages.passes import load_pass_points
+from schemas.reconstruction import DenoiseConfig
 from schemas.truth import PointLabel
 from tasks.denoise import remove_statistical_outliers
-from tasks.ingest import profile_points
+
+
+SETTINGS = DenoiseConfig()  # the pipeline's defaults
+
+
+def _denoise(points, **changes):
+    cfg = SETTINGS.model_copy(update=changes)
+    return remove_statistical_outliers(points, k=cfg.k, alpha=cfg.alpha, window_rows=cfg.window_rows,
+                                       window_cols=cfg.window_cols)
 
 
 def _world_points(sample, manifest, entry):
-    data = read_pass(sample / entry.file, pass_id=entry.pass_id)
-    return profile_points(data.x_mm, data.z_mm, data.T_world_flange @ np.array(manifest.scanner.T_flange_sensor))
+    return load_pass_points(sample, manifest, entry)[2]
 
 
 def test_recovers_true_outliers_on_the_ci_sample(ci_sample):
@@ -25,7 +33,7 @@ def test_recovers_true_outliers_on_the_ci_sample(ci_sample):
     for _, entry in manifest.passes()[:4]:
         points = _world_points(ci_sample, manifest, entry)
         labels = read_truth_pass(ci_sample / "truth" / "passes" / f"{entry.pass_id}.zarr").label
-        result = remove_statistical_outliers(points, k=8, alpha=1.0)
+        result = _denoise(points)
         outlier = labels == PointLabel.OUTLIER
         valid = labels == PointLabel.VALID
         found += np.count_nonzero(outlier & ~result.keep)
@@ -41,11 +49,11 @@ def test_agrees_with_open3d_on_which_points_go(ci_sample):
     manifest = load_manifest(ci_sample)
     _, entry = manifest.passes()[0]
     points = _world_points(ci_sample, manifest, entry)
-    result = remove_statistical_outliers(points, k=8, alpha=1.0)
+    result = _denoise(points)
     flat = points.reshape(-1, 3)
     valid = np.isfinite(flat).all(1)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat[valid]))
-    _, kept = cloud.remove_statistical_outlier(nb_neighbors=8, std_ratio=1.0)
+    _, kept = cloud.remove_statistical_outlier(nb_neighbors=SETTINGS.k, std_ratio=SETTINGS.alpha)
     peer = np.zeros(valid.sum(), bool)
     peer[kept] = True
     ours = result.keep.reshape(-1)[valid]
@@ -58,7 +66,7 @@ def test_a_lone_spike_goes_and_a_plane_stays():
     points[:, :, 2] += np.random.default_rng(0).normal(0, 0.002, rows.shape)
     points[20, 30, 2] = 2.0
     points[5, 5] = np.nan
-    result = remove_statistical_outliers(points, k=8, alpha=2.0)
+    result = _denoise(points, alpha=2.0)
     assert not result.keep[20, 30]
     assert not result.keep[5, 5]
     assert result.keep.sum() >= 40 * 60 - 2 - 40  # only the spike, the hole and few of their neighbours
@@ -71,6 +79,6 @@ def test_a_lone_spike_goes_and_a_plane_stays():
 )
 def test_bad_arguments(kwargs, message):
     with pytest.raises(ValueError, match=message):
-        remove_statistical_outliers(np.zeros((4, 4, 3)), **kwargs)
+        _denoise(np.zeros((4, 4, 3)), **kwargs)
     with pytest.raises(ValueError, match=r"shape \(profiles, columns, 3\)"):
-        remove_statistical_outliers(np.zeros((4, 3)))
+        _denoise(np.zeros((4, 3)))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from schemas.reconstruction import RefineConfig
 from tasks.refine import SurfaceSample, refine_poses, surface_sample
 
 
@@ -45,6 +46,25 @@ def two_passes():
     return a, b, T_true_b, targets_true, _apply(np.linalg.inv(T_true_b), targets_true)
 
 
+SETTINGS = RefineConfig()  # the pipeline's defaults; a test changes only what it is about
+
+
+def _sample(grid, **changes):
+    cfg = SETTINGS.model_copy(update=changes)
+    return surface_sample(grid, spacing_mm=cfg.sample_spacing_mm, normal_radius_mm=cfg.neighbour_mm,
+                          neighbours=cfg.normal_neighbours, max_plane_rms_mm=cfg.max_plane_rms_mm)
+
+
+def _refine(samples, start, edges, targets_a, targets_b, **changes):
+    cfg = SETTINGS.model_copy(update=changes)
+    return refine_poses(samples, start, edges, targets_a, targets_b, max_iterations=cfg.max_iterations,
+                        tolerance_mm=cfg.tolerance_mm, max_distance_mm=cfg.max_distance_mm,
+                        final_distance_mm=cfg.final_distance_mm, neighbour_mm=cfg.neighbour_mm,
+                        normal_neighbours=cfg.normal_neighbours, target_sigma_mm=cfg.target_sigma_mm,
+                        surface_sigma_mm=cfg.surface_sigma_mm, max_points_per_pair=cfg.max_points_per_pair,
+                        min_normal_cos=cfg.min_normal_cos, max_plane_rms_mm=cfg.max_plane_rms_mm)
+
+
 def _error(T_b, T_true_b, b):
     """Largest distance between where the refined pose puts pass b's points and the truth."""
     pts = b.reshape(-1, 3)
@@ -53,11 +73,11 @@ def _error(T_b, T_true_b, b):
 
 def test_surface_sample_thins_and_drops_curved_neighbourhoods(two_passes):
     a = two_passes[0]
-    s = surface_sample(a, spacing_mm=1.0, normal_radius_mm=1.0)
+    s = _sample(a)
     assert 0.5 * 80 * 30 < len(s.points_mm) < 1.1 * 80 * 30  # about one per mm^2
     assert np.allclose(np.linalg.norm(s.normals, axis=1), 1.0)
     assert len(s.dense_mm) == a.shape[0] * a.shape[1]
-    loose = surface_sample(a, spacing_mm=1.0, normal_radius_mm=1.0, max_plane_rms_mm=10.0)
+    loose = _sample(a, max_plane_rms_mm=10.0)
     assert len(loose.points_mm) > len(s.points_mm)  # the bead's toes were dropped, not the plate
     dropped = np.setdiff1d(loose.points_mm[:, 0].round(3), s.points_mm[:, 0].round(3))
     assert len(dropped) and np.all(np.abs(np.abs(dropped) - 5) < 1.5)
@@ -65,10 +85,10 @@ def test_surface_sample_thins_and_drops_curved_neighbourhoods(two_passes):
 
 def test_refinement_recovers_the_true_pose(two_passes):
     a, b, T_true_b, targets_a, targets_b = two_passes
-    samples = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
+    samples = [_sample(g) for g in (a, b)]
     start = np.repeat(np.eye(4)[None], 2, axis=0)
     edges = np.array([[0, 1]] * len(targets_a))
-    result = refine_poses(samples, start, edges, targets_a, targets_b)
+    result = _refine(samples, start, edges, targets_a, targets_b)
     assert np.allclose(result.T_common_pass[0], np.eye(4))  # the fixed pass stays
     # measured 2.8 um: 5 um of noise per point, targets weighted as if they had 30 um
     assert _error(result.T_common_pass[1], T_true_b, b) < 0.006
@@ -83,13 +103,13 @@ def test_surfaces_fix_what_noisy_targets_leave_loose(two_passes):
     a, b, T_true_b, targets_a, targets_b = two_passes
     rng = np.random.default_rng(5)
     noisy_b = targets_b + 0.03 * rng.standard_normal(targets_b.shape)
-    samples = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
+    samples = [_sample(g) for g in (a, b)]
     edges = np.array([[0, 1]] * len(targets_a))
     start = np.repeat(np.eye(4)[None], 2, axis=0)
     from tasks.matching import kabsch
 
     targets_only = kabsch(noisy_b, targets_a)
-    refined = refine_poses(samples, start, edges, targets_a, noisy_b).T_common_pass[1]
+    refined = _refine(samples, start, edges, targets_a, noisy_b).T_common_pass[1]
     assert _error(refined, T_true_b, b) < 0.5 * _error(targets_only, T_true_b, b)
 
 
@@ -99,21 +119,21 @@ def test_curved_patches_would_bias_the_poses(two_passes):
     a, b, T_true_b, targets_a, targets_b = two_passes
     edges = np.array([[0, 1]] * len(targets_a))
     start = np.repeat(np.eye(4)[None], 2, axis=0)
-    loose = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0, max_plane_rms_mm=10.0) for g in (a, b)]
-    biased = refine_poses(loose, start, edges, targets_a, targets_b, max_plane_rms_mm=10.0, min_normal_cos=0.5)
-    strict = [surface_sample(g, spacing_mm=1.0, normal_radius_mm=1.0) for g in (a, b)]
-    clean = refine_poses(strict, start, edges, targets_a, targets_b)
+    loose = [_sample(g, max_plane_rms_mm=10.0) for g in (a, b)]
+    biased = _refine(loose, start, edges, targets_a, targets_b, max_plane_rms_mm=10.0, min_normal_cos=0.5)
+    strict = [_sample(g) for g in (a, b)]
+    clean = _refine(strict, start, edges, targets_a, targets_b)
     assert _error(clean.T_common_pass[1], T_true_b, b) < 0.5 * _error(biased.T_common_pass[1], T_true_b, b)
 
 
 def test_bad_input_is_named():
     s = SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)))
     with pytest.raises(ValueError, match="T_common_pass"):
-        refine_poses([s, s], np.eye(4)[None], np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
+        _refine([s, s], np.eye(4)[None], np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
     bad = np.repeat(np.eye(4)[None], 2, axis=0)
     bad[1, 0, 3] = np.nan
     with pytest.raises(ValueError, match="finite"):
-        refine_poses([s, s], bad, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
+        _refine([s, s], bad, np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3)))
     with pytest.raises(ValueError, match="points_a"):
-        refine_poses([s, s], np.repeat(np.eye(4)[None], 2, axis=0), np.array([[0, 1]]), np.full((1, 3), np.nan),
+        _refine([s, s], np.repeat(np.eye(4)[None], 2, axis=0), np.array([[0, 1]]), np.full((1, 3), np.nan),
                      np.zeros((1, 3)))

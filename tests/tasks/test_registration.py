@@ -7,9 +7,13 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.spatial.transform import Rotation
 
+from schemas.reconstruction import RegistrationConfig
 from tasks.graph import register_passes
 from tasks.matching import kabsch, match_by_translation, match_rotation_invariant
 from tasks.registration import RegistrationError, RegistrationGraph, solve_pass_poses
+
+_CFG = RegistrationConfig()  # the pipeline's defaults
+_SETTINGS = dict(min_common=_CFG.min_common_targets, max_offset_mm=_CFG.max_offset_mm, tolerance_mm=_CFG.tolerance_mm)
 
 
 def _pose(rotvec_deg, t):
@@ -75,7 +79,7 @@ def test_graph_solve_recovers_pass_errors_and_names_lost_passes():
     for (lo, hi), E in zip(windows, truth):
         seen = world[(world[:, 0] > lo) & (world[:, 0] < hi)]
         targets.append(_apply(np.linalg.inv(E), seen) + rng.normal(0, 0.01, seen.shape))
-    reg = register_passes(targets, ["top"] * 4, names=["p0", "p1", "p2", "p3"])
+    reg = register_passes(targets, ["top"] * 4, names=["p0", "p1", "p2", "p3"], **_SETTINGS)
     # the registered model is defined up to one rigid transform G (the gauge): fit it, then every
     # pass must agree with the truth over the surface it saw
     probes = [np.array([[x, y, 0.0] for x in np.linspace(lo, hi, 5) for y in (-40, 40)]) for lo, hi in windows]
@@ -87,7 +91,7 @@ def test_graph_solve_recovers_pass_errors_and_names_lost_passes():
 
     lonely = targets + [np.array([[500.0, 0, 0], [520.0, 5, 0], [540.0, -5, 0]])]
     with pytest.raises(RegistrationError, match=r"passes \['p4'\] share no chain"):
-        register_passes(lonely, ["top"] * 5, names=["p0", "p1", "p2", "p3", "p4"])
+        register_passes(lonely, ["top"] * 5, names=["p0", "p1", "p2", "p3", "p4"], **_SETTINGS)
 
 
 def test_graph_checks_its_shapes():
