@@ -1,6 +1,6 @@
 """Benchmark of the reconstruction on the ``demo`` sample.
 
-Part 1: every stage in a fresh process (earlier stages come from the stage store), its wall
+Part 1: every stage of the registry (flows.stages.STAGES) in a fresh process (earlier stages come from the stage store), its wall
 time and peak RSS. Part 2: on the same data, in one process, our denoise, merge and meshing
 against Open3D's ``remove_statistical_outlier``, ``voxel_down_sample`` and
 ``create_from_point_cloud_poisson`` (same neighbours / cell / depth), as time ratios.
@@ -21,49 +21,45 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 CONFIG = ROOT / "deploy" / "configs" / "demo.yaml"
-STAGES = ["cloud", "targets", "register", "refine", "merge", "segment", "surface", "export"]
+
+from flows.stages import STAGE_NAMES  # noqa: E402 - after the path is set
 
 
 def _stage_child(sample: str, out: str, upto: str) -> None:
     from data_catalog.manifests import load_manifest
     from data_catalog.stages import StageStore
-    from flows import stages
     from flows.reconstruct import load_config
+    from flows.stages import run_in_process
 
-    m, st, cfg = load_manifest(Path(sample)), StageStore(Path(out)), load_config(CONFIG)
     t0 = time.perf_counter()
-    refs = {}
-    refs["cloud"] = [stages.cloud_stage(st, Path(sample), m, e, cfg) for _, e in m.passes()]
-    if upto != "cloud":
-        refs["targets"] = [stages.targets_stage(st, Path(sample), m, e, cfg) for _, e in m.passes()]
-    if STAGES.index(upto) >= 2:
-        refs["register"] = stages.register_stage(st, m, refs["targets"], cfg)
-    if STAGES.index(upto) >= 3:
-        refs["refine"] = stages.refine_stage(st, m, refs["cloud"], refs["register"], cfg)
-    if STAGES.index(upto) >= 4:
-        refs["merge"] = stages.merge_stage(st, m, refs["cloud"], refs["refine"], cfg)
-    if STAGES.index(upto) >= 5:
-        refs["segment"] = stages.segment_stage(st, m, refs["merge"], refs["refine"], cfg)
-    if STAGES.index(upto) >= 6:
-        refs["surface"] = stages.surface_stage(st, m, refs["segment"], cfg)
-    if STAGES.index(upto) >= 7:
-        refs["export"] = stages.export_stage(st, m, refs["surface"])
+    refs = run_in_process(store=StageStore(Path(out)), sample_dir=Path(sample), manifest=load_manifest(Path(sample)),
+                          config=load_config(CONFIG), upto=upto)
     ref = refs[upto]
-    seconds = sum(r["metrics"]["seconds"] for r in ref) if isinstance(ref, list) else ref["metrics"]["seconds"]
+    seconds = sum(r.metrics["seconds"] for r in ref) if isinstance(ref, list) else ref.metrics["seconds"]
     print(json.dumps({"stage": upto, "seconds": round(seconds, 2), "wall_s": round(time.perf_counter() - t0, 2),
                       "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)}))
 
 
-def _peers(sample: Path, out: Path) -> list[dict]:
+def _refs(sample: Path, out: Path) -> dict:
+    """The finished stages' refs (all cached by the children: looked up, not recomputed)."""
+    from data_catalog.manifests import load_manifest
+    from data_catalog.stages import StageStore
+    from flows.reconstruct import load_config
+    from flows.stages import run_in_process
+
+    return run_in_process(store=StageStore(out), sample_dir=sample, manifest=load_manifest(sample),
+                          config=load_config(CONFIG))
+
+
+def _peers(sample: Path, refs: dict) -> list[dict]:
     import numpy as np
     import open3d as o3d
 
     from data_catalog.manifests import load_manifest
-    from data_catalog.passes import read_pass
-    from data_catalog.stages import load_arrays
     from flows.reconstruct import load_config
+    from flows.stages.outputs import CLOUD, REGISTRATION, SPECIMEN
+    from flows.stages.passes import load_pass_points
     from tasks.denoise import remove_statistical_outliers
-    from tasks.ingest import profile_points
     from tasks.merge import merge_box_grid
     from tasks.surface import estimate_normals, screened_poisson
 
@@ -79,25 +75,23 @@ def _peers(sample: Path, out: Path) -> list[dict]:
     # denoise: every pass, same k and alpha
     ours = peer = 0.0
     n_points = 0
+    dc = cfg.denoise
     for _, e in m.passes():
-        d = read_pass(sample / e.file)
-        grid = profile_points(d.x_mm, d.z_mm, d.T_world_flange @ np.array(m.scanner.T_flange_sensor))
+        grid = load_pass_points(sample, m, e)[2]
         flat = grid.reshape(-1, 3)
         flat = flat[np.isfinite(flat).all(1)]
         n_points += len(flat)
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat))
-        ours += timed(lambda: remove_statistical_outliers(grid, **cfg.denoise.model_dump()))
-        peer += timed(lambda: cloud.remove_statistical_outlier(nb_neighbors=cfg.denoise.k, std_ratio=cfg.denoise.alpha))
+        ours += timed(lambda: remove_statistical_outliers(grid, k=dc.k, alpha=dc.alpha, window_rows=dc.window_rows,
+                                                          window_cols=dc.window_cols))
+        peer += timed(lambda: cloud.remove_statistical_outlier(nb_neighbors=dc.k, std_ratio=dc.alpha))
     rows.append({"stage": "denoise", "points": n_points, "ours_s": ours, "peer": "o3d remove_statistical_outlier",
                  "peer_s": peer})
     # merge: the registered cloud of every pass
-    stages_dir = out / "stages"
-    T = load_arrays(next((stages_dir / "register").glob("*/registration.zarr")), "T_common_pass")["T_common_pass"]
+    T = REGISTRATION.read(refs["register"], "T_common_pass").T_common_pass
     pts = []
-    clouds = sorted((stages_dir / "cloud").glob("*/record.json"))
-    by_item = {json.loads(r.read_text())["item"]: r.parent for r in clouds}
-    for k, (_, e) in enumerate(m.passes()):
-        g = load_arrays(by_item[e.pass_id] / "cloud.zarr", "points")["points"].reshape(-1, 3).astype(np.float64)
+    for k, ref in enumerate(refs["denoise"]):
+        g = CLOUD.read(ref, "points").points.reshape(-1, 3).astype(np.float64)
         g = g[np.isfinite(g).all(1)]
         pts.append(g @ T[k][:3, :3].T + T[k][:3, 3])
     pts = np.concatenate(pts)
@@ -106,13 +100,13 @@ def _peers(sample: Path, out: Path) -> list[dict]:
                  "ours_s": timed(lambda: merge_box_grid(pts, cell_mm=cfg.merge.cell_mm)),
                  "peer": "o3d voxel_down_sample", "peer_s": timed(lambda: cloud.voxel_down_sample(cfg.merge.cell_mm))})
     # meshing: the specimen cloud, same normals, same depth
-    spec = load_arrays(next((stages_dir / "segment").glob("*/specimen.zarr")))
-    normals = estimate_normals(spec["points"], spec["sensor_positions"], k=cfg.surface.normals_k)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(spec["points"]))
+    spec = SPECIMEN.read(refs["segment"])
+    normals = estimate_normals(spec.points, spec.sensor_positions, k=cfg.surface.normals_k)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(spec.points))
     pc.normals = o3d.utility.Vector3dVector(normals)
     sc = cfg.surface
-    rows.append({"stage": "mesh (Poisson)", "points": len(spec["points"]),
-                 "ours_s": timed(lambda: screened_poisson(spec["points"], normals, depth=sc.poisson_depth,
+    rows.append({"stage": "mesh (Poisson)", "points": len(spec.points),
+                 "ours_s": timed(lambda: screened_poisson(spec.points, normals, depth=sc.poisson_depth,
                                                           samples_per_node=sc.samples_per_node,
                                                           point_weight=sc.point_weight, scale=sc.poisson_scale)),
                  "peer": "o3d create_from_point_cloud_poisson",
@@ -123,20 +117,19 @@ def _peers(sample: Path, out: Path) -> list[dict]:
     return rows
 
 
-def _accuracy(sample: Path, out: Path) -> list[dict]:
+def _accuracy(sample: Path, refs: dict) -> list[dict]:
     """Pass misalignment against the simulator's truth: target registration alone (the paper's
     method) and after the joint refinement."""
     import numpy as np
 
-    from data_catalog.stages import load_arrays
+    from flows.stages.outputs import REFINED, REGISTRATION
     from simulator.evaluate import pass_misalignment
 
     if not (sample / "truth" / "truth.json").is_file():
         return []
     rows = []
-    for poses, stage, store in (("targets", "register", "registration.zarr"), ("refined", "refine", "refined.zarr")):
-        path = next((out / "stages" / stage).glob(f"*/{store}"))
-        m = pass_misalignment(sample, load_arrays(path, "T_common_pass")["T_common_pass"])
+    for poses, stage, store in (("targets", "register", REGISTRATION), ("refined", "refine", REFINED)):
+        m = pass_misalignment(sample, store.read(refs[stage], "T_common_pass").T_common_pass)
         rows.append({"poses": poses, "worst_um": round(1000 * float(m.max_mm.max())),
                      "median_um": round(1000 * float(np.median(m.median_mm)))})
     return rows
@@ -152,12 +145,13 @@ def main() -> int:
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         stage_rows = []
-        for stage in STAGES:
+        for stage in STAGE_NAMES:
             done = subprocess.run([sys.executable, __file__, "--child", str(sample), tmp, stage], check=True,
                                   capture_output=True, text=True, cwd=ROOT)
             stage_rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
-        peer_rows = _peers(sample, Path(tmp))
-        accuracy = _accuracy(sample, Path(tmp))
+        refs = _refs(sample, Path(tmp))
+        peer_rows = _peers(sample, refs)
+        accuracy = _accuracy(sample, refs)
     print(f"{'stage':<10}{'seconds':>9}{'peak RSS MiB':>14}")
     for r in stage_rows:
         print(f"{r['stage']:<10}{r['seconds']:>9}{r['peak_rss_mib']:>14,}")

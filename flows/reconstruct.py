@@ -238,6 +238,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
 
     try:
         for stage in STAGES:
+            if not stage.per_pass:  # the per-pass stages all finish first, failures named in registry order
+                for name in list(pending):
+                    outputs_of(name)
             inputs = {name: outputs_of(name) for name in stage.needs}
             run = STAGE_TASKS[stage.name]
             if stage.per_pass:
@@ -254,6 +257,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     report_ref, published = refs.pop("report")
     result = dict(json.loads(Path(published["report.json"]["path"]).read_text()))
     result["outputs"] = published
+    result["refs"] = dict(refs, report=report_ref)
     result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}
     result["cached"] = {n: (all(r.cached for r in v) if isinstance(v, list) else v.cached) for n, v in refs.items()}
     result["cached"]["report"] = report_ref.cached

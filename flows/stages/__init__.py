@@ -14,7 +14,7 @@ from flows.stages.passes import pass_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
-           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of"]
+           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "run_in_process"]
 
 
 def _sample_wide(manifest, entry):
@@ -60,6 +60,22 @@ def downstream_of(name: str) -> list[str]:
         if below.intersection(s.needs):
             below.add(s.name)
     return [s for s in STAGE_NAMES if s in below and s != name]
+
+
+def run_in_process(*, store, sample_dir, manifest, config, upto: str | None = None) -> dict:
+    """Every stage (up to and including ``upto``) one after the other in this process, without
+    Prefect (benchmarks, debugging): stage name -> its ref (a list of refs for per-pass stages)."""
+    refs: dict = {}
+    for s in STAGES:
+        inputs = {name: refs[name] for name in s.needs}
+        common = dict(store=store, sample_dir=sample_dir, manifest=manifest, config=config, inputs=inputs)
+        if s.per_pass:
+            refs[s.name] = [run_stage(s, entry=e, **common) for _, e in manifest.passes()]
+        else:
+            refs[s.name] = run_stage(s, **common)
+        if s.name == upto:
+            break
+    return refs
 
 
 def _check_registry() -> None:

@@ -48,18 +48,18 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     assert sorted(first["done"]) == ["batch-a", "batch-b"]
     assert list(first["failed"]) == ["batch-c"]
     why = first["failed"]["batch-c"]
-    assert why["stage"] == "cloud" and "bottom-L03" in why["error"]
+    assert why["stage"] == "denoise" and "bottom-L03" in why["error"]
     catalog = Catalog(workspace)
     states = {r.sample_id: (r.state, r.failed_stage) for r in catalog.list()}
-    assert states == {"batch-a": ("done", None), "batch-b": ("done", None), "batch-c": ("failed", "cloud")}
+    assert states == {"batch-a": ("done", None), "batch-b": ("done", None), "batch-c": ("failed", "denoise")}
     for sample_id in ("batch-a", "batch-b"):
         record = catalog.get(sample_id)
         stl = Path(record.out_dir) / "results" / f"{sample_id}.stl"
         assert record.artefacts[f"{sample_id}.stl"] and stl.is_file()
     listed = run_cli("catalog", "list", "--workspace", str(workspace))
-    assert "batch-c" in listed.stdout and "failed at cloud" in listed.stdout
+    assert "batch-c" in listed.stdout and "failed at denoise" in listed.stdout
     shown = run_cli("catalog", "show", "batch-c", "--workspace", str(workspace))
-    assert "bottom-L03" in shown.stdout and "state       failed at stage cloud" in shown.stdout
+    assert "bottom-L03" in shown.stdout and "state       failed at stage denoise" in shown.stdout
 
     chunk.write_bytes(original)  # repaired
     second = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")

@@ -11,8 +11,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from data_catalog.stages import load_arrays
 from data_catalog.truth import read_truth
+from flows.stages import STAGES
+from flows.stages.outputs import MERGED, MESH, REFINED, REGISTRATION, SPECIMEN
 from simulator.evaluate import fit_gauge, pass_misalignment, true_sticker_centres
 from tasks.surface import mesh_report
 
@@ -27,10 +28,6 @@ def run(ci_run):
     return ci_run
 
 
-def _stage_path(report, out, stage):
-    return Path(report["stage_paths"][stage])
-
-
 def _specimen_scene(ci_sample):
     mesh = o3d.io.read_triangle_mesh(str(ci_sample / "truth" / "specimen.ply"))
     scene = o3d.t.geometry.RaycastingScene()
@@ -39,14 +36,14 @@ def _specimen_scene(ci_sample):
 
 
 def _refined(report):
-    return load_arrays(Path(report["stage_paths"]["refine"]) / "refined.zarr")
+    return REFINED.read(report["refs"]["refine"])
 
 
 def _gauge(report, ci_sample):
     """Specimen frame -> reconstruction, fitted on the true stickers and the registered targets."""
     refined = _refined(report)
-    positions = refined["track_positions_mm"]
-    return fit_gauge(ci_sample, positions[refined["specimen_track"]], positions)
+    positions = refined.track_positions_mm
+    return fit_gauge(ci_sample, positions[refined.specimen_track], positions)
 
 
 def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
@@ -58,7 +55,7 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     assert report["mesh"]["watertight"] and report["mesh"]["consistently_oriented"]
     saved = json.loads((out / "results" / "report.json").read_text())
     assert saved["sample_id"] == "sim-ci-0011"
-    assert set(saved["stages"]) == {"cloud", "targets", "register", "refine", "merge", "segment", "mesh", "export"}
+    assert set(saved["stages"]) == {s.name for s in STAGES} - {"report"}  # every stage before the report
     assert (out / "config.json").is_file()
 
 
@@ -68,7 +65,7 @@ def test_every_true_specimen_sticker_was_found(run, ci_sample):
     gauge = _gauge(report, ci_sample)
     true = true_sticker_centres(truth)
     G = gauge.T_recon_specimen
-    found = _refined(report)["track_positions_mm"]
+    found = _refined(report).track_positions_mm
     nearest = np.linalg.norm((true @ G[:3, :3].T + G[:3, 3])[:, None] - found[None], axis=-1).min(axis=1)
     assert len(true) == 46
     assert nearest.max() < 0.1, np.round(nearest, 3)  # measured: every one, the farthest 0.06 mm off
@@ -76,7 +73,7 @@ def test_every_true_specimen_sticker_was_found(run, ci_sample):
 
 def test_registration_recovers_the_true_pass_poses(run, ci_sample):
     _, report = run
-    T_common = _refined(report)["T_common_pass"]
+    T_common = _refined(report).T_common_pass
     # Misalignment of each pass over all the specimen surface it measured, from truth: where the
     # reconstruction puts each measured point against where that point really is, after the one
     # rigid fit of the whole reconstruction to the specimen.
@@ -93,9 +90,9 @@ def test_registration_recovers_the_true_pass_poses(run, ci_sample):
 
 def test_refinement_beats_targets_alone(run, ci_sample):
     _, report = run
-    targets_only = load_arrays(Path(report["stage_paths"]["register"]) / "registration.zarr")["T_common_pass"]
+    targets_only = REGISTRATION.read(report["refs"]["register"], "T_common_pass").T_common_pass
     before = pass_misalignment(ci_sample, targets_only)
-    after = pass_misalignment(ci_sample, _refined(report)["T_common_pass"])
+    after = pass_misalignment(ci_sample, _refined(report).T_common_pass)
     # measured: worst 39 um on targets alone, 18 um refined
     assert after.max_mm.max() < 0.7 * before.max_mm.max(), (before.max_mm.max(), after.max_mm.max())
     assert np.median(after.median_mm) < np.median(before.median_mm)
@@ -105,23 +102,23 @@ def test_refinement_beats_targets_alone(run, ci_sample):
 def test_the_fixture_is_gone_and_the_specimen_is_whole(run, ci_sample):
     out, report = run
     G = _gauge(report, ci_sample).T_recon_specimen
-    points = load_arrays(_stage_path(report, out, "segment") / "specimen.zarr", "points")["points"]
+    points = SPECIMEN.read(report["refs"]["segment"], "points").points
     G_inv = np.linalg.inv(G)
     in_specimen = points @ G_inv[:3, :3].T + G_inv[:3, 3]
     dist = _specimen_scene(ci_sample).compute_distance(o3d.core.Tensor(in_specimen.astype(np.float32))).numpy()
     assert np.quantile(dist, 0.999) < 0.5  # nothing of the fixture (blocks, base plate) is left
     z = in_specimen[:, 2]
     assert (z > 5).sum() > 1000 and (z < -5).sum() > 1000  # both setups: top and bottom faces
-    merged = load_arrays(_stage_path(report, out, "merge") / "merged.zarr", "points")["points"]
+    merged = MERGED.read(report["refs"]["merge"], "points").points
     assert len(points) < 0.7 * len(merged)  # the fixture was a real share of the merged cloud
 
 
 def test_the_mesh_lies_on_the_true_surface(run, ci_sample):
     out, report = run
     G = _gauge(report, ci_sample).T_recon_specimen
-    mesh = load_arrays(_stage_path(report, out, "mesh") / "mesh.zarr")
+    mesh = MESH.read(report["refs"]["mesh"])
     G_inv = np.linalg.inv(G)
-    v = mesh["vertices"] @ G_inv[:3, :3].T + G_inv[:3, 3]
+    v = mesh.vertices @ G_inv[:3, :3].T + G_inv[:3, 3]
     dist = _specimen_scene(ci_sample).compute_distance(o3d.core.Tensor(v.astype(np.float32))).numpy()
     length = 240.0
     scanned = np.abs(v[:, 0]) < length / 2 - 2  # the ends were never scanned: Poisson closes them freely
@@ -144,4 +141,4 @@ def test_a_rerun_executes_no_stage_and_a_new_depth_only_meshing(run, ci_sample, 
     deeper = tmp_path / "deeper.yaml"
     deeper.write_text(Path(CI_CONFIG).read_text().replace("poisson_depth: 8", "poisson_depth: 7"))
     changed = reconstruct_sample(str(ci_sample), str(out), str(deeper))
-    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export"}
+    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "report"}

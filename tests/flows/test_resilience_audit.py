@@ -16,6 +16,8 @@ import pytest
 
 from data_catalog.audit import TRAIL, read_trail, verify_trail
 from data_catalog.hashing import sha256_file
+from flows.stages import STAGE_NAMES
+from flows.stages.outputs import MERGED
 from tests.flows.cli import run_cli
 
 REPO = Path(__file__).resolve().parents[2]
@@ -38,6 +40,13 @@ def run_copy(ci_run, tmp_path):
     return copy, report
 
 
+def _merged_chunk(run: Path, report) -> Path:
+    """A data chunk of the merged cloud, in ``run`` (a copy of the reported run folder)."""
+    ref = report["refs"]["merge"]
+    store = run / Path(ref.file(MERGED.name)).relative_to(Path(ref.path).parents[2])
+    return next(p for p in sorted(store.rglob("*")) if p.is_file() and p.name != "zarr.json")
+
+
 def _stl(run: Path, report) -> Path:
     return run / "results" / f"{report['sample_id']}.stl"
 
@@ -57,8 +66,7 @@ def test_the_trail_says_who_started_the_run_and_every_stage(run_copy):
     assert started["kind"] == "run-started" and started["started_by"] == "pytest"
     assert len(started["flow_run_id"]) == 36  # the Prefect flow run id
     stages = [e for e in entries if e["kind"] == "stage"]
-    assert {e["stage"] for e in stages} >= {"cloud", "targets", "register", "refine", "merge", "segment",
-                                             "surface", "export"}
+    assert {e["stage"] for e in stages} == set(STAGE_NAMES)
     assert all(e["record"]["outputs"] and e["task_run_id"] for e in stages)
     assert any(e["kind"] == "run-finished" for e in entries)
     shown = run_cli("audit", "show", str(run))
@@ -70,10 +78,7 @@ def test_the_trail_says_who_started_the_run_and_every_stage(run_copy):
 def test_a_changed_artefact_is_named(run_copy, victim):
     run, report = run_copy
     if victim == "chunk":
-        merged = Path(report["stage_paths"]["merge"]).name
-        chunk = next(p for p in sorted((run / "stages" / "merge" / merged / "merged.zarr" / "points").rglob("*"))
-                     if p.is_file() and p.name != "zarr.json")
-        target = chunk
+        target = _merged_chunk(run, report)
     elif victim == "stl":
         target = _stl(run, report)
     else:
@@ -113,10 +118,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample)
     from flows.reconstruct import reconstruct_sample
 
     run, report = run_copy
-    merged = Path(report["stage_paths"]["merge"]).name
-    chunk = next(p for p in sorted((run / "stages" / "merge" / merged / "merged.zarr" / "points").rglob("*"))
-                 if p.is_file() and p.name != "zarr.json")
-    _flip_byte(chunk)
+    _flip_byte(_merged_chunk(run, report))
     again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
     assert again["cached"]["merge"] is False  # recomputed
     assert again["cached"]["register"] is True and again["cached"]["refine"] is True
@@ -126,7 +128,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample)
     set_aside = list((run / "stages" / "merge").glob(".corrupt-*"))
     assert len(set_aside) == 1
     recomputed = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
-    assert len(recomputed) == 1 and "merged.zarr" in recomputed[0]["reason"]
+    assert len(recomputed) == 1 and MERGED.name in recomputed[0]["reason"]
     assert verify_trail(run) == []  # the recomputed outputs match what the trail recorded
 
 
@@ -141,7 +143,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
                             stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 300
     try:
-        while not list((run / "stages" / "surface").glob(".build-*")):
+        while not list((run / "stages" / "mesh").glob(".build-*")):
             assert proc.poll() is None, "the run ended before meshing started"
             assert time.monotonic() < deadline, "meshing never started"
             time.sleep(0.05)
@@ -149,14 +151,14 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-    assert not list((run / "stages" / "surface").glob("*/record.json"))  # meshing did not finish
+    assert not list((run / "stages" / "mesh").glob("*/record.json"))  # meshing did not finish
     assert not (run / "results").exists()
     again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
     stl = f"{report['sample_id']}.stl"
     assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
     assert again["stage_keys"] == report["stage_keys"]
     ran = {k for k, cached in again["cached"].items() if not cached}
-    assert ran == {"mesh", "export"}  # the finished stages were not rerun
+    assert ran == {"mesh", "export", "report"}  # the finished stages were not rerun
     entries = read_trail(run)
     assert [e["kind"] for e in entries].count("run-started") == 2
     assert verify_trail(run) == []

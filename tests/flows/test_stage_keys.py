@@ -1,0 +1,92 @@
+"""Cache keys cover all the code a stage runs: an edited helper recomputes its stage and the
+stages downstream of it, never the others (a real flow on the ``ci`` sample, run from an edited
+copy of the code)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from data_catalog.audit import read_trail, verify_trail
+from flows.stages import STAGES, downstream_of
+
+REPO = Path(__file__).resolve().parents[2]
+CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
+PACKAGES = ("schemas", "tasks", "data_catalog", "flows", "simulator")
+
+# a real change of behaviour in a helper the denoise stage runs (not its body): the mean of the
+# neighbours' distances becomes a mean of square roots, squared
+HELPER_EDIT = ("tasks/denoise.py", "    mean = nearest.mean(axis=0)\n", "    mean = (np.sqrt(nearest).mean(axis=0)) ** 2\n")
+
+
+def _code_copy(root: Path, edit: tuple[str, str, str] | None = None) -> Path:
+    for package in PACKAGES:
+        shutil.copytree(REPO / package, root / package, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(REPO / "deploy", root / "deploy")
+    if edit is not None:
+        path, old, new = edit
+        source = (root / path).read_text()
+        if not old:  # append
+            (root / path).write_text(source + new)
+            return root
+        assert source.count(old) == 1, f"{path} no longer holds the line this test edits: {old!r}"
+        (root / path).write_text(source.replace(old, new))
+    return root
+
+
+def _run_python(code_root: Path, script: str) -> str:
+    env = dict(os.environ, PYTHONPATH=str(code_root), PREFECT_SERVER_ANALYTICS_ENABLED="false",
+               PREFECT_LOGGING_LEVEL="WARNING")
+    done = subprocess.run([sys.executable, "-c", script], cwd=code_root, env=env, capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout.strip().splitlines()[-1]
+
+
+_VERSIONS = ("import json, flows.stages as s; assert s.__file__.startswith(%r); "
+             "print(json.dumps({x.name: s.code_version(x) for x in s.STAGES}))")
+
+
+def _versions(code_root: Path) -> dict[str, str]:
+    return json.loads(_run_python(code_root, _VERSIONS % str(code_root)))
+
+
+@pytest.mark.parametrize(("path", "old", "new", "changed"), [
+    (*HELPER_EDIT, {"denoise"}),
+    ("tasks/ingest.py", "    local = np.stack(", "    local = 1.0 * np.stack(", {"denoise", "targets"}),
+    ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export"}),
+    ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "register", "refine", "merge", "segment",
+                                                      "mesh", "export", "report"}),
+])
+def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp_path, path, old, new, changed):
+    base = _versions(_code_copy(tmp_path / "base"))
+    edited = _versions(_code_copy(tmp_path / "edited", (path, old, new)))
+    assert {name for name in base if base[name] != edited[name]} == changed
+
+
+def test_an_edited_helper_recomputes_its_stage_and_downstream_only(ci_run, ci_sample, tmp_path):
+    out, first = ci_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    code = _code_copy(tmp_path / "code", HELPER_EDIT)
+    script = (f"import json; from flows.reconstruct import reconstruct_sample; "
+              f"r = reconstruct_sample({str(ci_sample)!r}, {str(run)!r}, {CI_CONFIG!r}, started_by='pytest edited'); "
+              f"print(json.dumps({{'cached': r['cached'], 'keys': r['stage_keys']}}))")
+    again = json.loads(_run_python(code, script))
+    entries = read_trail(run)
+    last = max(i for i, e in enumerate(entries) if e["kind"] == "run-started")
+    reused = {(e["stage"], e.get("item")): e["cached"] for e in entries[last:] if e["kind"] == "stage"}
+    expected_rerun = {"denoise", *downstream_of("denoise")}
+    for (stage, item), cached in reused.items():
+        assert cached == (stage not in expected_rerun), (stage, item, cached)
+    assert {s for s, _ in reused} == {s.name for s in STAGES}
+    assert again["keys"]["targets"] == first["stage_keys"]["targets"]
+    assert again["keys"]["register"] == first["stage_keys"]["register"]
+    assert all(a != b for a, b in zip(again["keys"]["denoise"], first["stage_keys"]["denoise"]))
+    assert verify_trail(run) == []
