@@ -88,7 +88,7 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
     rows.append({"stage": "denoise", "points": n_points, "ours_s": ours, "peer": "o3d remove_statistical_outlier",
                  "peer_s": peer})
     # merge: the registered cloud of every pass
-    T = REGISTRATION.read(refs["register"], "T_common_pass").T_common_pass
+    T = REGISTRATION.read(refs["registration"], "T_common_pass").T_common_pass
     pts = []
     for k, ref in enumerate(refs["denoise"]):
         g = CLOUD.read(ref, "points").points.reshape(-1, 3).astype(np.float64)
@@ -101,10 +101,10 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
                  "peer": "o3d voxel_down_sample", "peer_s": timed(lambda: cloud.voxel_down_sample(cfg.merge.cell_mm))})
     # meshing: the specimen cloud, same normals, same depth
     spec = SPECIMEN.read(refs["segment"])
-    normals = estimate_normals(spec.points, spec.sensor_positions, k=cfg.surface.normals_k)
+    normals = estimate_normals(spec.points, spec.sensor_positions, k=cfg.mesh.normals_k)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(spec.points))
     pc.normals = o3d.utility.Vector3dVector(normals)
-    sc = cfg.surface
+    sc = cfg.mesh
     rows.append({"stage": "mesh (Poisson)", "points": len(spec.points),
                  "ours_s": timed(lambda: screened_poisson(spec.points, normals, depth=sc.poisson_depth,
                                                           samples_per_node=sc.samples_per_node,
@@ -128,7 +128,7 @@ def _accuracy(sample: Path, refs: dict) -> list[dict]:
     if not (sample / "truth" / "truth.json").is_file():
         return []
     rows = []
-    for poses, stage, store in (("targets", "register", REGISTRATION), ("refined", "refine", REFINED)):
+    for poses, stage, store in (("targets", "registration", REGISTRATION), ("refined", "refine", REFINED)):
         m = pass_misalignment(sample, store.read(refs[stage], "T_common_pass").T_common_pass)
         rows.append({"poses": poses, "worst_um": round(1000 * float(m.max_mm.max())),
                      "median_um": round(1000 * float(np.median(m.median_mm)))})

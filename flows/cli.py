@@ -156,6 +156,13 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return _cmd_reconstruct(args)
 
 
+def _cmd_stages(args: argparse.Namespace) -> int:
+    from flows.stages import stage_table
+
+    sys.stdout.write(stage_table())
+    return 0
+
+
 def _cmd_schema(args: argparse.Namespace) -> int:
     from data_catalog.manifests import manifest_json_schema
 
@@ -322,6 +329,8 @@ def _parser() -> argparse.ArgumentParser:
         a = aud_sub.add_parser(action, parents=[ws], help=text)
         a.add_argument("target", metavar="SAMPLE", help="a sample id in the catalog, or a run folder")
     aud.set_defaults(func=_cmd_audit)
+    stages = sub.add_parser("stages", help="print the reconstruction's stages: inputs, settings, outputs")
+    stages.set_defaults(func=_cmd_stages)
     schema = sub.add_parser("schema", help="print the sample manifest's JSON schema")
     schema.set_defaults(func=_cmd_schema)
     return parser

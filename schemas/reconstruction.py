@@ -10,7 +10,7 @@ from pydantic import Field, model_validator
 from schemas.common import StrictModel
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "RefineConfig", "MergeConfig", "SegmentConfig",
-           "SurfaceConfig", "ReconstructionConfig"]
+           "MeshConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -70,7 +70,7 @@ class SegmentConfig(StrictModel):
     link_mm: float = Field(default=1.0, gt=0, le=50, description="points closer than this are connected")
 
 
-class SurfaceConfig(StrictModel):
+class MeshConfig(StrictModel):
     normals_k: int = Field(default=100, ge=3, le=1000, description="neighbours per normal (paper: 100)")
     poisson_depth: int = Field(default=10, ge=4, le=14)
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
@@ -88,4 +88,4 @@ class ReconstructionConfig(StrictModel):
     refine: RefineConfig = RefineConfig()
     merge: MergeConfig = MergeConfig()
     segment: SegmentConfig = SegmentConfig()
-    surface: SurfaceConfig = SurfaceConfig()
+    mesh: MeshConfig = MeshConfig()

@@ -8,13 +8,13 @@ description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs
 
 from __future__ import annotations
 
-from flows.stages import denoise, export, mesh, merge, outputs, refine, register, report, segment, targets
+from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.passes import pass_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
-           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "run_in_process"]
+           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "run_in_process", "stage_table"]
 
 
 def _sample_wide(manifest, entry):
@@ -26,20 +26,20 @@ STAGES: tuple[Stage, ...] = (
           "ingest the pass (robot poses) and remove statistical outliers"),
     Stage("targets", True, (), "targets", (outputs.TARGETS,), targets.targets, targets.targets_view,
           "sticker targets: Hough circles, sub-pixel 3-D rim fit"),
-    Stage("register", False, ("targets",), "registration",
-          (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), register.register, register.setups_view,
+    Stage("registration", False, ("targets",), "registration",
+          (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), registration.register, registration.setups_view,
           "match targets between passes, solve all pass poses"),
-    Stage("refine", False, ("denoise", "register"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
+    Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
           refine.refine, _sample_wide, "all pass poses on targets and overlapping surfaces together"),
     Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, _sample_wide,
           "box-grid merge in the common frame"),
     Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, _sample_wide,
           "remove unwanted objects (the fixture)"),
-    Stage("mesh", False, ("segment",), "surface", (outputs.MESH,), mesh.mesh, _sample_wide,
+    Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), mesh.mesh, _sample_wide,
           "normals and screened Poisson (MeshLab)"),
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
           "binary STL and PLY"),
-    Stage("report", False, ("denoise", "targets", "register", "refine", "merge", "segment", "mesh", "export"), "*",
+    Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "mesh", "export"), "*",
           (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
 )
 
@@ -78,12 +78,25 @@ def run_in_process(*, store, sample_dir, manifest, config, upto: str | None = No
     return refs
 
 
+def stage_table() -> str:
+    """The registry as a Markdown table (``weldrecon stages``; the README holds the same)."""
+    rows = ["| stage | runs | needs | settings | writes | what |", "|---|---|---|---|---|---|"]
+    for s in STAGES:
+        settings = {None: "-", "*": "all"}.get(s.settings, f"`{s.settings}`")
+        writes = ", ".join(f"`{o.name}`" for o in s.outputs)
+        rows.append(f"| `{s.name}` | {'per pass' if s.per_pass else 'once'} | {', '.join(s.needs) or '-'} | "
+                    f"{settings} | {writes} | {s.summary} |")
+    return "\n".join(rows) + "\n"
+
+
 def _check_registry() -> None:
     seen: set[str] = set()
     for s in STAGES:
         missing = [n for n in s.needs if n not in seen]
         if missing or s.name in seen:
             raise RuntimeError(f"stage registry: {s.name} needs {missing} before it or is declared twice")
+        if s.settings not in (None, "*", s.name):
+            raise RuntimeError(f"stage registry: {s.name}'s settings must be the config section of its own name")
         seen.add(s.name)
 
 

@@ -17,7 +17,7 @@ __all__ = ["refine"]
 
 def refine(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
-    reg = REGISTRATION.read(ctx.inputs["register"])
+    reg = REGISTRATION.read(ctx.inputs["registration"])
     T_targets = reg.T_common_pass
     inlier = reg.inlier.astype(bool)
     pairs, counts, steps, samples = {}, {}, [], []

@@ -36,7 +36,7 @@ def _metrics(ref: StageRef | list[StageRef]) -> Any:
 
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
-    registration = REGISTRATION_SUMMARY.read(inputs["register"])
+    registration = REGISTRATION_SUMMARY.read(inputs["registration"])
     registration["refinement"] = REFINE_SUMMARY.read(inputs["refine"])
     export = inputs["export"]
     body = {

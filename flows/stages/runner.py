@@ -61,8 +61,9 @@ class StageContext:
 class Stage:
     """One stage, declared once. ``name`` is its name everywhere (Prefect task, store folder,
     audit trail, catalog, report); ``per_pass`` stages run once per pass; ``needs`` are the
-    stages whose outputs it reads (in the registry's order); ``settings`` the field of
-    ``ReconstructionConfig`` it is configured by (``"*"``: the whole config; None: nothing);
+    stages whose outputs it reads (in the registry's order); ``settings`` the section of
+    ``ReconstructionConfig`` it is configured by: its own name (``"*"``: the whole config; None:
+    nothing);
     ``outputs`` the files it writes; ``body`` computes them; ``manifest_view`` the part of the
     manifest it reads (hashed into its key)."""
 

@@ -90,7 +90,7 @@ def test_registration_recovers_the_true_pass_poses(run, ci_sample):
 
 def test_refinement_beats_targets_alone(run, ci_sample):
     _, report = run
-    targets_only = REGISTRATION.read(report["refs"]["register"], "T_common_pass").T_common_pass
+    targets_only = REGISTRATION.read(report["refs"]["registration"], "T_common_pass").T_common_pass
     before = pass_misalignment(ci_sample, targets_only)
     after = pass_misalignment(ci_sample, _refined(report).T_common_pass)
     # measured: worst 39 um on targets alone, 18 um refined

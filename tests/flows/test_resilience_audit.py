@@ -82,7 +82,7 @@ def test_a_changed_artefact_is_named(run_copy, victim):
     elif victim == "stl":
         target = _stl(run, report)
     else:
-        target = run / "stages" / "register" / Path(report["stage_paths"]["register"]).name / "record.json"
+        target = run / "stages" / "registration" / Path(report["stage_paths"]["registration"]).name / "record.json"
     _flip_byte(target)
     problems = verify_trail(run)
     assert problems, "a flipped byte went unnoticed"
@@ -97,7 +97,7 @@ def test_an_edited_provenance_record_breaks_the_chain_where_it_was_edited(run_co
     run, _ = run_copy
     lines = (run / TRAIL).read_text().splitlines()
     k = next(i for i, line in enumerate(lines) if json.loads(line)["kind"] == "stage"
-             and json.loads(line)["stage"] == "register")
+             and json.loads(line)["stage"] == "registration")
     entry = json.loads(lines[k])
     entry["record"]["metrics"]["residual_max_mm"] = 0.001  # a nicer figure, hash left as it was
     lines[k] = json.dumps(entry, sort_keys=True)
@@ -121,7 +121,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample)
     _flip_byte(_merged_chunk(run, report))
     again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
     assert again["cached"]["merge"] is False  # recomputed
-    assert again["cached"]["register"] is True and again["cached"]["refine"] is True
+    assert again["cached"]["registration"] is True and again["cached"]["refine"] is True
     assert again["stage_keys"]["merge"] == report["stage_keys"]["merge"]  # same inputs, same key
     assert again["outputs"][f"{report['sample_id']}.stl"]["sha256"] == \
         report["outputs"][f"{report['sample_id']}.stl"]["sha256"]

@@ -61,7 +61,7 @@ def _versions(code_root: Path) -> dict[str, str]:
     (*HELPER_EDIT, {"denoise"}),
     ("tasks/ingest.py", "    local = np.stack(", "    local = 1.0 * np.stack(", {"denoise", "targets"}),
     ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export"}),
-    ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "register", "refine", "merge", "segment",
+    ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
                                                       "mesh", "export", "report"}),
 ])
 def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp_path, path, old, new, changed):
@@ -87,6 +87,6 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(ci_run, ci_sa
         assert cached == (stage not in expected_rerun), (stage, item, cached)
     assert {s for s, _ in reused} == {s.name for s in STAGES}
     assert again["keys"]["targets"] == first["stage_keys"]["targets"]
-    assert again["keys"]["register"] == first["stage_keys"]["register"]
+    assert again["keys"]["registration"] == first["stage_keys"]["registration"]
     assert all(a != b for a, b in zip(again["keys"]["denoise"], first["stage_keys"]["denoise"]))
     assert verify_trail(run) == []

@@ -1,4 +1,4 @@
-"""Stage ``register``: match targets between passes (the registration graph) and solve all pass
+"""Stage ``registration``: match targets between passes (the registration graph) and solve all pass
 poses together."""
 
 from __future__ import annotations
