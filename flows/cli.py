@@ -264,8 +264,9 @@ def _cmd_audit(args: argparse.Namespace) -> int:
                   f"host {record.get('host')}")
         elif e["kind"] == "run-finished":
             print(f"{head} " + ", ".join(f"{k} {v[:12]}" for k, v in (e.get("artefacts") or {}).items()))
-        elif e["kind"] == "run-failed":
-            print(f"{head} at {e.get('stage')}: {e.get('error')}")
+        elif e["kind"] in ("run-failed", "stage-failed"):
+            what = (e.get("stage") or "?") + (f" {e['item']}" if e.get("item") else "")
+            print(f"{head} at {what}: {e.get('error')}")
         else:
             print(f"{head} " + json.dumps({k: v for k, v in e.items() if k not in ("seq", "time", "kind", "hash", "prev")}))
     return 0
@@ -347,7 +348,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"weldrecon {args.command}: error: {exc.args[0]}", file=sys.stderr)
         return 2
     except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as exc:
-        print(f"weldrecon {args.command}: error: {exc}", file=sys.stderr)
+        stage = getattr(exc, "stage", None)
+        where = f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else ""
+        print(f"weldrecon {args.command}: error: {where}{exc}", file=sys.stderr)
         return 2
 
 

@@ -2,7 +2,7 @@
 
 1. The intensity grid (profiles x columns) is resampled to square pixels of the pass's own
    point spacing and searched with OpenCV's Hough transform for circles of about the sticker's
-   radius (the paper's method).
+   radius (the paper's method; ``find_circles``).
 2. Each circle is refined in 3-D with the organized points (the pixel -> 3-D "dictionary"): the
    sticker's bright points give its plane; the sticker's edge is located to sub-pixel precision
    where the intensity crosses halfway between sticker and steel on each bright/dark grid edge;
@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Target", "TargetDetection", "detect_targets"]
+__all__ = ["Target", "TargetDetection", "find_circles", "detect_targets"]
 
 _RIM_BINS = 24
 
@@ -142,9 +142,30 @@ def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float
     return centre, r, rms
 
 
+def find_circles(image: np.ndarray, *, radius_px: float) -> np.ndarray:
+    """Circles of about ``radius_px`` in an 8-bit image: OpenCV's Hough gradient transform after a
+    3 x 3 median filter, searching radii 0.6 to 1.3 times ``radius_px``, centres at least 1.5 times
+    ``radius_px`` apart. Either polarity (bright on dark or dark on bright) is found.
+
+    image : (h, w) uint8.
+    radius_px : the expected radius, pixels.
+    Returns (k, 3) float32: x (column), y (row) and radius of each circle, pixels, in the order
+    OpenCV ranks them (most votes first); (0, 3) when none is found.
+    """
+    image = np.asarray(image)
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError(f"image must be a (h, w) uint8 array, got shape {image.shape} and dtype {image.dtype}")
+    if not radius_px > 0:
+        raise ValueError(f"radius_px must be positive, got {radius_px}")
+    blurred = cv2.medianBlur(image, 3)
+    circles = cv2.HoughCircles(blurred, cv2.HOUGH_GRADIENT, dp=1, minDist=1.5 * radius_px, param1=100, param2=12,
+                               minRadius=max(2, int(0.6 * radius_px)), maxRadius=int(np.ceil(1.3 * radius_px)))
+    return np.zeros((0, 3), np.float32) if circles is None else circles[0]
+
+
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,
-                   sensor_origins_mm: np.ndarray | None = None, max_rms_mm: float = 0.08,
-                   min_rim_coverage: float = 0.85, radius_tolerance: float = 0.1) -> TargetDetection:
+                   sensor_origins_mm: np.ndarray | None = None, max_rms_mm: float,
+                   min_rim_coverage: float, radius_tolerance: float) -> TargetDetection:
     """Find sticker targets in one pass.
 
     intensity : (profiles, columns) uint16, 0 where nothing was returned.
@@ -156,6 +177,11 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
         without it normals face +z.
     max_rms_mm : largest edge-fit RMS accepted, or 0.45 of the point spacing if that is larger
         (a point-sampled edge is only known to within one spacing).
+    min_rim_coverage : least share of the rim's angular bins that must hold edge points (0..1);
+        stickers cut by the pass border, shadows or glare fall short.
+    radius_tolerance : largest relative difference between a free circle fit's radius and the
+        nominal one.
+    The three thresholds have no defaults here: they come from ``schemas.reconstruction.TargetsConfig``.
     """
     intensity = np.asarray(intensity)
     points = np.asarray(points_mm, dtype=np.float64)
@@ -164,6 +190,9 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
                          f"got {intensity.shape} and {points.shape}")
     if not sticker_diameter_mm > 0:
         raise ValueError(f"sticker_diameter_mm must be positive, got {sticker_diameter_mm}")
+    origins = None if sensor_origins_mm is None else np.asarray(sensor_origins_mm, dtype=np.float64)
+    if origins is not None and origins.shape != (intensity.shape[0], 3):
+        raise ValueError(f"sensor_origins_mm must have shape ({intensity.shape[0]}, 3), got {origins.shape}")
     radius = sticker_diameter_mm / 2
     row_mm, col_mm = _spacing(points, 0), _spacing(points, 1)
     rejected = {"rim": 0, "fit": 0, "radius": 0, "points": 0}
@@ -173,14 +202,7 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
     h, w = intensity.shape
     size = (max(1, int(round(w * col_mm / pixel))), max(1, int(round(h * row_mm / pixel))))
     image = cv2.resize(np.clip(intensity / 4, 0, 255).astype(np.uint8), size, interpolation=cv2.INTER_AREA)
-    image = cv2.medianBlur(image, 3)
-    r_px = radius / pixel
-    circles = cv2.HoughCircles(image, cv2.HOUGH_GRADIENT, dp=1, minDist=1.5 * r_px, param1=100, param2=12,
-                               minRadius=max(2, int(0.6 * r_px)), maxRadius=int(np.ceil(1.3 * r_px)))
-    circles = np.zeros((0, 3)) if circles is None else circles[0]
-    origins = None if sensor_origins_mm is None else np.asarray(sensor_origins_mm, dtype=np.float64)
-    if origins is not None and origins.shape != (intensity.shape[0], 3):
-        raise ValueError(f"sensor_origins_mm must have shape ({intensity.shape[0]}, 3), got {origins.shape}")
+    circles = find_circles(image, radius_px=radius / pixel)
     targets: list[Target] = []
     for cx, cy, _ in circles:
         row, col = cy * pixel / row_mm, cx * pixel / col_mm
