@@ -1,0 +1,40 @@
+"""The stage registry is the one list of stages: well formed, and the README shows it as it is."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from flows.stages import STAGE_NAMES, STAGES, downstream_of, stage, stage_table
+from flows.stages.contracts import ArrayFile
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_names_and_files_are_unique_and_needs_come_first():
+    assert len(set(STAGE_NAMES)) == len(STAGE_NAMES)
+    files = [o.name for s in STAGES for o in s.outputs]
+    assert len(set(files)) == len(files)
+    for k, s in enumerate(STAGES):
+        assert set(s.needs) <= set(STAGE_NAMES[:k]), s.name
+        assert s.settings in (None, "*", s.name)
+
+
+def test_array_outputs_name_their_arrays():
+    for s in STAGES:
+        for output in s.outputs:
+            if isinstance(output, ArrayFile):
+                assert output.arrays, f"{s.name}: {output.name} declares no arrays"
+
+
+def test_downstream_and_lookup():
+    assert downstream_of("denoise") == ["refine", "merge", "segment", "mesh", "export", "report"]
+    assert downstream_of("mesh") == ["export", "report"]
+    assert downstream_of("report") == []
+    with pytest.raises(KeyError, match="no stage 'surface'"):
+        stage("surface")
+
+
+def test_the_readme_shows_the_registry_as_it_is():
+    assert stage_table() in (REPO / "README.md").read_text()
