@@ -192,6 +192,9 @@ def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
     try:
         yield server.api_url
     finally:
+        from prefect.logging.handlers import APILogHandler
+
+        APILogHandler.flush()  # the run's last log lines, while the server still listens
         os.environ.pop("PREFECT_API_URL", None)
         server.stop()
 

@@ -16,6 +16,7 @@ import os
 import shutil
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -125,11 +126,19 @@ def _imported_names(module: str, source: str) -> set[str]:
     return found
 
 
-@functools.cache
+_PARSING = threading.Lock()  # CPython 3.11's ast.parse is not safe in several threads at once
+
+
 def code_modules(module: str) -> tuple[tuple[str, str], tuple[str, ...]]:
     """The project modules ``module`` runs (itself and every project module it imports,
     transitively; package ``__init__`` files only when imported by name), as (name, source
     sha256) pairs, and the third-party top-level packages they import."""
+    with _PARSING:
+        return _code_modules(module)
+
+
+@functools.cache
+def _code_modules(module: str) -> tuple[tuple[str, str], tuple[str, ...]]:
     seen: dict[str, str] = {}
     third_party: set[str] = set()
     todo = [module]
@@ -151,7 +160,7 @@ def code_modules(module: str) -> tuple[tuple[str, str], tuple[str, ...]]:
     return tuple(sorted(seen.items())), tuple(sorted(third_party))
 
 
-@functools.cache
+@functools.lru_cache(maxsize=None)
 def _distribution_versions(packages: tuple[str, ...]) -> tuple[tuple[str, str], ...]:
     owners = importlib.metadata.packages_distributions()
     versions = set()
