@@ -1,0 +1,132 @@
+"""Progress of a reconstruction, read from its audit trail while it runs.
+
+The stages append to ``OUT/audit/trail.jsonl`` as they finish, from this process or from Dask
+worker processes, so the display watches that file instead of hooking into Python calls. On a
+terminal it is a rich progress display, one bar per stage; elsewhere (CI, log files) one plain
+line per finished pass or stage. Entries written before the display started are ignored.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+from data_catalog.audit import TRAIL
+
+__all__ = ["TrailProgress"]
+
+
+@dataclass
+class _Count:
+    expected: int
+    done: int = 0
+    cached: int = 0
+    seconds: float = 0.0
+    failed: list[str] = field(default_factory=list)
+
+
+class TrailProgress:
+    """``with TrailProgress(out_dir, [("denoise", 32), ("registration", 1), ...]):`` shows each
+    stage's finished / expected count, how many were reused from the cache, and the time its
+    work took, until the block ends; then one summary line per stage."""
+
+    def __init__(self, out_dir: Path, expected: list[tuple[str, int]], *, stream: TextIO = sys.stderr,
+                 interval_s: float = 0.5) -> None:
+        self._path = Path(out_dir) / TRAIL
+        self._counts = {name: _Count(n) for name, n in expected}
+        self._stream, self._interval = stream, interval_s
+        self._tty = bool(getattr(stream, "isatty", lambda: False)())
+        self._offset = 0
+        self._partial = b""
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._started = 0.0
+        self._rich: Any = None
+        self._bars: dict[str, Any] = {}
+
+    def __enter__(self) -> "TrailProgress":
+        self._offset = self._path.stat().st_size if self._path.is_file() else 0
+        self._started = time.perf_counter()
+        if self._tty:
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self._rich = Progress(TextColumn("{task.description:<13}"), BarColumn(), MofNCompleteColumn(),
+                                  TextColumn("{task.fields[note]}"), TimeElapsedColumn(),
+                                  console=Console(file=self._stream), transient=False)
+            self._bars = {name: self._rich.add_task(name, total=c.expected, note="") for name, c in self._counts.items()}
+            self._rich.start()
+        self._thread = threading.Thread(target=self._watch, name="trail-progress", daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self._poll()
+        if self._rich is not None:
+            self._rich.stop()
+        for name, c in self._counts.items():
+            if c.done or c.failed:
+                self._say(f"{name} {c.done}/{c.expected}" + (f" ({c.cached} cached)" if c.cached else "")
+                          + f", {c.seconds:.1f} s of work" + (f", FAILED {', '.join(c.failed)}" if c.failed else ""),
+                          final=True)
+
+    def _watch(self) -> None:
+        while not self._stop.wait(self._interval):
+            self._poll()
+
+    def _poll(self) -> None:
+        try:
+            with open(self._path, "rb") as handle:
+                handle.seek(self._offset)
+                chunk = handle.read()
+        except OSError:
+            return
+        self._offset += len(chunk)
+        lines = (self._partial + chunk).split(b"\n")
+        self._partial = lines.pop()  # an unfinished last line waits for the rest
+        for line in lines:
+            try:
+                entry = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(entry, dict):
+                self._show(entry)
+
+    def _show(self, entry: dict[str, Any]) -> None:
+        count = self._counts.get(entry.get("stage"))
+        if count is None:
+            return
+        item = entry.get("item")
+        if entry.get("kind") == "stage-failed":
+            count.failed.append(item or entry["stage"])
+            self._say(f"{entry['stage']}{' ' + item if item else ''} FAILED: {entry.get('error', '')}")
+            return
+        if entry.get("kind") != "stage":
+            return
+        cached = bool(entry.get("cached"))
+        seconds = 0.0 if cached else float(((entry.get("record") or {}).get("metrics") or {}).get("seconds", 0.0))
+        count.done += 1
+        count.cached += cached
+        count.seconds += seconds
+        took = "cached" if cached else f"{seconds:.1f} s"
+        if self._rich is not None:
+            self._rich.update(self._bars[entry["stage"]], completed=count.done,
+                              note=f"{count.cached} cached" if count.cached else f"{count.seconds:.1f} s")
+        elif item is not None:
+            self._say(f"{entry['stage']} {count.done}/{count.expected} {item} {took}")
+        else:
+            self._say(f"{entry['stage']} done {took}")
+
+    def _say(self, text: str, *, final: bool = False) -> None:
+        if self._rich is not None and not final:
+            self._rich.console.print(text)
+            return
+        print(f"[{time.perf_counter() - self._started:7.1f} s] {text}", file=self._stream, flush=True)
