@@ -89,13 +89,13 @@ def _print_report(report: dict, out: Path) -> None:
             continue
         value, seconds, cached = report["stages"][name], report["seconds"].get(name, 0.0), report["cached"][name]
         if stage.per_pass:
-            print(f"  {name:<9} {len(value)} passes, {seconds:.1f} s of work{', all cached' if cached else ''}")
+            print(f"  {name:<12} {len(value)} passes, {seconds:.1f} s of work{', all cached' if cached else ''}")
         else:
             extra = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in value.items()
                      if k in ("points_in", "points_out", "residual_median_mm", "residual_max_mm", "vertices",
                               "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
                               "target_residual_median_mm")}
-            print(f"  {name:<9} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
+            print(f"  {name:<12} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
     weak = report["registration"]["pairs_below_min_common"]
     if weak:
         print("  pass pairs with fewer common targets than needed: "

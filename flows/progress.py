@@ -33,7 +33,7 @@ class _Count:
 class TrailProgress:
     """``with TrailProgress(out_dir, [("denoise", 32), ("registration", 1), ...]):`` shows each
     stage's finished / expected count, how many were reused from the cache, and the time its
-    work took, until the block ends; then one summary line per stage."""
+    work took, until the block ends; then one line per stage that failed."""
 
     def __init__(self, out_dir: Path, expected: list[tuple[str, int]], *, stream: TextIO = sys.stderr,
                  interval_s: float = 0.5) -> None:
@@ -73,10 +73,8 @@ class TrailProgress:
         if self._rich is not None:
             self._rich.stop()
         for name, c in self._counts.items():
-            if c.done or c.failed:
-                self._say(f"{name} {c.done}/{c.expected}" + (f" ({c.cached} cached)" if c.cached else "")
-                          + f", {c.seconds:.1f} s of work" + (f", FAILED {', '.join(c.failed)}" if c.failed else ""),
-                          final=True)
+            if c.failed:
+                self._say(f"{name} {c.done}/{c.expected} done, FAILED: {', '.join(c.failed)}", final=True)
 
     def _watch(self) -> None:
         while not self._stop.wait(self._interval):
