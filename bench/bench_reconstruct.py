@@ -88,10 +88,10 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
     rows.append({"stage": "denoise", "points": n_points, "ours_s": ours, "peer": "o3d remove_statistical_outlier",
                  "peer_s": peer})
     # merge: the registered cloud of every pass
-    T = REGISTRATION.read(refs["registration"], "T_common_pass").T_common_pass
+    T = REGISTRATION.open(refs["registration"]).T_common_pass
     pts = []
     for k, ref in enumerate(refs["denoise"]):
-        g = CLOUD.read(ref, "points").points.reshape(-1, 3).astype(np.float64)
+        g = CLOUD.open(ref).points.reshape(-1, 3).astype(np.float64)
         g = g[np.isfinite(g).all(1)]
         pts.append(g @ T[k][:3, :3].T + T[k][:3, 3])
     pts = np.concatenate(pts)
@@ -129,7 +129,7 @@ def _accuracy(sample: Path, refs: dict) -> list[dict]:
         return []
     rows = []
     for poses, stage, store in (("targets", "registration", REGISTRATION), ("refined", "refine", REFINED)):
-        m = pass_misalignment(sample, store.read(refs[stage], "T_common_pass").T_common_pass)
+        m = pass_misalignment(sample, store.open(refs[stage]).T_common_pass)
         rows.append({"poses": poses, "worst_um": round(1000 * float(m.max_mm.max())),
                      "median_um": round(1000 * float(np.median(m.median_mm)))})
     return rows

@@ -27,6 +27,7 @@ from data_catalog.atomic import atomic_write_text
 from data_catalog.manifests import check_sample_files, load_manifest
 from data_catalog.stages import StageStore
 from flows.stages import STAGES, Stage, StageFailed, StageRef, run_stage
+from flows.stages.outputs import REPORT
 from flows.stages.report import publish
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
@@ -258,7 +259,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                      error=f"{type(exc).__name__}: {exc}")
         raise
     report_ref, published = refs.pop("report")
-    result = dict(json.loads(Path(published["report.json"]["path"]).read_text()))
+    result = dict(json.loads(Path(published[REPORT.name]["path"]).read_text()))
     result["outputs"] = published
     result["refs"] = dict(refs, report=report_ref)
     result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}

@@ -62,13 +62,28 @@ class ArrayFile(Generic[A]):
             raise TypeError(f"{self.name}: expected a {self.schema.__name__}, got {type(value).__name__}")
         save_arrays(Path(out) / self.name, **{n: np.asarray(getattr(value, n)) for n in self.arrays})
 
-    def read(self, ref: StageRef, *names: str) -> A:
-        """The named arrays (all when none are named); the others are None."""
-        unknown = set(names) - set(self.arrays)
-        if unknown:
-            raise KeyError(f"{self.name} of stage {ref.stage} has no array {sorted(unknown)} (it has {self.arrays})")
-        loaded = load_arrays(ref.file(self.name), *(names or self.arrays))
-        return self.schema(**{n: loaded.get(n) for n in self.arrays})
+    def read(self, ref: StageRef) -> A:
+        """Every array, loaded."""
+        loaded = load_arrays(ref.file(self.name), *self.arrays)
+        return self.schema(**{n: loaded[n] for n in self.arrays})
+
+    def open(self, ref: StageRef) -> A:
+        """The arrays as attributes, each loaded when first read (``CLOUD.open(ref).points``)."""
+        return _LazyArrays(ref.file(self.name), self.arrays)  # type: ignore[return-value]
+
+
+class _LazyArrays:
+    def __init__(self, path: Path, arrays: tuple[str, ...]) -> None:
+        self._path, self._arrays, self._loaded = path, arrays, {}
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        if name not in self._arrays:
+            raise AttributeError(f"{self._path.name} has no array {name!r} (it has {self._arrays})")
+        if name not in self._loaded:
+            self._loaded[name] = load_arrays(self._path, name)[name]
+        return self._loaded[name]
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ __all__ = ["merge"]
 
 
 def merge(ctx) -> dict[str, Any]:
-    T_all = REFINED.read(ctx.inputs["refine"], "T_common_pass").T_common_pass
+    T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
     points, sensors = [], []
     for ref, T in zip(ctx.inputs["denoise"], T_all):
         cloud = CLOUD.read(ref)

@@ -24,7 +24,7 @@ def refine(ctx) -> dict[str, Any]:
     T = T_targets
     target_res = reg.residual_mm[inlier]
     if rc.enabled:
-        samples = [surface_sample(CLOUD.read(r, "points").points, spacing_mm=rc.sample_spacing_mm,
+        samples = [surface_sample(CLOUD.open(r).points, spacing_mm=rc.sample_spacing_mm,
                                   normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
                                   max_plane_rms_mm=rc.max_plane_rms_mm)
                    for r in ctx.inputs["denoise"]]

@@ -24,7 +24,7 @@ def setups_view(manifest, entry) -> dict[str, Any]:
 def register(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
     setups = [s for s, _ in ctx.manifest.passes()]
-    targets = [TARGETS.read(r, "centres").centres for r in ctx.inputs["targets"]]
+    targets = [TARGETS.open(r).centres for r in ctx.inputs["targets"]]
     try:
         reg = register_passes(targets, setups, names=names, min_common=rc.min_common_targets,
                               max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)

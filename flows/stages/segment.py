@@ -13,8 +13,8 @@ __all__ = ["segment"]
 
 
 def segment(ctx) -> dict[str, Any]:
-    merged = MERGED.read(ctx.inputs["merge"], "points", "sensor_positions")
-    reg = REFINED.read(ctx.inputs["refine"], "track_positions_mm", "specimen_track")
+    merged = MERGED.open(ctx.inputs["merge"])
+    reg = REFINED.open(ctx.inputs["refine"])
     anchors = reg.track_positions_mm[reg.specimen_track.astype(bool)]
     if len(anchors) == 0:
         raise ValueError("no target was seen in more than one setup: the specimen cannot be told from the fixture")

@@ -26,7 +26,7 @@ def test_a_sample_without_a_pose_log_is_registered_from_its_nominal_sweeps(tmp_p
     sample = tmp_path / "sample"
     simulate(config, sample, previews=False)
     report = reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest")
-    m = pass_misalignment(sample, REFINED.read(report["refs"]["refine"], "T_common_pass").T_common_pass)
+    m = pass_misalignment(sample, REFINED.open(report["refs"]["refine"]).T_common_pass)
     # measured: worst 21 um, median of pass medians 7 um (with the pose log: 18 / 5 um); the
     # nominal sweep misses the 1 % speed ripple (about 12 um along the pass)
     assert m.max_mm.max() < 0.030, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))

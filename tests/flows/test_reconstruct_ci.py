@@ -90,7 +90,7 @@ def test_registration_recovers_the_true_pass_poses(run, ci_sample):
 
 def test_refinement_beats_targets_alone(run, ci_sample):
     _, report = run
-    targets_only = REGISTRATION.read(report["refs"]["registration"], "T_common_pass").T_common_pass
+    targets_only = REGISTRATION.open(report["refs"]["registration"]).T_common_pass
     before = pass_misalignment(ci_sample, targets_only)
     after = pass_misalignment(ci_sample, _refined(report).T_common_pass)
     # measured: worst 39 um on targets alone, 18 um refined
@@ -102,14 +102,14 @@ def test_refinement_beats_targets_alone(run, ci_sample):
 def test_the_fixture_is_gone_and_the_specimen_is_whole(run, ci_sample):
     out, report = run
     G = _gauge(report, ci_sample).T_recon_specimen
-    points = SPECIMEN.read(report["refs"]["segment"], "points").points
+    points = SPECIMEN.open(report["refs"]["segment"]).points
     G_inv = np.linalg.inv(G)
     in_specimen = points @ G_inv[:3, :3].T + G_inv[:3, 3]
     dist = _specimen_scene(ci_sample).compute_distance(o3d.core.Tensor(in_specimen.astype(np.float32))).numpy()
     assert np.quantile(dist, 0.999) < 0.5  # nothing of the fixture (blocks, base plate) is left
     z = in_specimen[:, 2]
     assert (z > 5).sum() > 1000 and (z < -5).sum() > 1000  # both setups: top and bottom faces
-    merged = MERGED.read(report["refs"]["merge"], "points").points
+    merged = MERGED.open(report["refs"]["merge"]).points
     assert len(points) < 0.7 * len(merged)  # the fixture was a real share of the merged cloud
 
 
