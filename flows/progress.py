@@ -95,16 +95,20 @@ class TrailProgress:
                 entry = json.loads(line)
             except ValueError:
                 continue
-            if isinstance(entry, dict):
+            if not isinstance(entry, dict):
+                continue
+            try:
                 self._show(entry)
+            except (TypeError, ValueError, AttributeError, KeyError):
+                continue  # valid JSON, but not an entry of the shape the audit writes: skipped
 
     def _show(self, entry: dict[str, Any]) -> None:
         count = self._counts.get(entry.get("stage"))
         if count is None:
             return
-        item = entry.get("item")
+        item = None if entry.get("item") is None else str(entry["item"])
         if entry.get("kind") == "stage-failed":
-            count.failed.append(item or entry["stage"])
+            count.failed.append(item or str(entry["stage"]))
             self._say(f"{entry['stage']}{' ' + item if item else ''} FAILED: {entry.get('error', '')}")
             return
         if entry.get("kind") != "stage":

@@ -5,10 +5,17 @@ The finite-element model needs a closed mesh, so the report says plainly whether
 watertight (every undirected edge in exactly two triangles) and consistently oriented (no
 directed edge twice); trimming low-density Poisson faces is refused when it would open the mesh,
 unless the caller asks for the open mesh.
+
+The same points and settings give the same bytes in any run, process, thread and thread count:
+the normals are per-point (no sums across points, whatever Open3D's thread count), and MeshLab's
+Poisson runs on one OpenMP thread (its solver sums over threads in arrival order; see
+``screened_poisson``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import os
 import threading
 from dataclasses import dataclass, replace
@@ -79,6 +86,9 @@ def estimate_normals(points_mm: np.ndarray, sensor_positions_mm: np.ndarray, *, 
     sensor_positions_mm : (n, 3) float, mm, the sensor position that saw each point.
     k : neighbours per point, including the point itself (Open3D's KNN search), >= 3.
     Returns (n, 3) float64 unit normals with dot(normal, sensor - point) >= 0.
+    Each normal depends on its own neighbours only (Open3D sums no quantity across points), so
+    the result is the same bytes for any number of threads (measured: OMP_NUM_THREADS 1-8, busy
+    cores, worker threads and Dask worker processes).
     """
     points = check_points("points_mm", points_mm)
     sensors = check_points("sensor_positions_mm", sensor_positions_mm, len(points))
@@ -130,7 +140,7 @@ def _drop_unused_vertices(vertices, triangles, *per_vertex):
 
 def _canonical_order(vertices, triangles, density):
     """Vertices sorted by (x, y, z), triangles rotated to start at their least index (winding kept)
-    and sorted: MeshLab's multi-threaded output order varies from run to run, its geometry does not."""
+    and sorted: the output order then follows from the geometry alone, not from MeshLab's traversal."""
     order = np.lexsort(vertices.T[::-1])
     rank = np.empty(len(order), np.int64)
     rank[order] = np.arange(len(order))
@@ -141,9 +151,27 @@ def _canonical_order(vertices, triangles, density):
     return vertices[order], t, density[order]
 
 
-def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, trim_density_quantile: float = 0.0,
-                     keep_watertight: bool = True, samples_per_node: float = 1.5, point_weight: float = 4.0,
-                     scale: float = 1.1, threads: int = 1) -> SurfaceResult:
+@contextlib.contextmanager
+def _one_openmp_thread():
+    """Limit the calling thread's OpenMP parallel regions to one thread, in the libgomp that
+    pymeshlab loaded (``omp_set_num_threads`` holds for the calling thread only, so other threads
+    keep their setting); restored on exit. No-op where no libgomp is loaded (macOS, Windows)."""
+    try:
+        gomp = ctypes.CDLL("libgomp.so.1", mode=os.RTLD_NOLOAD)
+    except (OSError, AttributeError):
+        yield
+        return
+    before = gomp.omp_get_max_threads()
+    gomp.omp_set_num_threads(1)
+    try:
+        yield
+    finally:
+        gomp.omp_set_num_threads(before)
+
+
+def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, samples_per_node: float,
+                     point_weight: float, scale: float, trim_density_quantile: float = 0.0,
+                     keep_watertight: bool = True) -> SurfaceResult:
     """Screened Poisson surface (Kazhdan & Hoppe 2013) via MeshLab's filter
     (``generate_surface_reconstruction_screened_poisson``).
 
@@ -164,10 +192,15 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
     scale : MeshLab ``scale``, the reconstruction cube over the points' bounding cube. Where a side
         was never scanned the surface can bulge out of that cube and is cut open there (the report
         shows boundary edges); a larger scale (1.3-1.5) closes it, at a coarser finest cell.
-    threads : MeshLab ``threads``, >= 1. MeshLab's OpenMP threads spin while they wait, so raise it
-        only on cores nothing else uses (measured: 2 threads on 2 cores beside one busy process,
-        19 s instead of 3 s with 1 thread; on idle cores 2 threads saved about 25 %). The output
-        is put in a canonical order (vertices by coordinates), since the threaded order varies.
+
+    Deterministic: the same inputs give the same bytes in any run, process, thread, thread count
+    or load. MeshLab (PoissonRecon 9) sums the solver's dot products and constraints with OpenMP
+    reductions and atomics in thread-arrival order, so it runs with ``threads=1`` here and every
+    other OpenMP region of the call is held to one thread as well (``OMP_NUM_THREADS`` has no
+    effect). Measured on the ci sample (383 k points, depth 8): 2 threads give other bytes than 1
+    (a fifth of the vertices move by ~1e-11 mm), 3 or 4 threads other bytes on every run; on 2
+    busy cores 2 threads took 43-77 s instead of 3.5 s (MeshLab's threads spin while they wait).
+    The output is put in a canonical order (vertices by coordinates).
     """
     points = check_points("points_mm", points_mm)
     normal_array = check_points("normals", normals, len(points))
@@ -183,15 +216,13 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         raise ValueError(f"scale must be >= 1, got {scale}")
     if np.any(np.linalg.norm(normal_array, axis=1) == 0):
         raise ValueError("normals holds zero vectors")
-    if not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be an integer >= 1, got {threads}")
-    with _MESHLAB:  # pymeshlab is not thread-safe: two Poisson runs at once crash (seen: SIGSEGV)
+    with _MESHLAB, _one_openmp_thread():  # pymeshlab is not thread-safe: two runs at once crash (SIGSEGV)
         ms = pymeshlab.MeshSet()
         ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(points),
                                    v_normals_matrix=np.ascontiguousarray(normal_array)))
         ms.generate_surface_reconstruction_screened_poisson(
             depth=int(depth), samplespernode=float(samples_per_node), pointweight=float(point_weight),
-            scale=float(scale), preclean=False, confidence=False, threads=int(threads))
+            scale=float(scale), preclean=False, confidence=False, threads=1)
         mesh = ms.current_mesh()
         vertices = np.array(mesh.vertex_matrix(), dtype=np.float64)
         triangles = np.array(mesh.face_matrix(), dtype=np.int64)

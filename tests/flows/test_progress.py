@@ -52,3 +52,20 @@ def test_a_run_folder_without_a_trail_yet_is_fine(tmp_path):
     with TrailProgress(tmp_path / "new", [("denoise", 1)], stream=stream, interval_s=0.05):
         _stage(tmp_path / "new", "denoise", "p")
     assert "denoise 1/1 p" in stream.getvalue()
+
+
+def test_entries_of_the_wrong_shape_are_skipped_not_raised(tmp_path):
+    run = tmp_path / "run"
+    stream = io.StringIO()
+    with TrailProgress(run, [("denoise", 2)], stream=stream, interval_s=0.05):
+        _stage(run, "denoise", "p1")
+        with open(run / TRAIL, "a") as handle:  # valid JSON, wrong shapes
+            for bad in ({"kind": "stage", "stage": "denoise", "record": {"metrics": {"seconds": "x"}}},
+                        {"kind": "stage", "stage": ["denoise"]}, {"kind": "stage-failed", "stage": "denoise", "item": 7},
+                        [1, 2], "text"):
+                handle.write(json.dumps(bad) + "\n")
+            handle.write(json.dumps({"kind": "stage", "stage": "denoise", "item": "p2", "cached": True}) + "\n")
+    text = stream.getvalue()
+    assert "denoise 1/2 p1" in text
+    assert "denoise 7 FAILED" in text
+    assert "denoise 2/2 p2 cached" in text  # the entries of the wrong shape were not counted
