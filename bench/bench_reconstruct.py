@@ -61,7 +61,7 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
     from flows.stages.passes import load_pass_points
     from tasks.denoise import remove_statistical_outliers
     from tasks.merge import merge_box_grid
-    from tasks.surface import estimate_normals, screened_poisson
+    from tasks.mesh import estimate_normals, screened_poisson
 
     cfg = load_config(CONFIG)
     m = load_manifest(sample)

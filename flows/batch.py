@@ -91,6 +91,10 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
     """Register the sample folders under ``samples_root`` (when given) in ``workspace``'s catalog,
     then reconstruct every sample that is due. ``max_concurrent`` samples run at once."""
     log = get_run_logger()
+    # every path absolute before any sample runs: MeshLab's Poisson changes the process's working
+    # directory while it meshes one sample, and the others go on meanwhile
+    workspace = str(Path(workspace).resolve())
+    config_path = str(Path(config_path).resolve()) if config_path is not None else None
     catalog = Catalog(Path(workspace))
     refused: list[str] = []
     registered: list[SampleRecord] = []

@@ -221,7 +221,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
             sample_dir, out_dir, config_path, started_by, dask)
     log = get_run_logger()
-    sample, out = Path(sample_dir), Path(out_dir)
+    # absolute from here on: MeshLab's Poisson changes the process's working directory while it runs
+    sample, out = Path(sample_dir).resolve(), Path(out_dir).resolve()
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)
     config = load_config(config_path)

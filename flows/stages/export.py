@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from flows.stages.outputs import MESH, PLY, STL
-from tasks.surface import write_mesh
+from tasks.mesh import write_mesh
 
 __all__ = ["export"]
 

@@ -6,7 +6,7 @@ from typing import Any
 
 
 from flows.stages.outputs import MESH, Mesh, SPECIMEN
-from tasks.surface import estimate_normals, screened_poisson
+from tasks.mesh import estimate_normals, screened_poisson
 
 __all__ = ["mesh"]
 

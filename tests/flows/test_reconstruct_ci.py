@@ -15,7 +15,7 @@ from data_catalog.truth import read_truth
 from flows.stages import STAGES
 from flows.stages.outputs import MERGED, MESH, REFINED, REGISTRATION, SPECIMEN
 from simulator.evaluate import fit_gauge, pass_misalignment, true_sticker_centres
-from tasks.surface import mesh_report
+from tasks.mesh import mesh_report
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")

@@ -157,6 +157,13 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     stl = f"{report['sample_id']}.stl"
     assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
     assert again["stage_keys"] == report["stage_keys"]
+    # every stage's outputs, those of the killed run and those rerun, are the uninterrupted run's bytes
+    reference = read_trail(ci_run[0])
+    reference = reference[:next(i for i, e in enumerate(reference) if e["kind"] == "run-finished")]
+    expected = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in reference if e["kind"] == "stage"}
+    produced = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in read_trail(run) if e["kind"] == "stage"}
+    assert set(produced) == set(expected)
+    assert [k for k in expected if produced[k] != expected[k]] == []
     ran = {k for k, cached in again["cached"].items() if not cached}
     assert ran == {"mesh", "export", "report"}  # the finished stages were not rerun
     entries = read_trail(run)

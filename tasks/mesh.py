@@ -6,10 +6,10 @@ watertight (every undirected edge in exactly two triangles) and consistently ori
 directed edge twice); trimming low-density Poisson faces is refused when it would open the mesh,
 unless the caller asks for the open mesh.
 
-The same points and settings give the same bytes in any run, process, thread and thread count:
-the normals are per-point (no sums across points, whatever Open3D's thread count), and MeshLab's
-Poisson runs on one OpenMP thread (its solver sums over threads in arrival order; see
-``screened_poisson``).
+The same points, settings and code give the same bytes in any run, process, thread, thread count
+or load (on one machine and library build): each normal is computed from its own neighbours alone,
+whatever Open3D's thread count, and MeshLab's Poisson runs on one OpenMP thread (its solver sums
+over threads in arrival order; see ``screened_poisson``).
 """
 
 from __future__ import annotations
@@ -198,7 +198,7 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
     reductions and atomics in thread-arrival order, so it runs with ``threads=1`` here and every
     other OpenMP region of the call is held to one thread as well (``OMP_NUM_THREADS`` has no
     effect). Measured on the ci sample (383 k points, depth 8): 2 threads give other bytes than 1
-    (a fifth of the vertices move by ~1e-11 mm), 3 or 4 threads other bytes on every run; on 2
+    (10-20 % of the vertices move by ~1e-11 mm), 3 or 4 threads other bytes on every run; on 2
     busy cores 2 threads took 43-77 s instead of 3.5 s (MeshLab's threads spin while they wait).
     The output is put in a canonical order (vertices by coordinates).
     """
