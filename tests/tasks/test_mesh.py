@@ -129,7 +129,7 @@ def test_box_depth_7_is_closed_with_the_right_volume():
 def test_same_bytes_for_any_thread_count_process_and_thread(tmp_path):
     # Fresh processes with 1, 2 and 4 OpenMP/BLAS threads, all at once (so on busy cores), and this
     # process in a worker thread (as the flow runs stages), must give the same bytes to the STL.
-    script = ("import json, sys; from tests.tasks.test_surface import _surface_digests; "
+    script = ("import json, sys; from tests.tasks.test_mesh import _surface_digests; "
               "open(sys.argv[2], 'w').write(json.dumps(_surface_digests(sys.argv[1])))")
     runs = {}
     for n in (1, 2, 4):
