@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from data_catalog.audit import read_trail
 from data_catalog.catalog import Catalog
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
 from tests.flows.cli import run_cli
@@ -50,6 +51,13 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     why = first["failed"]["batch-c"]
     assert why["stage"] == "denoise" and "bottom-L03" in why["error"]
     catalog = Catalog(workspace)
+    # never more than max_concurrent samples at once (Prefect's global concurrency limit): each
+    # run's span, from its run-started entry to its last entry
+    spans = []
+    for record in catalog.list():
+        trail = read_trail(Path(record.out_dir))
+        spans.append((trail[0]["time"], trail[-1]["time"]))
+    assert max(sum(start <= t < end for start, end in spans) for t, _ in spans) <= 2
     states = {r.sample_id: (r.state, r.failed_stage) for r in catalog.list()}
     assert states == {"batch-a": ("done", None), "batch-b": ("done", None), "batch-c": ("failed", "denoise")}
     for sample_id in ("batch-a", "batch-b"):
