@@ -195,7 +195,8 @@ def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
     finally:
         from prefect.logging.handlers import APILogHandler
 
-        APILogHandler.flush()  # the run's last log lines, while the server still listens
+        with contextlib.suppress(Exception):  # best effort: the run's last log lines while the server listens
+            APILogHandler().flush()
         os.environ.pop("PREFECT_API_URL", None)
         server.stop()
 

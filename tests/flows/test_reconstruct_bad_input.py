@@ -111,12 +111,13 @@ def test_a_pass_without_stickers_is_named(ci_sample, tmp_path):
 
 
 def test_too_few_common_stickers_names_the_pair_and_the_lost_passes(ci_sample, tmp_path):
-    from tasks.registration import RegistrationError
+    from flows.stages import StageFailed
 
     # top-L04 and top-W01 overlap, but share only one sticker that both see whole
     sample = _copy(ci_sample, tmp_path / "s", ["top-L04", "top-W01"])
-    with pytest.raises(RegistrationError) as info:
+    with pytest.raises(StageFailed) as info:
         _reconstruct(sample, tmp_path / "out")
+    assert info.value.stage == "registration" and not info.value.retryable
     text = str(info.value)
     assert "passes ['top-W01'] share no chain of 3+ common targets" in text
     assert "top-L04|top-W01 (1)" in text
