@@ -152,9 +152,9 @@ def main() -> int:
         refs = _refs(sample, Path(tmp))
         peer_rows = _peers(sample, refs)
         accuracy = _accuracy(sample, refs)
-    print(f"{'stage':<10}{'seconds':>9}{'peak RSS MiB':>14}")
+    print(f"{'stage':<13}{'seconds':>9}{'peak RSS MiB':>14}")
     for r in stage_rows:
-        print(f"{r['stage']:<10}{r['seconds']:>9}{r['peak_rss_mib']:>14,}")
+        print(f"{r['stage']:<13}{r['seconds']:>9}{r['peak_rss_mib']:>14,}")
     print(f"\n{'stage':<16}{'points':>12}{'ours s':>9}{'peer s':>9}{'ours/peer':>10}  peer")
     for r in peer_rows:
         print(f"{r['stage']:<16}{r['points']:>12,}{r['ours_s']:>9.2f}{r['peer_s']:>9.2f}{r['ratio']:>10.2f}  {r['peer']}")
