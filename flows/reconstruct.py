@@ -27,6 +27,7 @@ from data_catalog.atomic import atomic_write_text
 from data_catalog.manifests import check_sample_files, load_manifest
 from data_catalog.stages import StageStore
 from flows.stages import STAGES, Stage, StageFailed, StageRef, run_stage
+from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
 from flows.stages.report import publish
 from schemas.manifest import PassEntry, SampleManifest
@@ -230,7 +231,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     store = StageStore(out)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "config.json", config.model_dump_json(indent=2) + "\n")
-    audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample.resolve()),
+    audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
     entries = [e for _, e in manifest.passes()]
     log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
@@ -265,10 +266,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     result["outputs"] = published
     result["refs"] = dict(refs, report=report_ref)
     result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}
-    result["cached"] = {n: (all(r.cached for r in v) if isinstance(v, list) else v.cached) for n, v in refs.items()}
-    result["cached"]["report"] = report_ref.cached
-    result["seconds"] = {n: (sum(r.metrics.get("seconds", 0.0) for r in v) if isinstance(v, list)
-                             else v.metrics.get("seconds", 0.0)) for n, v in refs.items()}
+    result["cached"] = {n: all(r.cached for r in each(v)) for n, v in result["refs"].items()}
+    result["seconds"] = {n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()}
     audit.append(out, "run-finished", sample_id=manifest.sample_id,
                  artefacts={f"results/{name}": item["sha256"] for name, item in published.items()},
                  cached=result["cached"])

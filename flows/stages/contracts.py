@@ -1,7 +1,7 @@
 """What a stage hands on: a typed reference to its finished outputs, and typed descriptions of
 the files in a stage's folder (a zarr group of named arrays, a JSON document, a mesh file).
 
-Each output file is described once, next to the stage that writes it; readers go through the
+Each output file is described once (``flows/stages/outputs.py``); readers go through the
 description, so a file name or an array name is spelled in exactly one place and a typo is an
 error, not a silently missing array.
 """
@@ -19,7 +19,7 @@ import numpy as np
 from data_catalog.atomic import atomic_write_text
 from data_catalog.stages import load_arrays, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile"]
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each"]
 
 A = TypeVar("A")
 
@@ -44,6 +44,11 @@ class StageRef:
         if name not in self.outputs:
             raise KeyError(f"stage {self.stage} has no output {name!r} (it has {sorted(self.outputs)})")
         return Path(self.path) / name
+
+
+def each(refs: StageRef | list[StageRef]) -> list[StageRef]:
+    """The refs of one stage as a list: a per-pass stage has one per pass, the others one."""
+    return refs if isinstance(refs, list) else [refs]
 
 
 @dataclass(frozen=True)
@@ -104,9 +109,6 @@ class MeshFile:
     """A triangle mesh file (binary STL or PLY) in the stage's folder."""
 
     name: str
-
-    def path(self, ref: StageRef) -> Path:
-        return ref.file(self.name)
 
 
 OutputFile = ArrayFile | JsonFile | MeshFile

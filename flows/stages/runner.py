@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from pydantic import BaseModel
 
@@ -30,7 +30,7 @@ from data_catalog import audit
 from data_catalog.hashing import sha256_file, sha256_tree
 from data_catalog.passes import PassFormatError
 from data_catalog.stages import RECORD_NAME, StageStore, cache_key
-from flows.stages.contracts import OutputFile, StageRef
+from flows.stages.contracts import OutputFile, StageRef, each
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.provenance import StageRecord
 from schemas.reconstruction import ReconstructionConfig
@@ -203,7 +203,7 @@ def _input_hashes(stage: Stage, sample_dir: Path, manifest: SampleManifest, entr
     view = json.dumps(stage.manifest_view(manifest, entry), sort_keys=True, default=str)
     hashes["manifest"] = hashlib.sha256(view.encode()).hexdigest()
     for need, ref in inputs.items():
-        for r in ref if isinstance(ref, list) else [ref]:
+        for r in each(ref):
             prefix = need if r.item is None else f"{need}/{r.item}"
             hashes.update({f"{prefix}/{name}": digest for name, digest in r.outputs.items()})
     return hashes
@@ -288,7 +288,7 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     return _ref(stage.name, item, key, store, committed, cached=False)
 
 
-def _fail(store: StageStore, stage: str, item: str | None, exc: BaseException, ids: dict[str, Any]):
+def _fail(store: StageStore, stage: str, item: str | None, exc: BaseException, ids: dict[str, Any]) -> NoReturn:
     if isinstance(exc, StageFailed):
         raise exc
     message = str(exc) or type(exc).__name__
