@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-__all__ = ["PASS_FORMAT", "PASS_FORMAT_VERSION", "PassData", "PassFormatError", "PassWriter", "read_pass",
-           "create_chunked_array", "check_complete"]
+__all__ = ["PASS_FORMAT", "PASS_FORMAT_VERSION", "PassData", "PassFormatError", "PassWriter", "PassReader",
+           "read_pass", "open_pass", "create_chunked_array", "check_complete"]
 
 PASS_FORMAT = "weldrecon-pass"
 PASS_FORMAT_VERSION = 1
@@ -131,34 +131,72 @@ def _open_pass_group(path: Path, what: str) -> zarr.Group:
     return group
 
 
+class PassReader:
+    """A pass store opened and checked once (format, shapes, completeness), read by profile
+    ranges: a per-pass stage streams its pass in blocks and never holds the whole of it."""
+
+    def __init__(self, path: Path, *, pass_id: str | None = None) -> None:
+        self.path = Path(path)
+        self.what = f"pass {pass_id}" if pass_id else "pass"
+        group = _open_pass_group(self.path, self.what)
+        attrs = dict(group.attrs)
+        n, m = attrs.get("n_profiles"), attrs.get("n_columns")
+        if not (isinstance(n, int) and isinstance(m, int) and n >= 1 and m >= 1):
+            raise PassFormatError(f"{self.what}: {self.path} has n_profiles {n!r} and n_columns {m!r}, "
+                                  "expected positive integers")
+        if pass_id is not None and attrs.get("pass_id") != pass_id:
+            raise PassFormatError(f"{self.what}: {self.path} holds pass {attrs.get('pass_id')!r}, not {pass_id!r}")
+        expected = {"x_mm": (n, m), "z_mm": (n, m), "intensity": (n, m), "timestamp_s": (n,)}
+        if "T_world_flange" in group:
+            expected["T_world_flange"] = (n, 4, 4)
+        self._arrays: dict[str, zarr.Array] = {}
+        for name, shape in expected.items():
+            if name not in group:
+                raise PassFormatError(f"{self.what}: {self.path} has no array '{name}'")
+            array = group[name]
+            if tuple(array.shape) != shape:
+                raise PassFormatError(f"{self.what}: {self.path}/{name} has shape {tuple(array.shape)}, expected {shape}")
+            check_complete(array, what=f"{self.what} ({self.path})")
+            self._arrays[name] = array
+        self.pass_id: str = attrs.get("pass_id")
+        self.n_profiles, self.n_columns = n, m
+        self.chunk_profiles = int(self._arrays["x_mm"].chunks[0])
+
+    @property
+    def has_poses(self) -> bool:
+        return "T_world_flange" in self._arrays
+
+    def read(self, start: int = 0, stop: int | None = None) -> PassData:
+        """Profiles ``start`` to ``stop`` (exclusive; None: to the end)."""
+        stop = self.n_profiles if stop is None else stop
+        if not 0 <= start <= stop <= self.n_profiles:
+            raise ValueError(f"{self.what}: profiles {start}:{stop} outside 0:{self.n_profiles}")
+        arrays = {}
+        for name, array in self._arrays.items():
+            try:
+                arrays[name] = np.asarray(array[start:stop])
+            except Exception as exc:
+                raise PassFormatError(f"{self.what}: {self.path}/{name} cannot be decoded ({exc}); "
+                                      "the file is corrupt") from exc
+        return PassData(pass_id=self.pass_id, x_mm=arrays["x_mm"], z_mm=arrays["z_mm"], intensity=arrays["intensity"],
+                        timestamp_s=arrays["timestamp_s"], T_world_flange=arrays.get("T_world_flange"))
+
+
+def open_pass(path: Path, *, pass_id: str | None = None) -> PassReader:
+    """Open a pass store for reading by profile ranges (``PassReader``); PassFormatError naming
+    the pass and the file for any deviation from the format."""
+    return PassReader(path, pass_id=pass_id)
+
+
 def read_pass(path: Path, *, pass_id: str | None = None, profiles: slice | None = None) -> PassData:
-    """Read a pass store, checking its format, shapes and completeness.
+    """Read a pass store (or a slice of its profiles), checking its format, shapes and completeness.
 
     Raises PassFormatError naming the pass and the file for any deviation.
     """
-    what = f"pass {pass_id}" if pass_id else "pass"
-    group = _open_pass_group(path, what)
-    attrs = dict(group.attrs)
-    n, m = attrs.get("n_profiles"), attrs.get("n_columns")
-    expected = {"x_mm": (n, m), "z_mm": (n, m), "intensity": (n, m), "timestamp_s": (n,)}
-    if "T_world_flange" in group:
-        expected["T_world_flange"] = (n, 4, 4)
-    arrays = {}
-    for name, shape in expected.items():
-        if name not in group:
-            raise PassFormatError(f"{what}: {path} has no array '{name}'")
-        array = group[name]
-        if tuple(array.shape) != shape:
-            raise PassFormatError(f"{what}: {path}/{name} has shape {tuple(array.shape)}, expected {shape}")
-        check_complete(array, what=f"{what} ({path})")
-        try:
-            arrays[name] = array[profiles] if profiles is not None else array[...]
-        except Exception as exc:
-            raise PassFormatError(f"{what}: {path}/{name} cannot be decoded ({exc}); the file is corrupt") from exc
-    if pass_id is not None and attrs.get("pass_id") != pass_id:
-        raise PassFormatError(f"{what}: {path} holds pass {attrs.get('pass_id')!r}, not {pass_id!r}")
-    return PassData(
-        pass_id=attrs.get("pass_id"), x_mm=arrays["x_mm"], z_mm=arrays["z_mm"],
-        intensity=arrays["intensity"], timestamp_s=arrays["timestamp_s"],
-        T_world_flange=arrays.get("T_world_flange"),
-    )
+    reader = PassReader(path, pass_id=pass_id)
+    if profiles is None:
+        return reader.read()
+    start, stop, step = profiles.indices(reader.n_profiles)
+    if step != 1:
+        raise ValueError("read_pass reads contiguous profile ranges only")
+    return reader.read(start, stop)

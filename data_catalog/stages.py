@@ -29,7 +29,7 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.passes import create_chunked_array
 from schemas.provenance import StageRecord
 
-__all__ = ["StageStore", "cache_key", "save_arrays", "load_arrays", "RECORD_NAME"]
+__all__ = ["StageStore", "ArrayWriter", "cache_key", "save_arrays", "load_arrays", "open_array", "RECORD_NAME"]
 
 RECORD_NAME = "record.json"
 
@@ -49,6 +49,49 @@ def save_arrays(path: Path, *, chunk_rows: int = 65536, **arrays: np.ndarray) ->
             raise ValueError(f"{name}: save_arrays stores arrays of at least one dimension")
         fill = np.nan if value.dtype.kind == "f" else 0
         create_chunked_array(group, name, value.shape, chunk_rows, value.dtype.str, fill)[...] = value
+
+
+class ArrayWriter:
+    """A zarr v3 group written piece by piece, in bounded memory: arrays of a known length are
+    filled by row ranges (``write``), arrays of unknown length grow by ``append``. The stored
+    bytes are those of ``save_arrays`` with the same chunking, however the pieces came."""
+
+    def __init__(self, path: Path, *, chunk_rows: int) -> None:
+        self._group = zarr.open_group(str(path), mode="w-")
+        self._chunk_rows = int(chunk_rows)
+        self._lengths: dict[str, int] = {}
+
+    def create(self, name: str, shape: tuple[int, ...], dtype) -> None:
+        """An array of known ``shape``, filled later by ``write``."""
+        dtype = np.dtype(dtype)
+        create_chunked_array(self._group, name, tuple(shape), self._chunk_rows, dtype.str,
+                             np.nan if dtype.kind == "f" else 0)
+
+    def write(self, name: str, start: int, values: np.ndarray) -> None:
+        array = self._group[name]
+        array[start:start + len(values)] = np.asarray(values, dtype=array.dtype)
+
+    def append(self, name: str, values: np.ndarray) -> None:
+        """Rows at the end of ``name`` (created on first use with the first rows' trailing shape
+        and dtype)."""
+        values = np.asarray(values)
+        if name not in self._lengths:
+            fill = np.nan if values.dtype.kind == "f" else 0
+            self._group.create_array(name, shape=(0,) + values.shape[1:],
+                                     chunks=(self._chunk_rows,) + values.shape[1:], dtype=values.dtype.str,
+                                     fill_value=fill, config={"write_empty_chunks": True})
+            self._lengths[name] = 0
+        if len(values):
+            array = self._group[name]
+            n = self._lengths[name]
+            array.resize((n + len(values),) + array.shape[1:])
+            array[n:n + len(values)] = values.astype(array.dtype, copy=False)
+            self._lengths[name] = n + len(values)
+
+
+def open_array(path: Path, name: str) -> zarr.Array:
+    """One array of a zarr group, opened read-only (read it by slices)."""
+    return zarr.open_group(str(path), mode="r")[name]
 
 
 def load_arrays(path: Path, *names: str) -> dict[str, np.ndarray]:

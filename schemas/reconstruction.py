@@ -14,12 +14,17 @@ __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "RefineConfig
 
 
 class DenoiseConfig(StrictModel):
-    """Statistical outlier removal on the organized pass (Rusu 2008)."""
+    """Statistical outlier removal on the organized pass (Rusu 2008), then each kept point's
+    normal from its grid neighbours (the normals travel through the merge to the mesh)."""
 
     k: int = Field(default=8, ge=1, le=100)
     alpha: float = Field(default=1.0, gt=0, le=10)
     window_rows: int = Field(default=2, ge=0, le=10)
     window_cols: int = Field(default=2, ge=0, le=20)
+    normal_window_mm: float = Field(default=0.5, gt=0, le=20, description=(
+        "edge of the window of grid neighbours each normal is fitted to; the paper's 100 neighbours "
+        "are a 0.5 mm window at its 0.02 x 0.1 mm grid (5 profiles x 25 columns)"))
+    normal_min_points: int = Field(default=6, ge=3, le=1000, description="fewer points: the normal faces the sensor")
 
 
 class TargetsConfig(StrictModel):
@@ -40,6 +45,9 @@ class RefineConfig(StrictModel):
 
     enabled: bool = True
     sample_spacing_mm: float = Field(default=1.0, gt=0, le=20, description="thinning of each pass's source points")
+    surface_spacing_mm: float = Field(default=0.2, gt=0, le=5, description=(
+        "each pass's measured surface is read at about this spacing (every n-th profile and column "
+        "of its grid, n >= 1): the points the other passes are matched against"))
     neighbour_mm: float = Field(default=1.0, gt=0, le=10, description="farthest matched point and normal neighbourhood")
     normal_neighbours: int = Field(default=16, ge=6, le=200)
     max_plane_rms_mm: float = Field(default=0.02, gt=0, le=1, description="curved neighbourhoods are not matched")
@@ -71,7 +79,6 @@ class SegmentConfig(StrictModel):
 
 
 class MeshConfig(StrictModel):
-    normals_k: int = Field(default=100, ge=3, le=1000, description="neighbours per normal (paper: 100)")
     poisson_depth: int = Field(default=10, ge=4, le=14)
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
     point_weight: float = Field(default=4.0, ge=0, le=100)

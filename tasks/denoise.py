@@ -1,18 +1,33 @@
-"""Statistical outlier removal (Rusu et al. 2008) on an organized pass.
+"""Statistical outlier removal (Rusu et al. 2008) on an organized pass, in blocks of profiles.
 
 A point whose mean distance to its k nearest neighbours exceeds the global mean of that figure
 plus ``alpha`` standard deviations is removed. The pass is an organized grid (profiles x
 columns), so a point's neighbour candidates are the points in a small window around its cell:
 no k-d tree is needed, and the work is linear in the number of points.
+
+The figure of each point depends on its window only, so a pass can be processed in blocks of
+profiles (each with ``window_rows`` halo rows): ``mean_knn_distance`` on each block, the global
+statistics accumulated with ``DistanceStats`` (exact integer sums, so the threshold is the same
+bytes whatever the blocking), then ``DistanceStats.threshold_mm``. ``remove_statistical_outliers``
+does all of it for a whole grid in memory.
+
+The kernels are compiled with Numba (one loop over points, several threads, each point written by
+one thread only: the same bytes for any thread count).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+from tasks.kernels import numba
 import numpy as np
 
-__all__ = ["DenoiseResult", "remove_statistical_outliers"]
+__all__ = ["DenoiseResult", "DistanceStats", "check_window", "mean_knn_distance", "remove_statistical_outliers"]
+
+# Statistics are summed on distances quantised to this step (mm), in integers: exact, so the mean
+# and standard deviation do not depend on the order or the blocks the points come in.
+_QUANTUM_MM = 1e-6
+_QUANTUM_MAX = 1 << 26  # 67 mm: larger window distances are clipped for the statistics only
 
 
 @dataclass(frozen=True)
@@ -29,28 +44,120 @@ class DenoiseResult:
         return int(np.count_nonzero(np.isfinite(self.mean_distance_mm) & ~self.keep))
 
 
-def _mean_knn_distance(points: np.ndarray, valid: np.ndarray, k: int, rows: int, cols: int) -> np.ndarray:
-    h, w, _ = points.shape
-    padded = np.full((h + 2 * rows, w + 2 * cols, 3), np.nan, dtype=points.dtype)
-    padded[rows:rows + h, cols:cols + w] = np.where(valid[..., None], points, np.nan)
-    distances = []
-    for dr in range(-rows, rows + 1):
-        for dc in range(-cols, cols + 1):
-            if dr == 0 and dc == 0:
+@dataclass
+class DistanceStats:
+    """Running count, sum and sum of squares of mean kNN distances, in exact integers."""
+
+    n: int = 0
+    s1: int = 0
+    s2: int = 0
+    _parts: list = field(default_factory=list, repr=False)
+
+    def add(self, mean_distance_mm: np.ndarray) -> None:
+        """Add the defined (finite) values of ``mean_distance_mm`` (any shape, mm)."""
+        n, s1, s2 = _quantised_sums(np.ascontiguousarray(mean_distance_mm, dtype=np.float64).reshape(-1))
+        self.n += int(n)
+        self.s1 += sum(int(v) for v in s1)
+        self.s2 += sum(int(v) for v in s2)
+
+    def threshold_mm(self, alpha: float) -> float:
+        """mean + alpha * (population) standard deviation, mm; NaN when nothing was added."""
+        if self.n == 0:
+            return float("nan")
+        mean_q = self.s1 / self.n
+        var_q = max(self.s2 * self.n - self.s1 * self.s1, 0) / (self.n * self.n)
+        return float((mean_q + alpha * var_q ** 0.5) * _QUANTUM_MM)
+
+
+@numba.njit(cache=True)
+def _quantised_sums(values):
+    # per-chunk int64 sums (256 values of at most 2**26, squared 2**52: never overflows), summed
+    # exactly in Python integers by the caller
+    chunk = 256
+    m = (len(values) + chunk - 1) // chunk
+    s1 = np.zeros(max(m, 1), np.int64)
+    s2 = np.zeros(max(m, 1), np.int64)
+    n = 0
+    for i in range(len(values)):
+        v = values[i]
+        if np.isfinite(v):
+            q = np.int64(min(np.floor(v / _QUANTUM_MM + 0.5), _QUANTUM_MAX))
+            s1[i // chunk] += q
+            s2[i // chunk] += q * q
+            n += 1
+    return n, s1, s2
+
+
+@numba.njit(parallel=True, cache=True)
+def _knn_kernel(points, row0, row1, k, wr, wc, out):
+    h, w = points.shape[0], points.shape[1]
+    for i in numba.prange(row0, row1):
+        best = np.empty(k)  # squared distances of the k nearest so far, ascending
+        for j in range(w):
+            px, py, pz = points[i, j, 0], points[i, j, 1], points[i, j, 2]
+            if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+                out[i - row0, j] = np.nan
                 continue
-            shifted = padded[rows + dr:rows + dr + h, cols + dc:cols + dc + w]
-            distances.append(np.linalg.norm(shifted - points, axis=-1))
-    d = np.stack(distances)  # (window - 1, h, w), NaN where no neighbour
-    d = np.where(np.isnan(d), np.inf, d)
-    nearest = np.partition(d, k - 1, axis=0)[:k]
-    mean = nearest.mean(axis=0)
-    mean[~valid | ~np.isfinite(mean)] = np.nan  # fewer than k neighbours in the window
-    return mean
+            found = 0
+            for r in range(max(i - wr, 0), min(i + wr + 1, h)):
+                for c in range(max(j - wc, 0), min(j + wc + 1, w)):
+                    dx = points[r, c, 0] - px
+                    dy = points[r, c, 1] - py
+                    dz = points[r, c, 2] - pz
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if not d2 == d2 or (r == i and c == j):  # a missing neighbour (NaN), or the point
+                        continue
+                    if found < k:
+                        pos = found
+                        found += 1
+                    elif d2 < best[k - 1]:
+                        pos = k - 1
+                    else:
+                        continue
+                    while pos > 0 and best[pos - 1] > d2:
+                        best[pos] = best[pos - 1]
+                        pos -= 1
+                    best[pos] = d2
+            if found < k:
+                out[i - row0, j] = np.nan
+            else:
+                s = 0.0
+                for q in range(k):
+                    s += np.sqrt(best[q])
+                out[i - row0, j] = s / k
+
+
+def check_window(*, k: int, window_rows: int, window_cols: int) -> None:
+    if k < 1:
+        raise ValueError(f"k must be at least 1, got {k}")
+    if window_rows < 0 or window_cols < 0 or (2 * window_rows + 1) * (2 * window_cols + 1) - 1 < k:
+        raise ValueError(f"a {2 * window_rows + 1} x {2 * window_cols + 1} window holds fewer than k = {k} neighbours")
+
+
+def mean_knn_distance(points_mm: np.ndarray, *, k: int, window_rows: int, window_cols: int,
+                      rows: slice | None = None) -> np.ndarray:
+    """Each point's mean distance to its k nearest neighbours in its window, mm.
+
+    points_mm : (profiles, columns, 3) float, mm, any frame; NaN marks a missing return. For a
+        block of a pass, the block's rows with ``window_rows`` halo rows on each side.
+    rows : the rows to compute (default all): the block's own rows when halo rows are included.
+    Returns (len(rows), columns) float64; NaN where the point is missing or has fewer than k
+    neighbours in its (2*window_rows+1) x (2*window_cols+1) window (sorted sum of the k smallest
+    distances over k: the same bytes for any blocking or thread count).
+    """
+    points = np.asarray(points_mm, dtype=np.float64)
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise ValueError(f"points_mm must have shape (profiles, columns, 3), got {points.shape}")
+    check_window(k=k, window_rows=window_rows, window_cols=window_cols)
+    start, stop, _ = (rows or slice(None)).indices(points.shape[0])
+    out = np.empty((max(stop - start, 0), points.shape[1]))
+    _knn_kernel(np.ascontiguousarray(points), start, stop, int(k), int(window_rows), int(window_cols), out)
+    return out
 
 
 def remove_statistical_outliers(points_mm: np.ndarray, *, k: int, alpha: float, window_rows: int,
                                 window_cols: int) -> DenoiseResult:
-    """Flag outliers of an organized cloud.
+    """Flag outliers of an organized cloud held whole (the blocks of a pass give the same result).
 
     points_mm : (profiles, columns, 3) float, mm, any frame; NaN rows of 3 mark missing returns.
     k : neighbours per point, from the (2*window_rows+1) x (2*window_cols+1) window around it.
@@ -58,20 +165,11 @@ def remove_statistical_outliers(points_mm: np.ndarray, *, k: int, alpha: float, 
 
     A point with fewer than k neighbours in its window is removed (isolated).
     """
-    points = np.asarray(points_mm)
-    if points.ndim != 3 or points.shape[2] != 3:
-        raise ValueError(f"points_mm must have shape (profiles, columns, 3), got {points.shape}")
-    if k < 1:
-        raise ValueError(f"k must be at least 1, got {k}")
-    if window_rows < 0 or window_cols < 0 or (2 * window_rows + 1) * (2 * window_cols + 1) - 1 < k:
-        raise ValueError(f"a {2 * window_rows + 1} x {2 * window_cols + 1} window holds fewer than k = {k} neighbours")
     if not alpha > 0:
         raise ValueError(f"alpha must be positive, got {alpha}")
-    valid = np.isfinite(points).all(axis=2)
-    mean = _mean_knn_distance(points.astype(np.float64), valid, k, window_rows, window_cols)
-    defined = np.isfinite(mean)
-    if not defined.any():
-        return DenoiseResult(keep=np.zeros(valid.shape, bool), mean_distance_mm=mean, threshold_mm=float("nan"))
-    threshold = float(mean[defined].mean() + alpha * mean[defined].std())
-    keep = defined & (mean <= threshold)
+    mean = mean_knn_distance(points_mm, k=k, window_rows=window_rows, window_cols=window_cols)
+    stats = DistanceStats()
+    stats.add(mean)
+    threshold = stats.threshold_mm(alpha)
+    keep = np.isfinite(mean) & (mean <= threshold)
     return DenoiseResult(keep=keep, mean_distance_mm=mean, threshold_mm=threshold)

@@ -58,5 +58,8 @@ def profile_points(x_mm: np.ndarray, z_mm: np.ndarray, T_world_sensor: np.ndarra
         raise ValueError(f"T_world_sensor must have shape ({x.shape[0]}, 4, 4), got {T.shape}")
     if not np.isfinite(T).all():
         raise ValueError("T_world_sensor holds NaN or inf")
-    local = np.stack([x, np.zeros_like(x), z], axis=-1)
-    return np.einsum("nij,nkj->nki", T[:, :3, :3], local) + T[:, None, :3, 3]
+    # y = 0 in S: the point is x times S's x axis plus z times its z axis, from the origin
+    out = x[..., None] * T[:, None, :3, 0]
+    out += z[..., None] * T[:, None, :3, 2]
+    out += T[:, None, :3, 3]
+    return out

@@ -24,7 +24,7 @@ import numpy as np
 
 from tasks.checks import check_points
 
-__all__ = ["MergeResult", "merge_box_grid"]
+__all__ = ["MergeResult", "CellSums", "merge_box_grid", "cell_sums", "combine_cell_sums", "cell_index_of_keys"]
 
 
 @dataclass(frozen=True)
@@ -110,3 +110,74 @@ def merge_box_grid(points_mm: np.ndarray, *, cell_mm: float, normals: np.ndarray
     merged_sensors = None if sensor_in is None else _cell_mean(sensor_in, inverse, counts)
     return MergeResult(points_mm=merged, normals=merged_normals, sensor_positions_mm=merged_sensors,
                        counts=counts.astype(np.int64), cells=cells, cell_mm=cell)
+
+
+# --- out of core: partial sums per cell, combined later (``cell_sums`` then ``combine_cell_sums``) ---
+
+_KEY_BITS = 21
+_KEY_OFFSET = 1 << (_KEY_BITS - 1)  # cell indices in [-2**20, 2**20): +-104 m at 0.1 mm cells
+_KEY_MASK = (1 << _KEY_BITS) - 1
+
+
+@dataclass(frozen=True)
+class CellSums:
+    """Per-cell partial sums of some points: ``keys`` (m,) int64 packed (i, j, k) cell indices,
+    ascending (the order of (i, j, k)); ``counts`` (m,) int64; ``point_sums`` (m, 3) float64, mm;
+    ``normal_sums`` (m, 3) float64. Sums of several sets of points combine by adding per key."""
+
+    keys: np.ndarray
+    counts: np.ndarray
+    point_sums: np.ndarray
+    normal_sums: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+
+def _pack(ijk: np.ndarray) -> np.ndarray:
+    if ijk.size and (ijk.min() < -_KEY_OFFSET or ijk.max() >= _KEY_OFFSET):
+        raise ValueError(f"cell indices outside +-{_KEY_OFFSET}: the points span too many cells for the cell size")
+    shifted = ijk + _KEY_OFFSET
+    return (shifted[:, 0] << (2 * _KEY_BITS)) | (shifted[:, 1] << _KEY_BITS) | shifted[:, 2]
+
+
+def cell_index_of_keys(keys: np.ndarray) -> np.ndarray:
+    """(m,) packed keys -> (m, 3) int64 cell indices (i, j, k)."""
+    keys = np.asarray(keys, dtype=np.int64)
+    return np.stack([(keys >> (2 * _KEY_BITS)) & _KEY_MASK, (keys >> _KEY_BITS) & _KEY_MASK, keys & _KEY_MASK],
+                    axis=1) - _KEY_OFFSET
+
+
+def _sums_by_key(keys, counts, *values):
+    unique, inverse = np.unique(keys, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    m = len(unique)
+    total = np.bincount(inverse, weights=counts, minlength=m).astype(np.int64) if counts is not None \
+        else np.bincount(inverse, minlength=m).astype(np.int64)
+    sums = [np.stack([np.bincount(inverse, weights=v[:, d], minlength=m) for d in range(3)], axis=1) for v in values]
+    return unique, total, sums
+
+
+def cell_sums(points_mm: np.ndarray, normals: np.ndarray, *, cell_mm: float) -> CellSums:
+    """Partial sums per origin-aligned cell of ``points_mm`` (n, 3) float, mm (finite) and their unit
+    ``normals`` (n, 3); summed in input order (deterministic)."""
+    points = check_points("points_mm", points_mm)
+    normal_in = check_points("normals", normals, len(points))
+    if not (np.isfinite(cell_mm) and cell_mm > 0):
+        raise ValueError(f"cell_mm must be positive and finite, got {cell_mm}")
+    if len(points) == 0:
+        return CellSums(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    keys = _pack(np.floor(points / float(cell_mm)).astype(np.int64))
+    unique, counts, (p, q) = _sums_by_key(keys, None, points, normal_in)
+    return CellSums(unique, counts, p, q)
+
+
+def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
+    """The merged cloud from partial sums (several partials of one cell are added, in input order):
+    each cell's mean point, its normals' mean renormalised (NaN where they cancel), its count."""
+    unique, counts, (p, q) = _sums_by_key(parts.keys, parts.counts, parts.point_sums, parts.normal_sums)
+    length = np.linalg.norm(q, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = np.where(length > 0, q / length, np.nan)
+    return MergeResult(points_mm=p / counts[:, None], normals=normals, sensor_positions_mm=None, counts=counts,
+                       cells=cell_index_of_keys(unique), cell_mm=float(cell_mm))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
-from flows.stages.passes import pass_view
+from flows.stages.passes import grid_pitch_mm, pass_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
@@ -19,6 +19,11 @@ __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext
 
 def _sample_wide(manifest, entry):
     return {"passes": [e.pass_id for _, e in manifest.passes()]}
+
+
+def _sample_wide_grids(manifest, entry):
+    """The passes and the pitch of each one's grid (refine reads the grids thinned by it)."""
+    return {**_sample_wide(manifest, entry), "pitch_mm": [list(grid_pitch_mm(manifest, e)) for _, e in manifest.passes()]}
 
 
 STAGES: tuple[Stage, ...] = (
@@ -30,7 +35,7 @@ STAGES: tuple[Stage, ...] = (
           (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), registration.register, registration.setups_view,
           "match targets between passes, solve all pass poses"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
-          refine.refine, _sample_wide, "all pass poses on targets and overlapping surfaces together"),
+          refine.refine, _sample_wide_grids, "all pass poses on targets and overlapping surfaces together"),
     Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, _sample_wide,
           "box-grid merge in the common frame"),
     Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, _sample_wide,

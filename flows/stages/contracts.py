@@ -17,9 +17,9 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 
 from data_catalog.atomic import atomic_write_text
-from data_catalog.stages import load_arrays, save_arrays
+from data_catalog.stages import ArrayWriter, load_arrays, open_array, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each"]
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each", "zarr_array"]
 
 A = TypeVar("A")
 
@@ -67,6 +67,10 @@ class ArrayFile(Generic[A]):
             raise TypeError(f"{self.name}: expected a {self.schema.__name__}, got {type(value).__name__}")
         save_arrays(Path(out) / self.name, **{n: np.asarray(getattr(value, n)) for n in self.arrays})
 
+    def writer(self, out: Path, *, chunk_rows: int) -> ArrayWriter:
+        """Write the arrays piece by piece (streaming stages); every field must be written."""
+        return _CheckedWriter(Path(out) / self.name, self, chunk_rows)
+
     def read(self, ref: StageRef) -> A:
         """Every array, loaded."""
         loaded = load_arrays(ref.file(self.name), *self.arrays)
@@ -75,6 +79,39 @@ class ArrayFile(Generic[A]):
     def open(self, ref: StageRef) -> A:
         """The arrays as attributes, each loaded when first read (``CLOUD.open(ref).points``)."""
         return _LazyArrays(ref.file(self.name), self.arrays)  # type: ignore[return-value]
+
+
+class _CheckedWriter(ArrayWriter):
+    """An ArrayWriter that accepts only the description's array names."""
+
+    def __init__(self, path: Path, file: "ArrayFile", chunk_rows: int) -> None:
+        super().__init__(path, chunk_rows=chunk_rows)
+        self._file = file
+
+    def _check(self, name: str) -> None:
+        if name not in self._file.arrays:
+            raise KeyError(f"{self._file.name} has no array {name!r} (it has {self._file.arrays})")
+
+    def create(self, name, shape, dtype) -> None:
+        self._check(name)
+        super().create(name, shape, dtype)
+
+    def append(self, name, values) -> None:
+        self._check(name)
+        super().append(name, values)
+
+    def close(self) -> None:
+        """Check every array of the description was created."""
+        missing = [n for n in self._file.arrays if n not in self._group]
+        if missing:
+            raise RuntimeError(f"{self._file.name}: arrays {missing} were never written")
+
+
+def zarr_array(ref: StageRef, file: "ArrayFile", name: str):
+    """One array of a stage's zarr output, opened (not loaded): read it by row ranges."""
+    if name not in file.arrays:
+        raise KeyError(f"{file.name} has no array {name!r} (it has {file.arrays})")
+    return open_array(ref.file(file.name), name)
 
 
 class _LazyArrays:

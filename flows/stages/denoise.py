@@ -1,25 +1,71 @@
-"""Stage ``denoise`` (per pass): ingest the pass (coarse alignment by the robot's poses) and remove
-its statistical outliers."""
+"""Stage ``denoise`` (per pass): ingest the pass (coarse alignment by the robot's poses), remove its
+statistical outliers and give every kept point its normal, streaming the pass in blocks.
+
+Two passes over the pass file: the first computes each point's mean neighbour distance block by
+block (kept in a scratch file beside the build folder) and the pass's statistics; the second
+applies the threshold, fits the normals (their windows reach into the neighbouring blocks' rows)
+and writes the outputs chunk by chunk. Peak memory is that of one block, whatever the pass's
+length; the outputs are the same bytes for any block size.
+"""
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from flows.stages.outputs import CLOUD, DenoisedPass
-from flows.stages.passes import load_pass_points
-from tasks.denoise import remove_statistical_outliers
+from flows.stages.outputs import CLOUD
+from flows.stages.passes import block_rows, grid_pitch_mm, open_entry, pass_blocks
+from tasks.denoise import DistanceStats, check_window, mean_knn_distance
+from tasks.normals import grid_normals, normal_window
 
 __all__ = ["denoise"]
+
+# Block size override for tests (profiles per block); None: ``block_rows``.
+BLOCK_ROWS: int | None = None
 
 
 def denoise(ctx) -> dict[str, Any]:
     s = ctx.settings
-    _, T, points = load_pass_points(ctx.sample_dir, ctx.manifest, ctx.entry)
-    result = remove_statistical_outliers(points, k=s.k, alpha=s.alpha, window_rows=s.window_rows,
-                                         window_cols=s.window_cols)
-    kept = np.where(result.keep[..., None], points, np.nan).astype(np.float32)
-    CLOUD.write(ctx.out, DenoisedPass(points=kept, sensor_origins=T[:, :3, 3]))
-    return {"points_in": int(np.isfinite(points).all(axis=-1).sum()), "points_out": int(result.keep.sum()),
-            "removed": result.n_removed, "threshold_mm": result.threshold_mm}
+    check_window(k=s.k, window_rows=s.window_rows, window_cols=s.window_cols)
+    reader = open_entry(ctx.sample_dir, ctx.entry)
+    n, m = reader.n_profiles, reader.n_columns
+    rows = BLOCK_ROWS or block_rows(m, chunk_profiles=reader.chunk_profiles)
+    nr, nc = normal_window(s.normal_window_mm, grid_pitch_mm(ctx.manifest, ctx.entry))
+    stats = DistanceStats()
+    points_in = 0
+    reference = None  # the sensor at the first profile: normals sum coordinates relative to it
+    with tempfile.TemporaryDirectory(prefix=".scratch-", dir=ctx.out.parent) as scratch:
+        distances = Path(scratch) / "mean_distance.f8"
+        with open(distances, "wb") as f:
+            for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=s.window_rows, rows=rows,
+                                     reader=reader):
+                md = mean_knn_distance(block.points, k=s.k, window_rows=s.window_rows, window_cols=s.window_cols,
+                                       rows=block.core)
+                stats.add(md)
+                if reference is None:
+                    reference = block.T_world_sensor[0, :3, 3].copy()
+                points_in += int(np.isfinite(block.points[block.core]).all(axis=-1).sum())
+                f.write(md.tobytes())
+        threshold = stats.threshold_mm(s.alpha)
+        out = CLOUD.writer(ctx.out, chunk_rows=reader.chunk_profiles)
+        out.create("points", (n, m, 3), np.float32)
+        out.create("normals", (n, m, 3), np.float32)
+        out.create("sensor_origins", (n, 3), np.float64)
+        kept_total = 0
+        for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=nr, rows=rows, reader=reader):
+            md = np.fromfile(distances, dtype=np.float64, count=(block.stop - block.start) * m,
+                             offset=block.start * m * 8).reshape(-1, m)
+            keep = np.isfinite(md) & (md <= threshold)
+            kept = np.where(keep[..., None], block.points, np.nan)
+            normals = grid_normals(kept, block.T_world_sensor[:, :3, 3], window_rows=nr, window_cols=nc,
+                                   min_points=s.normal_min_points, reference_mm=reference, rows=block.core)
+            out.write("points", block.core_start, kept[block.core])
+            out.write("normals", block.core_start, normals)
+            out.write("sensor_origins", block.core_start, block.T_world_sensor[block.core, :3, 3])
+            kept_total += int(keep[block.core].sum())
+        out.close()
+    return {"points_in": points_in, "points_out": kept_total, "removed": points_in - kept_total,
+            "threshold_mm": threshold, "normal_window": [2 * nr + 1, 2 * nc + 1]}

@@ -1,29 +1,99 @@
-"""Stage ``merge``: every pass into the common frame, merged by the box-grid filter."""
+"""Stage ``merge``: every pass into the common frame, merged by the box-grid filter, out of core.
+
+Each pass is read in blocks of profiles; a block's points and normals go into the common frame and
+are summed per cell (``tasks.merge.cell_sums``, a few times fewer records than points at the
+paper's resolution); the partial sums are spilled to scratch files by slab of cells along x. Then
+each slab is combined (``combine_cell_sums``) and appended to the output, slab after slab, in
+(i, j, k) cell order. Memory: one block, the spill buffers and one slab, whatever the number of
+passes or points.
+"""
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from flows.stages.outputs import CLOUD, MERGED, MergedCloud, REFINED
-from tasks.merge import merge_box_grid
+from flows.stages.outputs import CLOUD, MERGED, REFINED
+from flows.stages.contracts import zarr_array
+from tasks.merge import CellSums, cell_sums, combine_cell_sums
 
 __all__ = ["merge"]
 
+SLAB_CELLS = 128  # cells along x per spill file
+_READ_ROWS_POINTS = 1 << 20  # points per block read from a denoised pass
+_BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
+_RECORD = np.dtype([("key", "<i8"), ("count", "<i8"), ("p", "<f8", 3), ("q", "<f8", 3)])
+
+
+class _Spill:
+    """Partial cell sums, appended per slab to files in ``folder`` (buffered, in arrival order)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.buffers: dict[int, list[np.ndarray]] = {}
+        self.buffered = 0
+        self.records: dict[int, int] = {}
+
+    def add(self, part: CellSums, slab: np.ndarray) -> None:
+        rec = np.empty(len(part), _RECORD)
+        rec["key"], rec["count"], rec["p"], rec["q"] = part.keys, part.counts, part.point_sums, part.normal_sums
+        order = np.argsort(slab, kind="stable")
+        bounds = np.flatnonzero(np.diff(slab[order])) + 1
+        for chunk in np.split(order, bounds):
+            if len(chunk):
+                s = int(slab[chunk[0]])
+                self.buffers.setdefault(s, []).append(rec[chunk])
+                self.records[s] = self.records.get(s, 0) + len(chunk)
+        self.buffered += len(rec)
+        if self.buffered > _BUFFER_RECORDS:
+            self.flush()
+
+    def flush(self) -> None:
+        for s, parts in self.buffers.items():
+            with open(self.folder / f"{s}.bin", "ab") as f:
+                for p in parts:
+                    f.write(p.tobytes())
+        self.buffers, self.buffered = {}, 0
+
+    def slabs(self):
+        self.flush()
+        for s in sorted(self.records):
+            rec = np.fromfile(self.folder / f"{s}.bin", dtype=_RECORD)
+            (self.folder / f"{s}.bin").unlink()
+            yield CellSums(rec["key"], rec["count"], rec["p"], rec["q"])
+
 
 def merge(ctx) -> dict[str, Any]:
+    cell = ctx.settings.cell_mm
     T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
-    points, sensors = [], []
-    for ref, T in zip(ctx.inputs["denoise"], T_all):
-        cloud = CLOUD.read(ref)
-        grid = cloud.points.astype(np.float64)
-        valid = np.isfinite(grid).all(axis=-1)
-        rows = np.nonzero(valid)[0]
-        points.append(grid[valid] @ T[:3, :3].T + T[:3, 3])
-        sensors.append(cloud.sensor_origins[rows] @ T[:3, :3].T + T[:3, 3])
-    result = merge_box_grid(np.concatenate(points), cell_mm=ctx.settings.cell_mm,
-                            sensor_positions_mm=np.concatenate(sensors))
-    MERGED.write(ctx.out, MergedCloud(points=result.points_mm, sensor_positions=result.sensor_positions_mm,
-                                      counts=result.counts))
-    return {"points_in": int(sum(len(p) for p in points)), "points_out": result.n_points}
+    points_in = 0
+    with tempfile.TemporaryDirectory(prefix=".scratch-", dir=ctx.out.parent) as scratch:
+        spill = _Spill(Path(scratch))
+        for ref, T in zip(ctx.inputs["denoise"], T_all):
+            points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
+            n, m = points.shape[:2]
+            step = max(points.chunks[0], _READ_ROWS_POINTS // max(m, 1) // points.chunks[0] * points.chunks[0])
+            R, t = T[:3, :3], T[:3, 3]
+            for start in range(0, n, step):
+                p = np.asarray(points[start:start + step]).reshape(-1, 3)
+                valid = np.isfinite(p).all(axis=1)
+                p = p[valid].astype(np.float64) @ R.T + t
+                q = np.asarray(normals[start:start + step]).reshape(-1, 3)[valid].astype(np.float64) @ R.T
+                points_in += len(p)
+                part = cell_sums(p, q, cell_mm=cell)
+                spill.add(part, (part.keys >> 42) // SLAB_CELLS)
+        out = MERGED.writer(ctx.out, chunk_rows=1 << 18)
+        points_out = 0
+        for part in spill.slabs():
+            merged = combine_cell_sums(part, cell_mm=cell)
+            out.append("points", merged.points_mm)
+            out.append("normals", merged.normals.astype(np.float32))
+            out.append("counts", merged.counts.astype(np.int32))
+            points_out += merged.n_points
+        if points_out == 0:
+            raise ValueError("no points to merge: every pass is empty after denoising")
+        out.close()
+    return {"points_in": int(points_in), "points_out": int(points_out)}

@@ -1,12 +1,14 @@
-"""Stage ``mesh``: normals oriented toward the sensors, then MeshLab's screened Poisson surface."""
+"""Stage ``mesh``: MeshLab's screened Poisson surface on the specimen's merged points and their
+normals (fitted per pass on the organized grid, in stage ``denoise``, and merged per cell)."""
 
 from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 
 from flows.stages.outputs import MESH, Mesh, SPECIMEN
-from tasks.mesh import estimate_normals, screened_poisson
+from tasks.mesh import screened_poisson
 
 __all__ = ["mesh"]
 
@@ -14,9 +16,9 @@ __all__ = ["mesh"]
 def mesh(ctx) -> dict[str, Any]:
     s = ctx.settings
     cloud = SPECIMEN.read(ctx.inputs["segment"])
-    normals = estimate_normals(cloud.points, cloud.sensor_positions, k=s.normals_k)
-    surface = screened_poisson(cloud.points, normals, depth=s.poisson_depth, samples_per_node=s.samples_per_node,
-                               point_weight=s.point_weight, scale=s.poisson_scale)
+    surface = screened_poisson(cloud.points, cloud.normals.astype(np.float64), depth=s.poisson_depth,
+                               samples_per_node=s.samples_per_node, point_weight=s.point_weight,
+                               scale=s.poisson_scale)
     MESH.write(ctx.out, Mesh(vertices=surface.vertices, triangles=surface.triangles))
     r = surface.report
     return {"points": int(len(cloud.points)), "vertices": r.n_vertices, "triangles": r.n_triangles,

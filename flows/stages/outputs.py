@@ -17,6 +17,7 @@ from flows.stages.contracts import ArrayFile, JsonFile, MeshFile
 @dataclass(frozen=True)
 class DenoisedPass:
     points: np.ndarray  # (profiles, columns, 3) float32, mm, coarse world frame; NaN: no return or removed
+    normals: np.ndarray  # (profiles, columns, 3) float32, unit, toward the sensor; NaN where points is
     sensor_origins: np.ndarray  # (profiles, 3) float64, mm: the sensor's origin at each profile
 
 CLOUD = ArrayFile("cloud.zarr", DenoisedPass)
@@ -68,8 +69,8 @@ REFINE_SUMMARY = JsonFile("refine.json")  # surface pairs (points, RMS), step pe
 @dataclass(frozen=True)
 class MergedCloud:
     points: np.ndarray  # (n, 3) float64, mm, common frame: one point per occupied cell
-    sensor_positions: np.ndarray  # (n, 3) float64, mm: where the sensors that saw the cell were (mean)
-    counts: np.ndarray  # (n,) int64: measured points merged into the cell
+    normals: np.ndarray  # (n, 3) float32, unit: the cell's points' normals averaged
+    counts: np.ndarray  # (n,) int32: measured points merged into the cell
 
 MERGED = ArrayFile("merged.zarr", MergedCloud)
 
@@ -78,7 +79,7 @@ MERGED = ArrayFile("merged.zarr", MergedCloud)
 @dataclass(frozen=True)
 class SpecimenCloud:
     points: np.ndarray  # (n, 3) float64, mm, common frame: the specimen's merged points
-    sensor_positions: np.ndarray  # (n, 3) float64, mm
+    normals: np.ndarray  # (n, 3) float32, unit, outward (toward the sensors)
 
 SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
 

@@ -1,30 +1,103 @@
-"""A pass as the per-pass stages read it: its data, its sensor poses and its organized points in
-the coarse world frame (the robot's logged poses, or else its nominal sweep)."""
+"""A pass as the per-pass stages read it, block by block: its data, its sensor poses and its
+organized points in the coarse world frame (the robot's logged poses, or else its nominal sweep).
+
+A per-pass stage never holds its whole pass: ``pass_blocks`` yields runs of profiles of a fixed
+number of points (whatever the pass's length) with the halo rows a window around each profile
+needs, so a stage's peak memory is that of one block.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from data_catalog.passes import PassData, read_pass
+from data_catalog.passes import PassData, PassReader, open_pass
 from schemas.manifest import PassEntry, SampleManifest
 from tasks.ingest import profile_points, sensor_poses
 
-__all__ = ["load_pass_points", "pass_view"]
+__all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "grid_pitch_mm",
+           "load_pass_points", "pass_view"]
+
+# Points per block (about 2**20): ~100 MB of working arrays in the heaviest per-pass stage.
+# Results do not depend on it (each stage's result is defined per profile and its window).
+BLOCK_POINTS = 1 << 20
 
 
-def load_pass_points(sample_dir: Path, manifest: SampleManifest,
-                     entry: PassEntry) -> tuple[PassData, np.ndarray, np.ndarray]:
-    """The pass, T_world_sensor (profiles, 4, 4) and its points (profiles, columns, 3), mm."""
-    data = read_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+@dataclass(frozen=True)
+class PassBlock:
+    """Profiles ``start`` to ``stop`` of a pass (``data``, ``T_world_sensor`` (rows, 4, 4),
+    ``points`` (rows, columns, 3) float64 mm, coarse world frame, NaN: no return), of which rows
+    ``core`` (relative to ``start``) are the block's own and the others its halo."""
+
+    start: int
+    stop: int
+    core: slice
+    data: PassData
+    T_world_sensor: np.ndarray
+    points: np.ndarray
+
+    @property
+    def core_start(self) -> int:
+        return self.start + self.core.start
+
+    @property
+    def core_stop(self) -> int:
+        return self.start + self.core.stop
+
+
+def open_entry(sample_dir: Path, entry: PassEntry) -> PassReader:
+    return open_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+
+
+def block_rows(n_columns: int, *, chunk_profiles: int = 1, points: int = BLOCK_POINTS) -> int:
+    """Profiles per block: about ``points`` points, a whole number of the store's chunks."""
+    rows = max(1, points // max(n_columns, 1))
+    return max(chunk_profiles, rows // chunk_profiles * chunk_profiles)
+
+
+def _block(reader: PassReader, manifest: SampleManifest, entry: PassEntry, start: int, stop: int,
+           core: slice) -> PassBlock:
+    data = reader.read(start, stop)
     try:
         T = sensor_poses(manifest.scanner.T_flange_sensor, timestamp_s=data.timestamp_s,
                          T_world_flange=data.T_world_flange, motion=entry.nominal_motion)
     except ValueError as exc:
-        raise ValueError(f"pass {entry.pass_id}: {exc}") from None
-    return data, T, profile_points(data.x_mm, data.z_mm, T)
+        raise ValueError(f"pass {entry.pass_id}: profiles {start}-{stop - 1}: {exc}") from None
+    return PassBlock(start=start, stop=stop, core=core, data=data, T_world_sensor=T,
+                     points=profile_points(data.x_mm, data.z_mm, T))
+
+
+def pass_blocks(sample_dir: Path, manifest: SampleManifest, entry: PassEntry, *, halo_rows: int = 0,
+                rows: int | None = None, reader: PassReader | None = None) -> Iterator[PassBlock]:
+    """The pass in consecutive blocks of ``rows`` profiles (default: ``block_rows``), each with up
+    to ``halo_rows`` profiles before and after it (fewer at the pass's ends)."""
+    reader = reader or open_entry(sample_dir, entry)
+    n = reader.n_profiles
+    step = rows or block_rows(reader.n_columns, chunk_profiles=reader.chunk_profiles)
+    for core_start in range(0, n, step):
+        core_stop = min(core_start + step, n)
+        start, stop = max(0, core_start - halo_rows), min(n, core_stop + halo_rows)
+        yield _block(reader, manifest, entry, start, stop, slice(core_start - start, core_stop - start))
+
+
+def grid_pitch_mm(manifest: SampleManifest, entry: PassEntry) -> tuple[float, float]:
+    """The nominal spacing of a pass's organized grid, mm: between profiles (the sweep's speed over
+    the profile rate) and between columns (the scanner's spacing at its reference distance)."""
+    motion = entry.nominal_motion
+    return motion.speed_mm_s / motion.profile_rate_hz, manifest.scanner.x_spacing_mm
+
+
+def load_pass_points(sample_dir: Path, manifest: SampleManifest,
+                     entry: PassEntry) -> tuple[PassData, np.ndarray, np.ndarray]:
+    """The whole pass, T_world_sensor (profiles, 4, 4) and its points (profiles, columns, 3), mm.
+    For tests and tools on small passes; the stages stream blocks (``pass_blocks``)."""
+    reader = open_entry(sample_dir, entry)
+    block = _block(reader, manifest, entry, 0, reader.n_profiles, slice(0, reader.n_profiles))
+    return block.data, block.T_world_sensor, block.points
 
 
 def pass_view(manifest: SampleManifest, entry: PassEntry | None) -> dict[str, Any]:

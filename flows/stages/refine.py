@@ -7,12 +7,24 @@ from typing import Any
 
 import numpy as np
 
+from flows.stages.contracts import zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from flows.stages.passes import grid_pitch_mm
 from tasks.refine import refine_poses, surface_sample
 
 __all__ = ["refine"]
 
+_READ_POINTS = 1 << 20
 
+
+def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
+    """A denoised pass's points, every ``stride`` profile and column, read block by block."""
+    points = zarr_array(ref, CLOUD, "points")
+    n, m = points.shape[:2]
+    step = max(points.chunks[0], _READ_POINTS // max(m, 1) // points.chunks[0] * points.chunks[0])
+    rs, cs = stride
+    step = max(rs, step // rs * rs)  # blocks start on a kept profile
+    return np.concatenate([np.asarray(points[a:a + step])[::rs, ::cs] for a in range(0, n, step)])
 
 
 def refine(ctx) -> dict[str, Any]:
@@ -24,10 +36,13 @@ def refine(ctx) -> dict[str, Any]:
     T = T_targets
     target_res = reg.residual_mm[inlier]
     if rc.enabled:
-        samples = [surface_sample(CLOUD.open(r).points, spacing_mm=rc.sample_spacing_mm,
-                                  normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
-                                  max_plane_rms_mm=rc.max_plane_rms_mm)
-                   for r in ctx.inputs["denoise"]]
+        samples = []
+        for (_, entry), r in zip(ctx.manifest.passes(), ctx.inputs["denoise"]):
+            row_mm, col_mm = grid_pitch_mm(ctx.manifest, entry)
+            stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
+            samples.append(surface_sample(_thinned_grid(r, stride), spacing_mm=rc.sample_spacing_mm,
+                                          normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
+                                          max_plane_rms_mm=rc.max_plane_rms_mm))
         result = refine_poses(samples, T_targets, reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier],
                               max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm,
                               max_distance_mm=rc.max_distance_mm, final_distance_mm=rc.final_distance_mm,

@@ -78,14 +78,24 @@ def test_a_link_longer_than_the_gap_joins_two_sheets():
     assert joined.n_components == 1 and joined.keep.all()
 
 
-def test_same_components_as_open3d_dbscan_with_one_point():
+def test_cell_components_coarsen_open3d_dbscan_with_one_point():
+    """Open3D's components at eps = link (points within link linked) each lie inside one of ours
+    (cells touching); ours join points at most 2*sqrt(3)*link apart, so DBSCAN at that eps joins
+    at least as much as ours."""
     rng = np.random.default_rng(5)
-    points = rng.uniform(0, 30, (4000, 3))  # random blobs: many components of all sizes
-    result = keep_specimen_components(points, link_mm=1.5, min_extent_mm=0.0)
-    theirs = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points)).cluster_dbscan(1.5, 1))
-    assert result.n_components == theirs.max() + 1 > 10
-    pairs = np.unique(np.stack([result.labels, theirs], axis=1), axis=0)
-    assert len(pairs) == result.n_components  # a one-to-one map between the two labellings
+    points = rng.uniform(0, 60, (4000, 3))  # sparse random points: many components of all sizes
+    link = 1.5
+    result = keep_specimen_components(points, link_mm=link, min_extent_mm=0.0)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    fine = np.asarray(cloud.cluster_dbscan(link, 1))
+    coarse = np.asarray(cloud.cluster_dbscan(2 * np.sqrt(3) * link + 1e-9, 1))
+    assert fine.max() + 1 >= result.n_components >= coarse.max() + 1
+    assert result.n_components > 100
+    for theirs in (fine,):  # each fine component maps into exactly one of ours
+        pairs = np.unique(np.stack([theirs, result.labels], axis=1), axis=0)
+        assert len(pairs) == theirs.max() + 1
+    pairs = np.unique(np.stack([result.labels, coarse], axis=1), axis=0)
+    assert len(pairs) == result.n_components  # each of ours inside one coarse component
     assert result.keep.all()
 
 
