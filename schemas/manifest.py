@@ -162,3 +162,9 @@ class SampleManifest(StrictModel):
     def passes(self) -> list[tuple[str, PassEntry]]:
         """All passes as ``(setup_name, entry)`` in manifest order."""
         return [(s.name, p) for s in self.setups for p in s.passes]
+
+    def grid_pitch_mm(self, entry: PassEntry) -> tuple[float, float]:
+        """The nominal spacing of a pass's organized grid, mm: between profiles (the sweep's speed
+        over the profile rate) and between columns (the scanner's spacing at its reference distance)."""
+        motion = entry.nominal_motion
+        return motion.speed_mm_s / motion.profile_rate_hz, self.scanner.x_spacing_mm

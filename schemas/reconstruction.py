@@ -71,7 +71,16 @@ class RefineConfig(StrictModel):
 
 
 class MergeConfig(StrictModel):
+    """Box-grid merge at ``cell_mm`` where the surface bends, at ``coarse_factor`` times that where
+    it is flat (non-uniform resolution; 1: uniform, the paper's)."""
+
     cell_mm: float = Field(default=0.1, gt=0, le=10, description="box-grid filter cell (paper: 0.1 mm)")
+    coarse_factor: int = Field(default=4, ge=1, le=16, description=(
+        "a coarse cell is this many fine cells on an edge; its fine cells merge into one point where flat"))
+    flat_normal_deg: float = Field(default=4.0, gt=0, le=90, description=(
+        "flat: every fine cell's normal within this angle of the coarse cell's mean normal"))
+    flat_deviation_mm: float = Field(default=0.01, gt=0, le=1, description=(
+        "flat: every fine cell's point within this distance of the coarse cell's plane"))
 
 
 class SegmentConfig(StrictModel):

@@ -24,7 +24,8 @@ import numpy as np
 
 from tasks.checks import check_points
 
-__all__ = ["MergeResult", "CellSums", "merge_box_grid", "cell_sums", "combine_cell_sums", "cell_index_of_keys"]
+__all__ = ["MergeResult", "CellSums", "AdaptiveCloud", "merge_box_grid", "cell_sums", "combine_cell_sums",
+           "cell_index_of_keys", "coarsen_flat_cells"]
 
 
 @dataclass(frozen=True)
@@ -181,3 +182,65 @@ def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
         normals = np.where(length > 0, q / length, np.nan)
     return MergeResult(points_mm=p / counts[:, None], normals=normals, sensor_positions_mm=None, counts=counts,
                        cells=cell_index_of_keys(unique), cell_mm=float(cell_mm))
+
+
+# --- non-uniform resolution: fine cells where the surface bends, coarse cells where it is flat ---
+
+@dataclass(frozen=True)
+class AdaptiveCloud:
+    """A merged cloud at two resolutions: ``points_mm`` (m, 3) float64, ``normals`` (m, 3) unit,
+    ``counts`` (m,) int64 measured points per output point, ``fine`` (m,) bool whether the point is
+    a fine cell (a bent neighbourhood) or a whole coarse cell (a flat one); sorted by coarse cell,
+    then fine cell."""
+
+    points_mm: np.ndarray
+    normals: np.ndarray
+    counts: np.ndarray
+    fine: np.ndarray
+
+
+def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: float,
+                       max_deviation_mm: float) -> AdaptiveCloud:
+    """Merge the fine cells of each coarse cell (``factor`` fine cells on an edge) into one point
+    where the surface in it is flat: every fine normal within ``max_normal_deg`` of the coarse
+    cell's mean normal, and every fine point within ``max_deviation_mm`` of the plane through the
+    mean point. Elsewhere (weld toes, grooves, undercuts, edges, sticker rims) the fine cells stay.
+
+    A coarse cell's mean is the count-weighted mean of its fine cells (the mean of all the measured
+    points in it). ``merged`` needs normals; cells without one (NaN) keep their coarse cell fine.
+    ``factor`` 1 returns the fine cloud unchanged (all ``fine``).
+    """
+    if merged.normals is None:
+        raise ValueError("coarsening needs the merged normals")
+    if not (isinstance(factor, (int, np.integer)) and factor >= 1):
+        raise ValueError(f"factor must be an integer >= 1, got {factor}")
+    n = merged.n_points
+    if factor == 1 or n == 0:
+        return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool))
+    coarse = np.floor_divide(merged.cells, factor)
+    keys = _pack(coarse)
+    order = np.argsort(keys, kind="stable")  # fine cells stay in (i, j, k) order within a coarse cell
+    keys, cells_p, cells_n, counts = keys[order], merged.points_mm[order], merged.normals[order], merged.counts[order]
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    group = np.cumsum(np.r_[False, keys[1:] != keys[:-1]])
+    w = counts.astype(np.float64)
+    total = np.add.reduceat(w, starts)
+    mean_p = np.add.reduceat(cells_p * w[:, None], starts, axis=0) / total[:, None]
+    has_normal = np.isfinite(cells_n).all(axis=1)
+    safe_n = np.where(has_normal[:, None], cells_n, 0.0)
+    sum_n = np.add.reduceat(safe_n * w[:, None], starts, axis=0)
+    length = np.linalg.norm(sum_n, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_n = sum_n / length[:, None]
+    cos_dev = np.einsum("ij,ij->i", safe_n, mean_n[group])
+    off_plane = np.abs(np.einsum("ij,ij->i", cells_p - mean_p[group], mean_n[group]))
+    bent = ~has_normal | ~(cos_dev >= np.cos(np.radians(max_normal_deg))) | ~(off_plane <= max_deviation_mm)
+    flat = ~np.logical_or.reduceat(bent, starts) & (length > 0)
+    keep_fine = ~flat[group]
+    first = np.zeros(len(keys), bool)
+    first[starts] = True
+    take = keep_fine | first  # each flat group shows once, at its first fine cell
+    out_p = np.where(keep_fine[:, None], cells_p, mean_p[group])[take]
+    out_n = np.where(keep_fine[:, None], cells_n, mean_n[group])[take]
+    out_c = np.where(keep_fine, counts, total[group].astype(np.int64))[take]
+    return AdaptiveCloud(points_mm=out_p, normals=out_n, counts=out_c, fine=keep_fine[take])

@@ -24,12 +24,14 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 import pymeshlab
+from scipy.spatial import cKDTree
 
 from tasks.checks import check_points
 
 _MESHLAB = threading.Lock()
 
-__all__ = ["MeshReport", "SurfaceResult", "estimate_normals", "mesh_report", "screened_poisson", "write_mesh"]
+__all__ = ["MeshReport", "SurfaceResult", "estimate_normals", "flagged_vertices", "mesh_report", "screened_poisson",
+           "write_mesh"]
 
 
 @dataclass(frozen=True)
@@ -253,6 +255,20 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         trim += ": returned the open, trimmed mesh"
     return SurfaceResult(vertices=cut_vertices, triangles=cut_triangles, vertex_density=cut_density, report=cut_report,
                          trimmed=True, n_trimmed_triangles=n_trimmed, note="; ".join([*notes, trim]))
+
+
+def flagged_vertices(vertices: np.ndarray, points_mm: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """(v,) bool: the flag of the point nearest to each vertex (e.g. which resolution zone of the
+    merged cloud a mesh vertex lies in). vertices (v, 3), points_mm (n, 3) mm, flags (n,) bool."""
+    v = check_points("vertices", vertices)
+    points = check_points("points_mm", points_mm)
+    flags = np.asarray(flags, dtype=bool)
+    if flags.shape != (len(points),):
+        raise ValueError(f"flags must have one entry per point ({len(points)}), got shape {flags.shape}")
+    if len(points) == 0:
+        raise ValueError("points_mm is empty")
+    _, nearest = cKDTree(points).query(v, k=1, workers=1)
+    return flags[nearest]
 
 
 def write_mesh(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray, *, binary: bool = True) -> None:

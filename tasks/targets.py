@@ -9,6 +9,13 @@
    a circle of the known radius is fitted to those edge points in the plane (least squares).
 3. A quality figure per target: edge-fit RMS, the share of the rim that was seen, the radius a
    free fit finds. Circles cut by the pass border, shadows or glare fail these checks.
+
+The steps also run on a pass fed profile block by profile block, in memory that does not grow
+with the pass (a stage never holds a whole pass): ``GridSpacing`` (the point spacing, from a fixed
+sample of profiles), ``search_grid`` (the search's pixel and window sizes), ``HoughImage`` (the
+resampled image, built row by row), ``find_circles``, then ``refine_target`` on each circle's
+window (``SearchGrid.window``) alone. ``detect_targets`` runs the same steps on a whole pass; the
+results are the same bytes however the pass is split into blocks.
 """
 
 from __future__ import annotations
@@ -19,9 +26,13 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Target", "TargetDetection", "find_circles", "detect_targets"]
+__all__ = ["Target", "TargetDetection", "TargetRefinement", "SearchGrid", "GridSpacing", "HoughImage",
+           "search_grid", "find_circles", "refine_target", "detect_targets"]
 
 _RIM_BINS = 24
+_REJECTIONS = ("rim", "fit", "radius", "points")
+_SPACING_STRIDE = 16  # GridSpacing samples every 16th profile ...
+_SPACING_PROFILES = 128  # ... or fewer, at most this many
 
 
 @dataclass(frozen=True)
@@ -38,17 +49,227 @@ class Target:
 
 
 @dataclass(frozen=True)
+class TargetRefinement:
+    """One Hough circle refined: its ``target``, or why it was rejected (``rejected``: one of
+    "rim", "fit", "radius", "points"), the other one None."""
+
+    target: Target | None
+    rejected: str | None
+
+
+@dataclass(frozen=True)
 class TargetDetection:
     targets: list[Target]
     n_circles: int  # Hough candidates before refinement
     rejected: dict[str, int]  # reason -> count
     pixel_mm: float  # square pixel size the search ran at
 
+    @classmethod
+    def from_refinements(cls, refinements: list[TargetRefinement], *, pixel_mm: float) -> TargetDetection:
+        """The detection of a pass from its circles' refinements, in the circles' order."""
+        rejected = dict.fromkeys(_REJECTIONS, 0)
+        for r in refinements:
+            if r.rejected is not None:
+                rejected[r.rejected] += 1
+        return cls(targets=[r.target for r in refinements if r.target is not None], n_circles=len(refinements),
+                   rejected=rejected, pixel_mm=pixel_mm)
 
-def _spacing(points: np.ndarray, axis: int) -> float:
-    d = np.linalg.norm(np.diff(points, axis=axis), axis=-1)
-    d = d[np.isfinite(d)]
-    return float(np.median(d)) if d.size else float("nan")
+
+class GridSpacing:
+    """The point spacing of a pass's organized grid, mm: the median 3-D distance between
+    neighbouring profiles and between neighbouring columns, over a fixed sample of the pass:
+    profiles r = 0, s, 2 s, ... (s = 16, or more so that at most 128 profiles are sampled), the
+    column neighbours within each and the pairs (r, r + 1). The sample depends on the pass's length
+    only, so the pass may be fed in any consecutive runs of profiles (``add``, in order), and what
+    is kept does not grow past 128 sampled profiles.
+
+    n_profiles : the pass's number of profiles (>= 1).
+    """
+
+    def __init__(self, n_profiles: int) -> None:
+        if not (isinstance(n_profiles, (int, np.integer)) and n_profiles >= 1):
+            raise ValueError(f"n_profiles must be a positive integer, got {n_profiles!r}")
+        self.n_profiles = int(n_profiles)
+        self.stride = max(_SPACING_STRIDE, -(-self.n_profiles // _SPACING_PROFILES))
+        self._next = 0
+        self._rows: list[np.ndarray] = []
+        self._cols: list[np.ndarray] = []
+
+    def add(self, points: np.ndarray, *, start: int, stop: int | None = None) -> None:
+        """Sample profiles ``start`` to ``stop`` (exclusive; default: all of ``points``), the next
+        ones after the previous call's.
+
+        points : (rows, columns, 3) float, mm, NaN missing: the pass's profiles from ``start`` on,
+            holding profile ``stop`` too unless ``stop`` is the end of the pass (a sampled profile's
+            partner across the profiles).
+        """
+        points = np.asarray(points)
+        stop = start + len(points) if stop is None else stop
+        if points.ndim != 3 or points.shape[2] != 3:
+            raise ValueError(f"points must be (rows, columns, 3), got shape {points.shape}")
+        if start != self._next or not start <= stop <= self.n_profiles:
+            raise ValueError(f"profiles {start}:{stop} do not follow profile {self._next} of {self.n_profiles}")
+        if len(points) < min(stop + 1, self.n_profiles) - start:
+            raise ValueError(f"profiles {start}:{stop}: points hold {len(points)} profiles, "
+                             f"{min(stop + 1, self.n_profiles) - start} needed (the next one too)")
+        first = -(-start // self.stride) * self.stride
+        sampled = np.arange(first, stop, self.stride) - start
+        paired = sampled[sampled + start + 1 < self.n_profiles]
+        self._cols.append(_distances(np.diff(points[sampled], axis=1)))
+        self._rows.append(_distances(points[paired + 1] - points[paired]))
+        self._next = stop
+
+    def spacing_mm(self) -> tuple[float, float]:
+        """(between profiles, between columns), mm; NaN where the sample holds no pair of points."""
+        if self._next != self.n_profiles:
+            raise ValueError(f"profiles {self._next}:{self.n_profiles} were never added")
+        return _median(self._rows), _median(self._cols)
+
+
+def _distances(d: np.ndarray) -> np.ndarray:
+    """(k,) finite lengths of the (..., 3) differences ``d``."""
+    n = np.linalg.norm(d.reshape(-1, 3), axis=-1)
+    return n[np.isfinite(n)]
+
+
+def _median(parts: list[np.ndarray]) -> float:
+    values = np.concatenate(parts) if parts else np.zeros(0)
+    return float(np.median(values)) if values.size else float("nan")
+
+
+@dataclass(frozen=True)
+class SearchGrid:
+    """Where a pass's circles are searched (``search_grid``): its grid of ``shape`` (profiles,
+    columns), ``spacing_mm`` (between profiles, between columns) apart, resampled to square pixels
+    of ``pixel_mm`` (an image of ``image_shape`` (rows, columns)); the window a circle is refined in
+    reaches ``half_rows`` profiles and ``half_cols`` columns either side of its centre (1.6
+    sticker radii, plus one)."""
+
+    shape: tuple[int, int]
+    spacing_mm: tuple[float, float]
+    radius_mm: float
+    pixel_mm: float
+    image_shape: tuple[int, int]
+    half_rows: int
+    half_cols: int
+
+    @property
+    def radius_px(self) -> float:
+        return self.radius_mm / self.pixel_mm
+
+    def grid_position(self, circle: np.ndarray) -> tuple[float, float]:
+        """(profile, column) of a Hough circle's centre (x, y image pixels; pixel centres at whole
+        numbers both ways): each image pixel is the area mean of the grid cells it covers."""
+        (h, w), (rows, cols) = self.shape, self.image_shape
+        return (float(circle[1]) + 0.5) * h / rows - 0.5, (float(circle[0]) + 0.5) * w / cols - 0.5
+
+    def centre_row(self, row: float) -> int:
+        """The profile a circle at ``row`` (``grid_position``) is refined around, 0..profiles-1."""
+        return min(max(int(np.floor(row)), 0), self.shape[0] - 1)
+
+    def window(self, row: float, col: float) -> tuple[slice, slice]:
+        """The profiles and columns a circle at (``row``, ``col``) is refined in, inside the grid."""
+        (h, w), r = self.shape, self.centre_row(row)
+        c = min(max(int(np.floor(col)), 0), w - 1)
+        return (slice(max(r - self.half_rows, 0), min(r + self.half_rows + 1, h)),
+                slice(max(c - self.half_cols, 0), min(c + self.half_cols + 1, w)))
+
+
+def search_grid(shape: tuple[int, int], spacing_mm: tuple[float, float], *,
+                sticker_diameter_mm: float) -> SearchGrid | None:
+    """The search of a pass of ``shape`` (profiles, columns) whose points are ``spacing_mm``
+    (between profiles, between columns; ``GridSpacing``) apart: square pixels of the finer spacing,
+    but no finer than 1/40 of the sticker's radius. None when a spacing is not finite (too few
+    points to measure it)."""
+    h, w = (int(n) for n in shape)
+    if h < 1 or w < 1:
+        raise ValueError(f"shape must be positive (profiles, columns), got {shape}")
+    if not sticker_diameter_mm > 0:
+        raise ValueError(f"sticker_diameter_mm must be positive, got {sticker_diameter_mm}")
+    row_mm, col_mm = (float(s) for s in spacing_mm)
+    if not (np.isfinite(row_mm) and np.isfinite(col_mm) and row_mm > 0 and col_mm > 0):
+        return None
+    radius = sticker_diameter_mm / 2
+    pixel = max(min(row_mm, col_mm), radius / 40)
+    return SearchGrid(shape=(h, w), spacing_mm=(row_mm, col_mm), radius_mm=radius, pixel_mm=pixel,
+                      image_shape=(max(1, int(round(h * row_mm / pixel))), max(1, int(round(w * col_mm / pixel)))),
+                      half_rows=int(np.ceil(1.6 * radius / row_mm)) + 1,
+                      half_cols=int(np.ceil(1.6 * radius / col_mm)) + 1)
+
+
+def _area_taps(n_in: int, n_out: int, out: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which input cells each output cell ``out`` (k,) covers and with which weight when ``n_in``
+    cells are resampled to ``n_out`` by area (OpenCV's INTER_AREA along one axis): output j spans
+    inputs [j n_in / n_out, (j + 1) n_in / n_out). Returns the inputs (k, t) int64 (a covered one
+    repeated, weight 0, past the last) and their weights (k, t) float64, from j's global index alone."""
+    taps = -(-n_in // n_out) + 1
+    first = out * n_in // n_out
+    last = ((out + 1) * n_in + n_out - 1) // n_out - 1
+    index = first[:, None] + np.arange(taps)
+    lo, hi = (out * n_in / n_out)[:, None], ((out + 1) * n_in / n_out)[:, None]
+    weight = np.clip(np.minimum(index + 1, hi) - np.maximum(index, lo), 0.0, None) / (hi - lo)
+    return np.minimum(index, last[:, None]), weight
+
+
+def _weighted_sum(values: np.ndarray, index: np.ndarray, weight: np.ndarray, axis: int) -> np.ndarray:
+    """sum over t of values.take(index[:, t], axis) * weight[:, t], term by term in t's order: each
+    output is the same bytes whatever else is computed with it (no BLAS, no reordering)."""
+    shape = [1, 1]
+    shape[axis] = len(index)
+    out = np.zeros(values.shape[:axis] + (len(index),) + values.shape[axis + 1:])
+    for t in range(index.shape[1]):
+        out += values.take(index[:, t], axis=axis) * weight[:, t].reshape(shape)
+    return out
+
+
+class HoughImage:
+    """The image a pass's circles are searched in (``grid``: ``search_grid``), built from its
+    intensity fed in consecutive runs of profiles (``add``). Each pixel is the area-weighted mean
+    of intensity / 4 (0..255) over the grid cells it covers, rounded to uint8 (OpenCV's INTER_AREA,
+    done separably: along each profile, then across profiles), summed in an order fixed by the
+    pixel's own position: any split of the pass gives the same bytes.
+
+    It holds the image (``image_shape`` uint8: the one part of the search that grows with the pass,
+    about one byte per 3 points at full resolution: 8401 x 546 = 4.6 MB for 6301 x 2048 points at
+    0.1 x 0.02 mm and 6 mm stickers) and the few resampled profiles an unfinished image row needs.
+    """
+
+    def __init__(self, grid: SearchGrid) -> None:
+        self.grid = grid
+        (_, w), (_, cols) = grid.shape, grid.image_shape
+        self._col_index, self._col_weight = _area_taps(w, cols, np.arange(cols))
+        self._seen = 0  # profiles added
+        self._done = 0  # image rows finished
+        self._pending = np.zeros((0, cols))  # profiles _pending_start.. resampled along the profile
+        self._pending_start = 0
+        self._rows: list[np.ndarray] = []
+
+    def add(self, intensity: np.ndarray) -> None:
+        """intensity : (rows, columns) uint16, the pass's next profiles (0: no return)."""
+        intensity = np.asarray(intensity)
+        (h, w), (rows, _) = self.grid.shape, self.grid.image_shape
+        if intensity.ndim != 2 or intensity.shape[1] != w or self._seen + len(intensity) > h:
+            raise ValueError(f"intensity must be (rows, {w}) with at most {h - self._seen} rows left, "
+                             f"got shape {intensity.shape}")
+        values = np.minimum(intensity / 4.0, 255.0)
+        resampled = _weighted_sum(values, self._col_index, self._col_weight, axis=1)
+        self._pending = np.concatenate([self._pending, resampled])
+        self._seen += len(intensity)
+        ready = self._seen * rows // h  # image rows whose profiles have all been added
+        if ready > self._done:
+            index, weight = _area_taps(h, rows, np.arange(self._done, ready))
+            image_rows = _weighted_sum(self._pending, index - self._pending_start, weight, axis=0)
+            self._rows.append(np.clip(np.rint(image_rows), 0, 255).astype(np.uint8))
+            self._done = ready
+            keep = self._done * h // rows if self._done < rows else h  # the next image row's first profile
+            self._pending = self._pending[keep - self._pending_start:]
+            self._pending_start = keep
+
+    def image(self) -> np.ndarray:
+        """(rows, columns) uint8, ``grid.image_shape``, once every profile has been added."""
+        if self._seen != self.grid.shape[0]:
+            raise ValueError(f"{self._seen} of {self.grid.shape[0]} profiles added")
+        return np.concatenate(self._rows)
 
 
 def _threshold(intensity: np.ndarray) -> float:
@@ -101,14 +322,13 @@ def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.n
     return 0.5 * (_plateau(local, interior & valid) + _plateau(local, exterior))
 
 
-def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: np.ndarray,
-                 window: tuple[slice, slice]) -> np.ndarray:
-    """Sub-pixel edge points where bright and dark grid neighbours meet inside ``window``; the
-    edge is where the intensity crosses ``level`` (per pixel of the window)."""
-    I = intensity[window].astype(np.float64) - level
-    P = points[window]
-    B = bright[window]
-    valid = np.isfinite(P).all(axis=-1) & (intensity[window] > 0)
+def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: np.ndarray) -> np.ndarray:
+    """Sub-pixel edge points (k, 3) where bright and dark grid neighbours meet; the edge is where
+    the intensity crosses ``level`` (per pixel). All (rows, columns) grids of one window."""
+    I = intensity.astype(np.float64) - level
+    P = points
+    B = bright
+    valid = np.isfinite(P).all(axis=-1) & (intensity > 0)
     out = []
     for axis in (0, 1):
         a = [slice(None), slice(None)]
@@ -163,10 +383,95 @@ def find_circles(image: np.ndarray, *, radius_px: float) -> np.ndarray:
     return np.zeros((0, 3), np.float32) if circles is None else circles[0]
 
 
+def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_mm: np.ndarray | None, *,
+                  pixel: tuple[float, float], grid: SearchGrid, max_rms_mm: float, min_rim_coverage: float,
+                  radius_tolerance: float) -> TargetRefinement:
+    """Refine one Hough circle to a target from its window of the pass alone (``grid.window``).
+
+    intensity : (rows, columns) uint16, the window's intensity, 0 where nothing was returned.
+    points_mm : (rows, columns, 3) float, mm, the window's organized points (NaN missing).
+    sensor_origins_mm : (rows, 3) float, mm, the sensor origin of each of the window's profiles, or
+        None (see ``detect_targets``).
+    pixel : (profile, column) of the circle in the pass (``grid.grid_position``), recorded.
+    grid : the pass's search (``search_grid``): the sticker's radius and the point spacing.
+    max_rms_mm, min_rim_coverage, radius_tolerance : as ``detect_targets``.
+    """
+    # Own copies: every operation below sees the same array layout whether the window was cut from
+    # a whole pass or from a block of it, so the result is the same bytes.
+    local = np.array(intensity)
+    points = np.array(points_mm, dtype=np.float64)
+    origins = None if sensor_origins_mm is None else np.array(sensor_origins_mm, dtype=np.float64)
+    if local.ndim != 2 or points.shape != local.shape + (3,):
+        raise ValueError(f"intensity (rows, columns) and points (rows, columns, 3) must match, "
+                         f"got {local.shape} and {points.shape}")
+    if origins is not None and origins.shape != (local.shape[0], 3):
+        raise ValueError(f"sensor_origins_mm must have shape ({local.shape[0]}, 3), got {origins.shape}")
+    radius = grid.radius_mm
+    split = _threshold(local)  # sticker vs its own surroundings
+    bright = local >= split
+    finite = np.isfinite(points).all(axis=-1)
+    blob = points[bright & finite]
+    close = np.linalg.norm(points - (blob.mean(axis=0) if len(blob) else 0.0), axis=-1) < 1.5 * radius
+    level = _edge_level(local, bright, close)
+    if not np.isfinite(level).all():
+        level = np.full(local.shape, float(split))
+    inside = bright & finite
+    if np.count_nonzero(inside) < 12:
+        return TargetRefinement(None, "points")
+    # Twice: the plane of all bright points first; then of those well inside the rim only
+    # (rim points read bright while their 3-D point lies on the metal, 0.1 mm lower, which
+    # tilts and lowers the plane and, at oblique views, shifts every rim ray the same way).
+    plane_points = points[inside]
+    for attempt in range(2):
+        origin, normal = _plane(plane_points)
+        side = origins.mean(axis=0) if origins is not None else origin + np.array([0.0, 0.0, 1.0])
+        if normal @ (side - origin) < 0:
+            normal = -normal
+        on_plane = points if origins is None else _on_plane(points, origins[:, None, :], origin, normal)
+        edges = _edge_points(local, on_plane, bright, level)
+        if len(edges) < 12:
+            break
+        e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(normal, e1)
+        uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
+        # keep edge points near the rim of the circle suggested by the bright blob
+        near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
+        uv = uv[near]
+        if len(uv) < 12:
+            break
+        centre_uv, _, rms = _fit_circle(uv, radius)
+        if attempt == 0:
+            centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+            candidates = points[inside]
+            radial = candidates - centre
+            radial -= np.outer(radial @ normal, normal)
+            core = np.linalg.norm(radial, axis=1) < 0.75 * radius
+            if core.sum() < 12:
+                break
+            plane_points = candidates[core]
+    if len(edges) < 12 or len(uv) < 12:
+        return TargetRefinement(None, "points")
+    _, free_r, _ = _fit_circle(uv, None)
+    angles = np.arctan2(uv[:, 1] - centre_uv[1], uv[:, 0] - centre_uv[0])
+    coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
+    if coverage < min_rim_coverage:
+        return TargetRefinement(None, "rim")
+    if rms > max(max_rms_mm, 0.45 * max(grid.spacing_mm)):  # edges are quantised to the grid
+        return TargetRefinement(None, "fit")
+    if abs(free_r - radius) > radius_tolerance * radius:
+        return TargetRefinement(None, "radius")
+    centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+    return TargetRefinement(Target(centre_mm=centre, normal=normal, pixel=(float(pixel[0]), float(pixel[1])),
+                                   rms_mm=rms, rim_coverage=float(coverage), free_radius_mm=float(free_r),
+                                   n_edge_points=len(uv)), None)
+
+
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,
                    sensor_origins_mm: np.ndarray | None = None, max_rms_mm: float,
                    min_rim_coverage: float, radius_tolerance: float) -> TargetDetection:
-    """Find sticker targets in one pass.
+    """Find sticker targets in one whole pass (the steps a stage streams, run at once: the same
+    result as any block-wise run).
 
     intensity : (profiles, columns) uint16, 0 where nothing was returned.
     points_mm : (profiles, columns, 3) float, mm, organized points of the same pass (NaN missing).
@@ -182,6 +487,7 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
     radius_tolerance : largest relative difference between a free circle fit's radius and the
         nominal one.
     The three thresholds have no defaults here: they come from ``schemas.reconstruction.TargetsConfig``.
+    Targets come in the order ``find_circles`` ranks their circles.
     """
     intensity = np.asarray(intensity)
     points = np.asarray(points_mm, dtype=np.float64)
@@ -193,88 +499,19 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
     origins = None if sensor_origins_mm is None else np.asarray(sensor_origins_mm, dtype=np.float64)
     if origins is not None and origins.shape != (intensity.shape[0], 3):
         raise ValueError(f"sensor_origins_mm must have shape ({intensity.shape[0]}, 3), got {origins.shape}")
-    radius = sticker_diameter_mm / 2
-    row_mm, col_mm = _spacing(points, 0), _spacing(points, 1)
-    rejected = {"rim": 0, "fit": 0, "radius": 0, "points": 0}
-    if not (np.isfinite(row_mm) and np.isfinite(col_mm)):
-        return TargetDetection([], 0, rejected, float("nan"))
-    pixel = max(min(row_mm, col_mm), radius / 40)
-    h, w = intensity.shape
-    size = (max(1, int(round(w * col_mm / pixel))), max(1, int(round(h * row_mm / pixel))))
-    image = cv2.resize(np.clip(intensity / 4, 0, 255).astype(np.uint8), size, interpolation=cv2.INTER_AREA)
-    circles = find_circles(image, radius_px=radius / pixel)
-    targets: list[Target] = []
-    for cx, cy, _ in circles:
-        row, col = cy * pixel / row_mm, cx * pixel / col_mm
-        half_r = int(np.ceil(1.6 * radius / row_mm)) + 1
-        half_c = int(np.ceil(1.6 * radius / col_mm)) + 1
-        window = (slice(max(int(row) - half_r, 0), min(int(row) + half_r + 1, h)),
-                  slice(max(int(col) - half_c, 0), min(int(col) + half_c + 1, w)))
-        split = _threshold(intensity[window])  # sticker vs its own surroundings
-        bright = np.zeros(intensity.shape, bool)
-        bright[window] = intensity[window] >= split
-        local = intensity[window]
-        window_points = points[window]
-        blob = window_points[bright[window] & np.isfinite(window_points).all(axis=-1)]
-        close = np.linalg.norm(window_points - (blob.mean(axis=0) if len(blob) else 0.0), axis=-1) < 1.5 * radius
-        level = _edge_level(local, bright[window], close)
-        if not np.isfinite(level).all():
-            level = np.full(local.shape, float(split))
-        inside = bright[window] & np.isfinite(points[window]).all(axis=-1)
-        if np.count_nonzero(inside) < 12:
-            rejected["points"] += 1
-            continue
-        # Twice: the plane of all bright points first; then of those well inside the rim only
-        # (rim points read bright while their 3-D point lies on the metal, 0.1 mm lower, which
-        # tilts and lowers the plane and, at oblique views, shifts every rim ray the same way).
-        plane_points = points[window][inside]
-        for attempt in range(2):
-            origin, normal = _plane(plane_points)
-            side = origins[window[0]].mean(axis=0) if origins is not None else origin + np.array([0.0, 0.0, 1.0])
-            if normal @ (side - origin) < 0:
-                normal = -normal
-            grid = points
-            if origins is not None:
-                grid = points.copy()
-                grid[window] = _on_plane(points[window], origins[window[0]][:, None, :], origin, normal)
-            edges = _edge_points(intensity, grid, bright, level, window)
-            if len(edges) < 12:
-                break
-            e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(normal, e1)
-            uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
-            # keep edge points near the rim of the circle suggested by the bright blob
-            near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
-            uv = uv[near]
-            if len(uv) < 12:
-                break
-            centre_uv, _, rms = _fit_circle(uv, radius)
-            if attempt == 0:
-                centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
-                candidates = points[window][inside]
-                radial = candidates - centre
-                radial -= np.outer(radial @ normal, normal)
-                core = np.linalg.norm(radial, axis=1) < 0.75 * radius
-                if core.sum() < 12:
-                    break
-                plane_points = candidates[core]
-        if len(edges) < 12 or len(uv) < 12:
-            rejected["points"] += 1
-            continue
-        _, free_r, _ = _fit_circle(uv, None)
-        angles = np.arctan2(uv[:, 1] - centre_uv[1], uv[:, 0] - centre_uv[0])
-        coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
-        if coverage < min_rim_coverage:
-            rejected["rim"] += 1
-            continue
-        if rms > max(max_rms_mm, 0.45 * max(row_mm, col_mm)):  # edges are quantised to the grid
-            rejected["fit"] += 1
-            continue
-        if abs(free_r - radius) > radius_tolerance * radius:
-            rejected["radius"] += 1
-            continue
-        centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
-        targets.append(Target(centre_mm=centre, normal=normal, pixel=(float(row), float(col)), rms_mm=rms,
-                              rim_coverage=float(coverage), free_radius_mm=float(free_r), n_edge_points=len(uv)))
-    return TargetDetection(targets=targets, n_circles=len(circles), rejected=rejected, pixel_mm=pixel)
+    spacing = GridSpacing(intensity.shape[0])
+    spacing.add(points, start=0)
+    grid = search_grid(intensity.shape, spacing.spacing_mm(), sticker_diameter_mm=sticker_diameter_mm)
+    if grid is None:
+        return TargetDetection.from_refinements([], pixel_mm=float("nan"))
+    image = HoughImage(grid)
+    image.add(intensity)
+    refinements = []
+    for circle in find_circles(image.image(), radius_px=grid.radius_px):
+        row, col = grid.grid_position(circle)
+        window = grid.window(row, col)
+        refinements.append(refine_target(intensity[window], points[window],
+                                         None if origins is None else origins[window[0]], pixel=(row, col),
+                                         grid=grid, max_rms_mm=max_rms_mm, min_rim_coverage=min_rim_coverage,
+                                         radius_tolerance=radius_tolerance))
+    return TargetDetection.from_refinements(refinements, pixel_mm=grid.pixel_mm)

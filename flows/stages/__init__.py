@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
-from flows.stages.passes import grid_pitch_mm, pass_view
+from flows.stages.passes import pass_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
@@ -23,7 +23,8 @@ def _sample_wide(manifest, entry):
 
 def _sample_wide_grids(manifest, entry):
     """The passes and the pitch of each one's grid (refine reads the grids thinned by it)."""
-    return {**_sample_wide(manifest, entry), "pitch_mm": [list(grid_pitch_mm(manifest, e)) for _, e in manifest.passes()]}
+    pitches = [list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
+    return {**_sample_wide(manifest, entry), "pitch_mm": pitches}
 
 
 STAGES: tuple[Stage, ...] = (

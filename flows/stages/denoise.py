@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from flows.stages.outputs import CLOUD
-from flows.stages.passes import block_rows, grid_pitch_mm, open_entry, pass_blocks
+from flows.stages.passes import block_rows, open_entry, pass_blocks
 from tasks.denoise import DistanceStats, check_window, mean_knn_distance
 from tasks.normals import grid_normals, normal_window
 
@@ -33,7 +33,7 @@ def denoise(ctx) -> dict[str, Any]:
     reader = open_entry(ctx.sample_dir, ctx.entry)
     n, m = reader.n_profiles, reader.n_columns
     rows = BLOCK_ROWS or block_rows(m, chunk_profiles=reader.chunk_profiles)
-    nr, nc = normal_window(s.normal_window_mm, grid_pitch_mm(ctx.manifest, ctx.entry))
+    nr, nc = normal_window(s.normal_window_mm, ctx.manifest.grid_pitch_mm(ctx.entry))
     stats = DistanceStats()
     points_in = 0
     reference = None  # the sensor at the first profile: normals sum coordinates relative to it

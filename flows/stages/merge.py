@@ -18,11 +18,11 @@ import numpy as np
 
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import zarr_array
-from tasks.merge import CellSums, cell_sums, combine_cell_sums
+from tasks.merge import CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells, combine_cell_sums
 
 __all__ = ["merge"]
 
-SLAB_CELLS = 128  # cells along x per spill file
+SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
 _READ_ROWS_POINTS = 1 << 20  # points per block read from a denoised pass
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
 _RECORD = np.dtype([("key", "<i8"), ("count", "<i8"), ("p", "<f8", 3), ("q", "<f8", 3)])
@@ -67,7 +67,8 @@ class _Spill:
 
 
 def merge(ctx) -> dict[str, Any]:
-    cell = ctx.settings.cell_mm
+    s = ctx.settings
+    slab_cells = SLAB_CELLS // s.coarse_factor * s.coarse_factor  # a coarse cell never straddles two slabs
     T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
     points_in = 0
     with tempfile.TemporaryDirectory(prefix=".scratch-", dir=ctx.out.parent) as scratch:
@@ -83,17 +84,23 @@ def merge(ctx) -> dict[str, Any]:
                 p = p[valid].astype(np.float64) @ R.T + t
                 q = np.asarray(normals[start:start + step]).reshape(-1, 3)[valid].astype(np.float64) @ R.T
                 points_in += len(p)
-                part = cell_sums(p, q, cell_mm=cell)
-                spill.add(part, (part.keys >> 42) // SLAB_CELLS)
+                part = cell_sums(p, q, cell_mm=s.cell_mm)
+                spill.add(part, np.floor_divide(cell_index_of_keys(part.keys)[:, 0], slab_cells))
         out = MERGED.writer(ctx.out, chunk_rows=1 << 18)
-        points_out = 0
+        points_out = fine_cells = fine_out = 0
         for part in spill.slabs():
-            merged = combine_cell_sums(part, cell_mm=cell)
-            out.append("points", merged.points_mm)
-            out.append("normals", merged.normals.astype(np.float32))
-            out.append("counts", merged.counts.astype(np.int32))
-            points_out += merged.n_points
+            merged = combine_cell_sums(part, cell_mm=s.cell_mm)
+            cloud = coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
+                                       max_deviation_mm=s.flat_deviation_mm)
+            out.append("points", cloud.points_mm)
+            out.append("normals", cloud.normals.astype(np.float32))
+            out.append("counts", cloud.counts.astype(np.int32))
+            out.append("fine", cloud.fine)
+            fine_cells += merged.n_points
+            points_out += len(cloud.points_mm)
+            fine_out += int(cloud.fine.sum())
         if points_out == 0:
             raise ValueError("no points to merge: every pass is empty after denoising")
         out.close()
-    return {"points_in": int(points_in), "points_out": int(points_out)}
+    return {"points_in": int(points_in), "points_out": int(points_out), "fine_cells": int(fine_cells),
+            "fine_points_out": int(fine_out), "coarse_points_out": int(points_out - fine_out)}

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from flows.stages.outputs import MESH, Mesh, SPECIMEN
-from tasks.mesh import screened_poisson
+from tasks.mesh import flagged_vertices, screened_poisson
 
 __all__ = ["mesh"]
 
@@ -21,7 +21,10 @@ def mesh(ctx) -> dict[str, Any]:
                                scale=s.poisson_scale)
     MESH.write(ctx.out, Mesh(vertices=surface.vertices, triangles=surface.triangles))
     r = surface.report
-    return {"points": int(len(cloud.points)), "vertices": r.n_vertices, "triangles": r.n_triangles,
+    # the vertex budget by zone: a vertex belongs to the zone of the merged point nearest to it
+    fine_vertices = int(np.count_nonzero(flagged_vertices(surface.vertices, cloud.points, cloud.fine)))
+    return {"points": int(len(cloud.points)), "fine_points": int(np.count_nonzero(cloud.fine)),
+            "vertices_fine_zone": fine_vertices, "vertices_coarse_zone": int(len(surface.vertices) - fine_vertices), "vertices": r.n_vertices, "triangles": r.n_triangles,
             "watertight": r.watertight, "consistently_oriented": r.consistently_oriented,
             "boundary_edges": r.n_boundary_edges, "non_manifold_edges": r.n_non_manifold_edges,
             "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2, "note": surface.note}

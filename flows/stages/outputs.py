@@ -68,9 +68,10 @@ REFINE_SUMMARY = JsonFile("refine.json")  # surface pairs (points, RMS), step pe
 # --- stage merge ---
 @dataclass(frozen=True)
 class MergedCloud:
-    points: np.ndarray  # (n, 3) float64, mm, common frame: one point per occupied cell
-    normals: np.ndarray  # (n, 3) float32, unit: the cell's points' normals averaged
+    points: np.ndarray  # (n, 3) float64, mm, common frame: one point per occupied (fine or coarse) cell
+    normals: np.ndarray  # (n, 3) float32, unit: the cell's points' normals averaged; NaN where they cancel
     counts: np.ndarray  # (n,) int32: measured points merged into the cell
+    fine: np.ndarray  # (n,) bool: a fine cell (the surface bends there) or a whole coarse (flat) one
 
 MERGED = ArrayFile("merged.zarr", MergedCloud)
 
@@ -80,6 +81,7 @@ MERGED = ArrayFile("merged.zarr", MergedCloud)
 class SpecimenCloud:
     points: np.ndarray  # (n, 3) float64, mm, common frame: the specimen's merged points
     normals: np.ndarray  # (n, 3) float32, unit, outward (toward the sensors)
+    fine: np.ndarray  # (n,) bool: from a fine cell (bent surface) or a coarse one (flat)
 
 SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
 

@@ -19,8 +19,7 @@ from data_catalog.passes import PassData, PassReader, open_pass
 from schemas.manifest import PassEntry, SampleManifest
 from tasks.ingest import profile_points, sensor_poses
 
-__all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "grid_pitch_mm",
-           "load_pass_points", "pass_view"]
+__all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "load_pass_points", "pass_view"]
 
 # Points per block (about 2**20): ~100 MB of working arrays in the heaviest per-pass stage.
 # Results do not depend on it (each stage's result is defined per profile and its window).
@@ -82,13 +81,6 @@ def pass_blocks(sample_dir: Path, manifest: SampleManifest, entry: PassEntry, *,
         core_stop = min(core_start + step, n)
         start, stop = max(0, core_start - halo_rows), min(n, core_stop + halo_rows)
         yield _block(reader, manifest, entry, start, stop, slice(core_start - start, core_stop - start))
-
-
-def grid_pitch_mm(manifest: SampleManifest, entry: PassEntry) -> tuple[float, float]:
-    """The nominal spacing of a pass's organized grid, mm: between profiles (the sweep's speed over
-    the profile rate) and between columns (the scanner's spacing at its reference distance)."""
-    motion = entry.nominal_motion
-    return motion.speed_mm_s / motion.profile_rate_hz, manifest.scanner.x_spacing_mm
 
 
 def load_pass_points(sample_dir: Path, manifest: SampleManifest,

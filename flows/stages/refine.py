@@ -9,7 +9,6 @@ import numpy as np
 
 from flows.stages.contracts import zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
-from flows.stages.passes import grid_pitch_mm
 from tasks.refine import refine_poses, surface_sample
 
 __all__ = ["refine"]
@@ -38,7 +37,7 @@ def refine(ctx) -> dict[str, Any]:
     if rc.enabled:
         samples = []
         for (_, entry), r in zip(ctx.manifest.passes(), ctx.inputs["denoise"]):
-            row_mm, col_mm = grid_pitch_mm(ctx.manifest, entry)
+            row_mm, col_mm = ctx.manifest.grid_pitch_mm(entry)
             stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
             samples.append(surface_sample(_thinned_grid(r, stride), spacing_mm=rc.sample_spacing_mm,
                                           normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,

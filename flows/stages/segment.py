@@ -24,6 +24,7 @@ def segment(ctx) -> dict[str, Any]:
         raise ValueError("no target was seen in more than one setup: the specimen cannot be told from the fixture")
     points = zarr_array(ctx.inputs["merge"], MERGED, "points")
     normals = zarr_array(ctx.inputs["merge"], MERGED, "normals")
+    fine = zarr_array(ctx.inputs["merge"], MERGED, "fine")
     result = keep_specimen_components(np.asarray(points[...]), link_mm=ctx.settings.link_mm, target_points_mm=anchors)
     keep = result.keep
     out = SPECIMEN.writer(ctx.out, chunk_rows=1 << 18)
@@ -35,6 +36,7 @@ def segment(ctx) -> dict[str, Any]:
         no_normal += int(np.count_nonzero(keep[rows]) - np.count_nonzero(take))
         out.append("points", p[take])
         out.append("normals", q[take])
+        out.append("fine", np.asarray(fine[rows])[take])
         kept += int(take.sum())
     out.close()
     return {"points_in": int(len(keep)), "points_out": kept, "without_normal": no_normal,

@@ -1,4 +1,11 @@
-"""Stage ``targets`` (per pass): the pass's sticker targets, 3-D centres in the coarse world frame."""
+"""Stage ``targets`` (per pass): the pass's sticker targets, 3-D centres in the coarse world frame.
+
+The pass is streamed in blocks of profiles (``pass_blocks``), never held whole, three times: for its
+point spacing (``GridSpacing``), for the image the circles are searched in (``HoughImage``, which
+needs the spacing's pixel size; the one thing held whole, small), and, with a halo of a window's
+half height, to refine each circle in the block whose own profiles hold its centre. The result is
+the same bytes whatever the block size (``tests/flows/test_targets_blocks.py``).
+"""
 
 from __future__ import annotations
 
@@ -6,23 +13,75 @@ from typing import Any
 
 import numpy as np
 
+from data_catalog.passes import PassReader
 from flows.stages.outputs import PassTargets, TARGETS
-from flows.stages.passes import load_pass_points, pass_view
-from tasks.targets import detect_targets
+from flows.stages.passes import open_entry, pass_blocks, pass_view
+from tasks.targets import (GridSpacing, HoughImage, SearchGrid, TargetDetection, TargetRefinement, find_circles,
+                           refine_target, search_grid)
 
 __all__ = ["targets", "targets_view"]
+
+# Profiles per block; None: ``pass_blocks``'s default (about a million points). Tests set small
+# ones: the results do not depend on it.
+BLOCK_ROWS: int | None = None
 
 
 def targets_view(manifest, entry) -> dict[str, Any]:
     return {**pass_view(manifest, entry), "sticker_diameter_mm": manifest.sticker_diameter_mm}
 
 
-def targets(ctx) -> dict[str, Any]:
+def _blocks(ctx, reader: PassReader, halo_rows: int = 0):
+    return pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=halo_rows, rows=BLOCK_ROWS, reader=reader)
+
+
+def _search_grid(ctx, reader: PassReader) -> SearchGrid | None:
+    spacing = GridSpacing(reader.n_profiles)
+    for block in _blocks(ctx, reader, halo_rows=1):  # a sampled profile's partner: the next one
+        spacing.add(block.points[block.core.start:], start=block.core_start, stop=block.core_stop)
+    return search_grid((reader.n_profiles, reader.n_columns), spacing.spacing_mm(),
+                       sticker_diameter_mm=ctx.manifest.sticker_diameter_mm)
+
+
+def _hough_image(ctx, reader: PassReader, grid: SearchGrid) -> np.ndarray:
+    image = HoughImage(grid)
+    for block in _blocks(ctx, reader):
+        image.add(block.data.intensity)
+    return image.image()
+
+
+def _refine(ctx, reader: PassReader, grid: SearchGrid, circles: np.ndarray) -> list[TargetRefinement]:
+    """Each circle refined in its window, in the circles' order."""
     s = ctx.settings
-    data, T, points = load_pass_points(ctx.sample_dir, ctx.manifest, ctx.entry)
-    found = detect_targets(data.intensity, points, sticker_diameter_mm=ctx.manifest.sticker_diameter_mm,
-                           sensor_origins_mm=T[:, :3, 3], max_rms_mm=s.max_rms_mm,
-                           min_rim_coverage=s.min_rim_coverage, radius_tolerance=s.radius_tolerance)
+    positions = [grid.grid_position(c) for c in circles]
+    if not positions:
+        return []
+    refined: list[TargetRefinement | None] = [None] * len(positions)
+    for block in _blocks(ctx, reader, halo_rows=grid.half_rows):
+        for i, (row, col) in enumerate(positions):
+            if not block.core_start <= grid.centre_row(row) < block.core_stop:
+                continue
+            rows, cols = grid.window(row, col)
+            assert block.start <= rows.start and rows.stop <= block.stop, "a window reaches past its block's halo"
+            local = slice(rows.start - block.start, rows.stop - block.start)
+            refined[i] = refine_target(block.data.intensity[local, cols], block.points[local, cols],
+                                       block.T_world_sensor[local, :3, 3], pixel=(row, col), grid=grid,
+                                       max_rms_mm=s.max_rms_mm, min_rim_coverage=s.min_rim_coverage,
+                                       radius_tolerance=s.radius_tolerance)
+    assert all(r is not None for r in refined), "a circle's centre fell in no block"
+    return refined  # type: ignore[return-value]
+
+
+def _detect(ctx) -> TargetDetection:
+    reader = open_entry(ctx.sample_dir, ctx.entry)
+    grid = _search_grid(ctx, reader)
+    if grid is None:
+        return TargetDetection.from_refinements([], pixel_mm=float("nan"))
+    circles = find_circles(_hough_image(ctx, reader, grid), radius_px=grid.radius_px)
+    return TargetDetection.from_refinements(_refine(ctx, reader, grid, circles), pixel_mm=grid.pixel_mm)
+
+
+def targets(ctx) -> dict[str, Any]:
+    found = _detect(ctx)
     if not found.targets:
         raise ValueError(f"pass {ctx.entry.pass_id}: no sticker targets found ({found.n_circles} circle candidates, "
                          f"rejected {found.rejected}); the pass cannot be registered")

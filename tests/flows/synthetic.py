@@ -60,12 +60,17 @@ def write_plate_sample(out: Path, n_profiles: int, *, seed: int = 0, chunk_profi
         # stickers every 30 mm along y, alternating 8 mm either side of the line's centre
         k = np.round((y - 15.0) / 30.0)
         cy, cx = 15.0 + 30.0 * k, np.where(k % 2 == 0, 8.0, -8.0)
-        on = (x[None, :] - cx[:, None]) ** 2 + (y[:, None] - cy[:, None]) ** 2 < radius**2
+        dx, dy = x[None, :] - cx[:, None], y[:, None] - cy[:, None]
+        on = dx**2 + dy**2 < radius**2
+        # the share of each point's footprint (0.02 x 0.1 mm) on the sticker: rims read partly bright
+        offsets = (np.arange(4) + 0.5) / 4 - 0.5
+        share = sum(((dx + a * X_SPACING_MM) ** 2 + (dy + b * SPEED_MM_S / RATE_HZ) ** 2 < radius**2)
+                    for a in offsets for b in offsets) / 16.0
         height = np.where(on, 0.1, 0.0) + rng.normal(0.0, 0.006, on.shape)
         z = STANDOFF_MM - height
         outlier = rng.random(on.shape) < 0.002
         z[outlier] -= rng.uniform(0.3, 4.0, int(outlier.sum()))
-        intensity = np.where(on, 900, 300) + rng.integers(-20, 21, on.shape)
+        intensity = np.round(300 + 600 * share).astype(np.int64) + rng.integers(-20, 21, on.shape)
         missing = rng.random(on.shape) < 0.002
         xs = np.where(missing, np.nan, np.broadcast_to(x, on.shape))
         z[missing] = np.nan

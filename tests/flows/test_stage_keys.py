@@ -21,8 +21,8 @@ CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 PACKAGES = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 
 # a real change of behaviour in a helper the denoise stage runs (not its body): the mean of the
-# neighbours' distances becomes a mean of square roots, squared
-HELPER_EDIT = ("tasks/denoise.py", "    mean = nearest.mean(axis=0)\n", "    mean = (np.sqrt(nearest).mean(axis=0)) ** 2\n")
+# neighbours' distances becomes its square (another set of points passes the threshold)
+HELPER_EDIT = ("tasks/denoise.py", "                out[i - row0, j] = s / k\n", "                out[i - row0, j] = (s / k) ** 2\n")
 
 
 def _code_copy(root: Path, edit: tuple[str, str, str] | None = None) -> Path:
@@ -59,7 +59,7 @@ def _versions(code_root: Path) -> dict[str, str]:
 
 @pytest.mark.parametrize(("path", "old", "new", "changed"), [
     (*HELPER_EDIT, {"denoise"}),
-    ("tasks/ingest.py", "    local = np.stack(", "    local = 1.0 * np.stack(", {"denoise", "targets"}),
+    ("tasks/ingest.py", "    out += T[:, None, :3, 3]", "    out += 1.0 * T[:, None, :3, 3]", {"denoise", "targets"}),
     ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
                                                       "mesh", "export", "report"}),

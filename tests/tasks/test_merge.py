@@ -105,3 +105,57 @@ def test_deterministic_sensors_averaged_and_cancelling_normals_are_nan():
 def test_bad_arguments(args, kwargs, message):
     with pytest.raises(ValueError, match=message):
         merge_box_grid(*args, **kwargs)
+
+
+def test_partial_cell_sums_combine_to_the_in_memory_merge():
+    """Out of core: blocks summed per cell, the partial sums combined later (in any grouping that
+    keeps each cell's partials together) give the in-memory merge's cells and counts, and its
+    means to the last few bits (another summation order)."""
+    from tasks.merge import CellSums, cell_sums, combine_cell_sums
+
+    rng = np.random.default_rng(7)
+    points, normals = _random_cloud(rng, 300_000, -20.0, 20.0)
+    whole = merge_box_grid(points, cell_mm=0.5, normals=normals)
+    parts = [cell_sums(points[a:a + 37_000], normals[a:a + 37_000], cell_mm=0.5) for a in range(0, len(points), 37_000)]
+    joined = CellSums(*(np.concatenate([getattr(p, f) for p in parts])
+                        for f in ("keys", "counts", "point_sums", "normal_sums")))
+    merged = combine_cell_sums(joined, cell_mm=0.5)
+    np.testing.assert_array_equal(merged.cells, whole.cells)
+    np.testing.assert_array_equal(merged.counts, whole.counts)
+    np.testing.assert_allclose(merged.points_mm, whole.points_mm, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(merged.normals, whole.normals, rtol=0, atol=1e-9)
+    # the same parts in the same order give the same bytes
+    again = combine_cell_sums(joined, cell_mm=0.5)
+    assert again.points_mm.tobytes() == merged.points_mm.tobytes()
+
+
+def test_flat_cells_coarsen_and_bent_cells_stay_fine():
+    """A plate with a 1 mm-radius groove (a weld toe's curvature) across it: the flat plate merges
+    into coarse cells, the groove keeps its fine cells; each coarse point is the mean of all the
+    points it holds, and nothing is lost (counts add up)."""
+    from tasks.merge import coarsen_flat_cells
+
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(0.0, 20.0, (400_000, 2))
+    x = xy[:, 0]
+    groove = np.abs(x - 10.0) < 0.9  # a circular groove of radius 1 mm, 0.56 mm deep at its centre
+    z = np.where(groove, 1.0 - np.sqrt(np.clip(1.0 - (x - 10.0) ** 2, 0, None)) - (1 - np.sqrt(1 - 0.81)), 0.0)
+    points = np.column_stack([xy, z + rng.normal(0, 0.001, len(z))])
+    gx = np.where(groove, -(x - 10.0), 0.0)  # the groove's normal: toward its centre line, upward
+    normals = np.column_stack([gx, np.zeros(len(x)), np.where(groove, np.sqrt(np.clip(1 - gx**2, 0, None)), 1.0)])
+    fine = merge_box_grid(points, cell_mm=0.1, normals=normals)
+    result = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01)
+    assert result.counts.sum() == fine.counts.sum() == len(points)
+    coarse_x = result.points_mm[~result.fine, 0]
+    fine_x = result.points_mm[result.fine, 0]
+    assert np.all(np.abs(coarse_x - 10.0) > 0.4)  # no coarse cell inside the groove
+    assert np.all(np.abs(fine_x - 10.0) < 1.7)  # the fine cells lie at the groove (and its rim cells)
+    assert (~result.fine).sum() > 0.8 * 20 * 20 / 0.4**2 * (18 / 20)  # the plate is coarse
+    # a coarse point is the mean of the measured points in its coarse cell
+    cell = np.floor(points / 0.4).astype(np.int64)
+    probe = result.points_mm[~result.fine][0]
+    inside = np.all(cell == np.floor(probe / 0.4).astype(np.int64), axis=1)
+    np.testing.assert_allclose(probe, points[inside].mean(axis=0), atol=1e-12)
+    # factor 1: the fine cloud unchanged
+    same = coarsen_flat_cells(fine, factor=1, max_normal_deg=4.0, max_deviation_mm=0.01)
+    assert same.fine.all() and np.array_equal(same.points_mm, fine.points_mm)

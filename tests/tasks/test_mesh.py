@@ -65,7 +65,7 @@ def _surface_digests(stl_path) -> dict:
     rng = np.random.default_rng(3)
     points = points + rng.normal(0.0, 0.01, points.shape)
     sensors = points + 50.0 * outward + rng.uniform(-20.0, 20.0, points.shape)
-    normals = estimate_normals(points, sensors, k=CFG.normals_k)
+    normals = estimate_normals(points, sensors, k=100)  # the paper's k
     result = screened_poisson(points, normals, depth=8, **POISSON)
     write_mesh(stl_path, result.vertices, result.triangles)
     arrays = {"normals": normals, "vertices": result.vertices, "triangles": result.triangles,

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from schemas.reconstruction import TargetsConfig
-from tasks.targets import TargetDetection, detect_targets, find_circles
+from tasks.targets import (GridSpacing, HoughImage, TargetDetection, detect_targets, find_circles, refine_target,
+                           search_grid)
 
 STANDOFF_MM = 200.0  # sensor origin above the surface, the scanner's reference distance
 PITCH_MM = 0.1  # between points along the laser line (at the standoff) and between profiles
@@ -298,6 +299,96 @@ def test_detect_targets_rejects_bad_input(intensity_shape, points_shape, diamete
         detect_targets(np.full(intensity_shape, 500, np.uint16), np.zeros(points_shape), sticker_diameter_mm=diameter,
                        sensor_origins_mm=origins, max_rms_mm=cfg.max_rms_mm, min_rim_coverage=cfg.min_rim_coverage,
                        radius_tolerance=cfg.radius_tolerance)
+
+
+def _splits(rng: np.random.Generator, n: int) -> list[tuple[int, int]]:
+    """A random split of n profiles into consecutive runs (some of one profile)."""
+    cuts = np.sort(rng.choice(np.arange(1, n), size=min(n - 1, int(rng.integers(1, 25))), replace=False))
+    return list(zip(np.r_[0, cuts].tolist(), np.r_[cuts, n].tolist()))
+
+
+@pytest.mark.parametrize("shape, spacing_mm, diameter_mm", [
+    ((331, 127), (0.32, 0.33), 5.0),  # ci-like: columns resampled up by 3 %
+    ((500, 400), (0.1, 0.02), 10.0),  # paper-like: columns down by 5, profiles by 0.8 (pixel r / 40)
+    ((97, 50), (0.5, 0.2), 5.0),  # profiles up by 2.5
+])
+def test_hough_image_is_the_same_in_any_blocks_and_is_an_area_resampling(shape, spacing_mm, diameter_mm):
+    """The image built from any split of the profiles is the same bytes as from the whole pass;
+    and it is OpenCV's INTER_AREA resampling of intensity / 4 (at most 255, on floats) rounded: within 0.5."""
+    rng = np.random.default_rng(7)
+    intensity = rng.integers(0, 1024, shape).astype(np.uint16)
+    grid = search_grid(shape, spacing_mm, sticker_diameter_mm=diameter_mm)
+    whole = HoughImage(grid)
+    whole.add(intensity)
+    image = whole.image()
+    assert image.dtype == np.uint8 and image.shape == grid.image_shape
+    for _ in range(5):
+        blocks = HoughImage(grid)
+        for start, stop in _splits(rng, shape[0]):
+            blocks.add(intensity[start:stop])
+        assert np.array_equal(blocks.image(), image)
+    area = cv2.resize(np.minimum(intensity / 4.0, 255.0).astype(np.float32), grid.image_shape[::-1],
+                      interpolation=cv2.INTER_AREA)
+    assert np.abs(image - area).max() <= 0.5 + 1e-4
+
+
+def test_grid_spacing_is_the_same_in_any_blocks_and_recovers_the_pitch():
+    """Head-on at the standoff the points are PITCH apart both ways (the fan spreads the columns
+    by up to 1 + (25 / 200)^2 / 2 at the sides, 0.8 %; the median is near the middle: 0.1 %)."""
+    p = _scan(_Plane(), [[0.0, 0.0]], profiles=150, columns=200, rng=np.random.default_rng(8), sub_rays=2)
+    points = p.points_mm.copy()
+    points[np.random.default_rng(8).random(points.shape[:2]) < 0.2] = np.nan  # missing returns
+    whole = GridSpacing(len(points))
+    whole.add(points, start=0)
+    row_mm, col_mm = whole.spacing_mm()
+    np.testing.assert_allclose([row_mm, col_mm], PITCH_MM, rtol=1e-3)
+    rng = np.random.default_rng(9)
+    for _ in range(5):
+        blocks = GridSpacing(len(points))
+        for start, stop in _splits(rng, len(points)):
+            blocks.add(points[start:min(stop + 1 + int(rng.integers(0, 3)), len(points))], start=start, stop=stop)
+        assert blocks.spacing_mm() == (row_mm, col_mm)
+    assert GridSpacing(150).stride == 16 and GridSpacing(10_000).stride == 79  # at most 128 profiles sampled
+
+
+def test_grid_spacing_and_search_grid_of_a_pass_without_points():
+    spacing = GridSpacing(5)
+    spacing.add(np.full((5, 4, 3), np.nan), start=0)
+    assert np.isnan(spacing.spacing_mm()).all()
+    assert search_grid((5, 4), spacing.spacing_mm(), sticker_diameter_mm=5.0) is None
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: GridSpacing(0), "n_profiles must be a positive integer, got 0"),
+    (lambda: GridSpacing(10).add(np.zeros((10, 4, 2)), start=0), r"points must be \(rows, columns, 3\), got shape"),
+    (lambda: GridSpacing(10).add(np.zeros((5, 4, 3)), start=5), "profiles 5:10 do not follow profile 0 of 10"),
+    (lambda: GridSpacing(10).add(np.zeros((4, 4, 3)), start=0, stop=4), "points hold 4 profiles, 5 needed"),
+    (lambda: GridSpacing(10).spacing_mm(), r"profiles 0:10 were never added"),
+    (lambda: search_grid((10, 4), (0.1, 0.1), sticker_diameter_mm=0.0), "sticker_diameter_mm must be positive"),
+    (lambda: search_grid((0, 4), (0.1, 0.1), sticker_diameter_mm=5.0), r"shape must be positive"),
+    (lambda: HoughImage(search_grid((10, 4), (0.1, 0.1), sticker_diameter_mm=5.0)).add(np.zeros((3, 5), np.uint16)),
+     r"intensity must be \(rows, 4\) with at most 10 rows left, got shape \(3, 5\)"),
+    (lambda: HoughImage(search_grid((10, 4), (0.1, 0.1), sticker_diameter_mm=5.0)).add(np.zeros((11, 4), np.uint16)),
+     r"at most 10 rows left"),
+    (lambda: HoughImage(search_grid((10, 4), (0.1, 0.1), sticker_diameter_mm=5.0)).image(), "0 of 10 profiles added"),
+])
+def test_streamed_pieces_reject_bad_input(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+@pytest.mark.parametrize("intensity_shape, points_shape, origins_shape, message", [
+    ((10, 12), (10, 11, 3), None, r"must match, got \(10, 12\) and \(10, 11, 3\)"),
+    ((10, 12), (10, 12, 3), (9, 3), r"sensor_origins_mm must have shape \(10, 3\), got \(9, 3\)"),
+])
+def test_refine_target_rejects_bad_input(intensity_shape, points_shape, origins_shape, message):
+    cfg = TargetsConfig()
+    grid = search_grid((100, 100), (0.1, 0.1), sticker_diameter_mm=10.0)
+    with pytest.raises(ValueError, match=message):
+        refine_target(np.full(intensity_shape, 500, np.uint16), np.zeros(points_shape),
+                      None if origins_shape is None else np.zeros(origins_shape), pixel=(5.0, 5.0), grid=grid,
+                      max_rms_mm=cfg.max_rms_mm, min_rim_coverage=cfg.min_rim_coverage,
+                      radius_tolerance=cfg.radius_tolerance)
 
 
 @pytest.mark.parametrize("image, radius, message", [
