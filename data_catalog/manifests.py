@@ -10,7 +10,7 @@ from pydantic import ValidationError
 from data_catalog.atomic import atomic_write_text
 from schemas.manifest import SampleManifest
 
-__all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files",
+__all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files", "check_pass_file",
            "write_manifest", "manifest_json_schema"]
 
 MAX_POINTS_PER_SAMPLE = 4_000_000_000  # 12 times the paper's full-resolution plan
@@ -56,30 +56,36 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
     too large to be a scan (more than MAX_POINTS_PER_SAMPLE points). Missing pass files are left
     to the stages, which name every missing pass at once."""
     root = Path(sample_dir)
-    real_root = root.resolve()
     total = sum(entry.n_profiles for _, entry in manifest.passes()) * manifest.scanner.points_per_profile
     if total > MAX_POINTS_PER_SAMPLE:
         raise ManifestError(f"{root}: the manifest's passes declare {total:,} points (n_profiles x "
                             f"points_per_profile), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
     for setup, entry in manifest.passes():
-        path = root / entry.file
-        where = f"pass {entry.pass_id} (setup {setup})"
-        for part in [root / Path(*Path(entry.file).parts[:k]) for k in range(1, len(Path(entry.file).parts) + 1)]:
-            if part.is_symlink():
-                target = part.resolve()
-                leaves = real_root not in target.parents and target != real_root
-                raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
-                                    f"(to {target}); a sample must hold its own pass files")
-        meta = path / "x_mm" / "zarr.json"
-        if meta.is_file():
-            try:
-                shape = tuple(json.loads(meta.read_text(encoding="utf-8"))["shape"])
-            except (ValueError, KeyError, TypeError) as exc:
-                raise ManifestError(f"{where}: {meta} is unreadable ({exc})") from None
-            expected = (entry.n_profiles, manifest.scanner.points_per_profile)
-            if shape != expected:
-                raise ManifestError(f"{where}: {path} holds {shape[0]:,} x {shape[1]:,} points, the manifest "
-                                    f"declares n_profiles {expected[0]:,} x points_per_profile {expected[1]:,}")
+        check_pass_file(root, manifest, setup, entry)
+
+
+def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entry) -> None:
+    """One pass of ``check_sample_files``: no symbolic link on its path, its declared size."""
+    root = Path(sample_dir)
+    real_root = root.resolve()
+    path = root / entry.file
+    where = f"pass {entry.pass_id} (setup {setup})"
+    for part in [root / Path(*Path(entry.file).parts[:k]) for k in range(1, len(Path(entry.file).parts) + 1)]:
+        if part.is_symlink():
+            target = part.resolve()
+            leaves = real_root not in target.parents and target != real_root
+            raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
+                                f"(to {target}); a sample must hold its own pass files")
+    meta = path / "x_mm" / "zarr.json"
+    if meta.is_file():
+        try:
+            shape = tuple(json.loads(meta.read_text(encoding="utf-8"))["shape"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ManifestError(f"{where}: {meta} is unreadable ({exc})") from None
+        expected = (entry.n_profiles, manifest.scanner.points_per_profile)
+        if shape != expected:
+            raise ManifestError(f"{where}: {path} holds {shape[0]:,} x {shape[1]:,} points, the manifest "
+                                f"declares n_profiles {expected[0]:,} x points_per_profile {expected[1]:,}")
 
 
 def write_manifest(path: Path, manifest: SampleManifest) -> None:

@@ -16,6 +16,7 @@ missing chunk file means a truncated pass.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import numpy as np
 import zarr
 
 __all__ = ["PASS_FORMAT", "PASS_FORMAT_VERSION", "PassData", "PassFormatError", "PassWriter", "PassReader",
-           "read_pass", "open_pass", "create_chunked_array", "check_complete"]
+           "read_pass", "open_pass", "pass_is_complete", "create_chunked_array", "check_complete"]
 
 PASS_FORMAT = "weldrecon-pass"
 PASS_FORMAT_VERSION = 1
@@ -180,6 +181,16 @@ class PassReader:
                                       "the file is corrupt") from exc
         return PassData(pass_id=self.pass_id, x_mm=arrays["x_mm"], z_mm=arrays["z_mm"], intensity=arrays["intensity"],
                         timestamp_s=arrays["timestamp_s"], T_world_flange=arrays.get("T_world_flange"))
+
+
+def pass_is_complete(path: Path) -> bool:
+    """Whether the pass store at ``path`` says it was completely written (its writer sets the
+    group attribute ``complete`` last); False while it is absent, partial or unreadable."""
+    try:
+        attrs = json.loads((Path(path) / "zarr.json").read_text(encoding="utf-8")).get("attributes", {})
+    except (OSError, ValueError, AttributeError):
+        return False
+    return isinstance(attrs, dict) and attrs.get("complete") is True
 
 
 def open_pass(path: Path, *, pass_id: str | None = None) -> PassReader:

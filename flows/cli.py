@@ -63,14 +63,28 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"[{time.perf_counter() - started:7.1f} s] {message}", file=sys.stderr, flush=True)
 
+    pace = _pace(args.pace) if args.pace else None
     progress(f"simulating preset {config.preset!r} (seed {config.seed}) into {out}")
-    summary = simulate(config, out, progress=progress, previews=not args.no_preview)
+    summary = simulate(config, out, progress=progress, previews=not args.no_preview, pace=pace)
     print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_points:,} points "
           f"({summary.n_valid_points:,} returns), {summary.n_stickers_specimen} stickers on the specimen, "
           f"{summary.n_stickers_fixture} on the fixture, {summary.seconds:.1f} s")
     if not args.no_preview:
         print(f"pictures: {summary.out_dir / 'preview'}")
     return 0
+
+
+def _pace(text: str) -> float:
+    """``realtime`` (the robot's own speed) or ``xN`` (N times faster) as a speed-up factor."""
+    if text == "realtime":
+        return 1.0
+    try:
+        factor = float(text[1:]) if text.startswith("x") else float("nan")
+    except ValueError:
+        factor = float("nan")
+    if not factor > 0:
+        raise ValueError(f"--pace {text!r}: expected realtime or xN with N > 0 (x10: ten times the robot's speed)")
+    return factor
 
 
 def _quiet_prefect() -> None:
@@ -120,6 +134,12 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
+    follow = args.follow_timeout if args.follow else None
+    if follow is not None:  # a scan in progress: its manifest (the plan) may still be coming
+        from flows.reconstruct import wait_for_file
+
+        print(f"following {sample}: each pass is reconstructed as it lands", file=sys.stderr, flush=True)
+        wait_for_file(sample / "manifest.json", timeout_s=follow, what=f"sample {sample}")
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
@@ -132,7 +152,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
             print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
         stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
         report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
-                                    dask=dask)
+                                    dask=dask, follow_timeout_s=follow)
     _print_report(report, out)
     return 0
 
@@ -295,6 +315,8 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, help="override the preset's seed")
     sim.add_argument("--sample-id", help="override the preset's sample id")
     sim.add_argument("--no-preview", action="store_true", help="skip the PNG pictures")
+    sim.add_argument("--pace", metavar="realtime|xN", help="write the manifest first, then each pass when the robot "
+                     "would have finished it, at its speed (realtime) or N times faster (xN): for --follow")
     sim.set_defaults(func=_cmd_simulate)
     rec = sub.add_parser("reconstruct", help="registered point cloud and watertight STL of one sample")
     rec.add_argument("sample_dir", metavar="SAMPLE_DIR", help="folder with manifest.json and the passes")
@@ -303,6 +325,10 @@ def _parser() -> argparse.ArgumentParser:
     rec.add_argument("--dask", metavar="ADDRESS", help="run the per-pass work on a Dask cluster: a scheduler "
                                                        "address, or local:N for N local worker processes "
                                                        "(default: $WELDRECON_DASK, else threads here)")
+    rec.add_argument("--follow", action="store_true", help="follow a scan in progress: start each pass's stages as "
+                     "soon as its store is complete on disk (the manifest may come first)")
+    rec.add_argument("--follow-timeout", type=float, default=1800.0, metavar="S",
+                     help="with --follow: longest wait for the manifest and for each next pass (default 1800 s)")
     rec.set_defaults(func=_cmd_reconstruct)
     demo = sub.add_parser("demo", help="simulate the demo sample (once) and reconstruct it")
     demo.add_argument("--out", default="out/demo", help="folder for the sample and its reconstruction")
@@ -347,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyError as exc:
         print(f"weldrecon {args.command}: error: {exc.args[0]}", file=sys.stderr)
         return 2
-    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError) as exc:
+    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError, TimeoutError) as exc:
         stage = getattr(exc, "stage", None)
         where = f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else ""
         print(f"weldrecon {args.command}: error: {where}{exc}", file=sys.stderr)

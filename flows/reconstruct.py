@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,8 @@ from pydantic import ValidationError
 
 from data_catalog import audit
 from data_catalog.atomic import atomic_write_text
-from data_catalog.manifests import check_sample_files, load_manifest
+from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
+from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
 from flows.stages import STAGES, Stage, StageFailed, StageRef, run_stage
 from flows.stages.contracts import each
@@ -33,7 +35,8 @@ from flows.stages.report import publish
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 
-__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers"]
+__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
+           "wait_for_file"]
 
 
 class ReconstructionFailed(RuntimeError):
@@ -209,22 +212,53 @@ def _on_dask() -> bool:
     return context is not None and type(context.task_runner).__name__ == "DaskTaskRunner"
 
 
+def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s: float = 0.5) -> None:
+    """Wait until ``path`` exists (and ``ready(path)`` holds, when given); TimeoutError naming
+    ``what`` after ``timeout_s`` seconds."""
+    deadline = time.monotonic() + timeout_s
+    while not (path.exists() and (ready is None or ready(path))):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: {path} did not appear (complete) within {timeout_s:g} s")
+        time.sleep(poll_s)
+
+
+def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageStore, config: ReconstructionConfig,
+                           timeout_s: float, log) -> dict[str, list]:
+    """Follow a scan in progress: each pass's per-pass stages are submitted as soon as its store is
+    complete on disk, in the manifest's order (the robot's)."""
+    pending: dict[str, list] = {}
+    for setup, entry in manifest.passes():
+        wait_for_file(sample / entry.file, timeout_s=timeout_s, what=f"pass {entry.pass_id} (setup {setup})",
+                      ready=pass_is_complete)
+        check_pass_file(sample, manifest, setup, entry)
+        log.info("pass %s landed", entry.pass_id)
+        for stage in STAGES:
+            if stage.per_pass:
+                pending.setdefault(stage.name, []).append(
+                    STAGE_TASKS[stage.name].submit(store, sample, manifest, config, {}, entry))
+    return pending
+
+
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
-                       dask: str | None = None) -> dict[str, Any]:
+                       dask: str | None = None, follow_timeout_s: float | None = None) -> dict[str, Any]:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
     and the run itself go into ``out_dir``'s audit trail (data_catalog.audit). ``dask`` (or, when
     not given, ``$WELDRECON_DASK`` read at run time): run the stages on a Dask cluster (see
-    ``task_runner``)."""
+    ``task_runner``). ``follow_timeout_s``: follow a scan in progress: the manifest (the scan
+    plan) may still be coming, and each pass's stages start as soon as its store is complete on
+    disk, waiting at most this long for each (the whole-sample stages follow the last pass)."""
     dask = dask or os.environ.get("WELDRECON_DASK") or None
     if dask and not _on_dask():
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
-            sample_dir, out_dir, config_path, started_by, dask)
+            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s)
     log = get_run_logger()
     # absolute from here on: MeshLab's Poisson changes the process's working directory while it runs
     sample, out = Path(sample_dir).resolve(), Path(out_dir).resolve()
+    if follow_timeout_s is not None:
+        wait_for_file(sample / MANIFEST_NAME, timeout_s=follow_timeout_s, what=f"sample {sample}")
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)
     config = load_config(config_path)
@@ -244,7 +278,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         return refs[name]
 
     try:
+        if follow_timeout_s is not None:
+            pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log))
         for stage in STAGES:
+            if stage.name in pending:  # submitted as its passes landed
+                continue
             if not stage.per_pass:  # the per-pass stages all finish first, failures named in registry order
                 for name in list(pending):
                     outputs_of(name)

@@ -10,10 +10,13 @@ Output folder (written atomically: it appears only when complete)::
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
+import os
+import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -139,7 +142,7 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
             entries.append(PassEntry(
                 pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction,
                 n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
-                has_profile_poses=robot.log_profile_poses, content_sha256=hashes[p.pass_id]))
+                has_profile_poses=robot.log_profile_poses, content_sha256=hashes.get(p.pass_id)))
         description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
         setups.append(Setup(name=setup, description=description, passes=entries))
     return SampleManifest(
@@ -157,9 +160,30 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
     )
 
 
+@contextlib.contextmanager
+def _live_directory(path: Path) -> Iterator[Path]:
+    """``path`` itself, created now (it must not exist): a paced simulation shows its passes as
+    they land. On any error it is removed, so no half sample stays behind."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.mkdir()
+    try:
+        yield path
+    except BaseException:
+        shutil.rmtree(path, ignore_errors=True)
+        raise
+
+
 def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str], None] | None = None,
-             previews: bool = True) -> SimulationSummary:
-    """Simulate the sample described by ``config`` into ``out_dir`` (which must not exist)."""
+             previews: bool = True, pace: float | None = None) -> SimulationSummary:
+    """Simulate the sample described by ``config`` into ``out_dir`` (which must not exist).
+
+    Without ``pace`` the folder appears only when complete (written beside it, then renamed).
+    With ``pace`` (1: the robot's own speed, N: N times faster) the folder and the manifest (the
+    scan plan, without content hashes) appear first, and each pass store appears, complete, when
+    the robot would have finished it (written under a hidden name, then renamed), as a cell's
+    passes land during a scan; the truth comes last."""
+    if pace is not None and not pace > 0:
+        raise ValueError(f"pace must be a positive speed-up over the robot, got {pace}")
     say = progress or (lambda message: log.info(message))
     out_dir = Path(out_dir)
     if out_dir.exists():
@@ -209,13 +233,20 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     n_cols = config.scanner.points_per_profile
     true_passes, hashes = [], {}
     total = valid_total = 0
-    with atomic_directory(out_dir) as tmp:
+    live = pace is not None
+    with (_live_directory(out_dir) if live else atomic_directory(out_dir)) as tmp:
         (tmp / "passes").mkdir()
         (tmp / TRUTH_DIR / "passes").mkdir(parents=True)
+        if live:
+            write_manifest(tmp / MANIFEST_NAME, _manifest(config, planned, {}))
+            scan_start, scanned_s = time.perf_counter(), 0.0
+            say(f"manifest written; passes land at {pace:g} x the robot's speed")
         for index, (p, motion, rng) in enumerate(zip(planned, motions, render_rngs)):
             t_pass = time.perf_counter()
             n = p.n_profiles
-            writer = PassWriter(tmp / "passes" / f"{p.pass_id}.zarr", pass_id=p.pass_id, n_profiles=n,
+            final_path = tmp / "passes" / f"{p.pass_id}.zarr"
+            pass_path = final_path.with_name(f".{p.pass_id}.zarr.partial") if live else final_path
+            writer = PassWriter(pass_path, pass_id=p.pass_id, n_profiles=n,
                                 n_columns=n_cols, chunk_profiles=chunk, with_poses=config.robot.log_profile_poses)
             truth_writer = TruthPassWriter(tmp / TRUTH_DIR / "passes" / f"{p.pass_id}.zarr",
                                            n_profiles=n, n_columns=n_cols, chunk_profiles=chunk)
@@ -233,7 +264,11 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
                 final.add(index, prof.face_id[seen], prof.point_specimen[seen].astype(np.float64))
                 counts += np.bincount(prof.label.ravel(), minlength=256)
             writer.close()
-            hashes[p.pass_id] = sha256_tree(tmp / "passes" / f"{p.pass_id}.zarr")
+            if live:  # the pass lands when the robot would have finished it
+                scanned_s += p.duration_s
+                time.sleep(max(0.0, scan_start + scanned_s / pace - time.perf_counter()))
+                os.rename(pass_path, final_path)
+            hashes[p.pass_id] = sha256_tree(final_path)
             label_counts = {_LABEL_NAMES[k]: int(counts[k]) for k in _LABEL_NAMES}
             true_passes.append(TruePass(pass_id=p.pass_id, setup=p.setup, T_nominal_true=motion.T_error.tolist(),
                                         n_points=int(n * n_cols), label_counts=label_counts))
@@ -256,8 +291,9 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
                 log.warning("passes %s and %s share only %d stickers whole", planned[i].pass_id,
                             planned[j].pass_id, len(ids))
 
-        manifest = _manifest(config, planned, hashes)
-        write_manifest(tmp / MANIFEST_NAME, manifest)
+        manifest = _manifest(config, planned, {} if live else hashes)
+        if not live:
+            write_manifest(tmp / MANIFEST_NAME, manifest)
         truth = GroundTruth(
             sample_id=config.sample_id, seed=config.seed, preset=config.preset,
             T_world_specimen={s: T_world_specimen[s].tolist() for s in config.plan.setups},

@@ -1,0 +1,93 @@
+"""Accuracy of a finished reconstruction against the simulator's truth.
+
+    .venv/bin/python bench/accuracy.py SAMPLE_DIR RUN_DIR [--json OUT.json]
+
+Pass misalignment (``simulator.evaluate.pass_misalignment``): per pass, the largest and the median
+distance between where the reconstruction puts its measured specimen points and where they truly
+are, after one rigid fit of the whole; for the target registration alone (the paper's method) and
+after the refinement. Mesh to the true surface: every STL vertex, in the specimen frame (fitted on
+the registered targets against the true stickers), its distance to the true specimen mesh; over
+the scanned length, and within 15 mm of the weld's centre line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _latest(run: Path, stage: str) -> Path:
+    """The stage folder the run's audit trail names last for ``stage``."""
+    from data_catalog.audit import read_trail
+
+    entries = [e for e in read_trail(run) if e.get("kind") == "stage" and e.get("stage") == stage]
+    if not entries:
+        raise SystemExit(f"{run}: no finished stage {stage} in its audit trail")
+    return run / "stages" / stage / entries[-1]["cache_key"]
+
+
+def evaluate(sample: Path, run: Path) -> dict:
+    import open3d as o3d
+
+    from data_catalog.manifests import load_manifest
+    from data_catalog.stages import load_arrays
+    from data_catalog.truth import TRUTH_DIR, read_truth
+    from simulator.evaluate import fit_gauge, pass_misalignment
+
+    result: dict = {}
+    for poses, stage, name in (("targets alone", "registration", "registration.zarr"),
+                               ("refined", "refine", "refined.zarr")):
+        T = load_arrays(_latest(run, stage) / name, "T_common_pass")["T_common_pass"]
+        m = pass_misalignment(sample, T)
+        result[poses] = {"worst_um": round(1000 * float(np.nanmax(m.max_mm)), 1),
+                         "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
+    refined = load_arrays(_latest(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
+    positions = refined["track_positions_mm"]
+    gauge = fit_gauge(sample, positions[refined["specimen_track"].astype(bool)], positions)
+    mesh = load_arrays(_latest(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
+    G_inv = np.linalg.inv(gauge.T_recon_specimen)
+    v = mesh @ G_inv[:3, :3].T + G_inv[:3, 3]
+    true_mesh = o3d.io.read_triangle_mesh(str(sample / TRUTH_DIR / "specimen.ply"))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(true_mesh))
+    dist = scene.compute_distance(o3d.core.Tensor(v.astype(np.float32))).numpy().astype(np.float64)
+    manifest = load_manifest(sample)
+    truth = read_truth(sample / TRUTH_DIR / "truth.json")
+    length = manifest.specimen.length_mm
+    scanned = np.abs(v[:, 0]) < length / 2 - 2  # the ends were never scanned: Poisson closes them freely
+    weld = scanned & (np.abs(v[:, 0] - manifest.weld.centre_x_mm) <= 15.0)
+
+    def stats(d):
+        return {"vertices": int(len(d)), "median_um": round(1000 * float(np.median(d)), 1),
+                "rms_um": round(1000 * float(np.sqrt(np.mean(d**2))), 1),
+                "p95_um": round(1000 * float(np.quantile(d, 0.95)), 1)}
+
+    result["mesh to truth, scanned length"] = stats(dist[scanned])
+    result["mesh to truth, within 15 mm of the weld"] = stats(dist[weld])
+    result["gauge targets"] = gauge.n_targets
+    result["sample"] = truth.sample_id
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sample", type=Path)
+    parser.add_argument("run", type=Path)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    result = evaluate(args.sample, args.run)
+    print(json.dumps(result, indent=1))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
