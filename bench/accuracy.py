@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def _latest(run: Path, stage: str) -> Path:
+def latest_stage(run: Path, stage: str) -> Path:
     """The stage folder the run's audit trail names last for ``stage``."""
     from data_catalog.audit import read_trail
 
@@ -44,14 +44,14 @@ def evaluate(sample: Path, run: Path) -> dict:
     result: dict = {}
     for poses, stage, name in (("targets alone", "registration", "registration.zarr"),
                                ("refined", "refine", "refined.zarr")):
-        T = load_arrays(_latest(run, stage) / name, "T_common_pass")["T_common_pass"]
+        T = load_arrays(latest_stage(run, stage) / name, "T_common_pass")["T_common_pass"]
         m = pass_misalignment(sample, T)
         result[poses] = {"worst_um": round(1000 * float(np.nanmax(m.max_mm)), 1),
                          "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
-    refined = load_arrays(_latest(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
+    refined = load_arrays(latest_stage(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
     positions = refined["track_positions_mm"]
     gauge = fit_gauge(sample, positions[refined["specimen_track"].astype(bool)], positions)
-    mesh = load_arrays(_latest(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
+    mesh = load_arrays(latest_stage(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
     G_inv = np.linalg.inv(gauge.T_recon_specimen)
     v = mesh @ G_inv[:3, :3].T + G_inv[:3, 3]
     true_mesh = o3d.io.read_triangle_mesh(str(sample / TRUTH_DIR / "specimen.ply"))

@@ -61,7 +61,7 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
     from flows.stages.passes import load_pass_points
     from tasks.denoise import remove_statistical_outliers
     from tasks.merge import merge_box_grid
-    from tasks.mesh import estimate_normals, screened_poisson
+    from tasks.mesh import screened_poisson
 
     cfg = load_config(CONFIG)
     m = load_manifest(sample)
@@ -99,9 +99,9 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
     rows.append({"stage": "merge", "points": len(pts),
                  "ours_s": timed(lambda: merge_box_grid(pts, cell_mm=cfg.merge.cell_mm)),
                  "peer": "o3d voxel_down_sample", "peer_s": timed(lambda: cloud.voxel_down_sample(cfg.merge.cell_mm))})
-    # meshing: the specimen cloud, same normals, same depth
+    # meshing: the specimen cloud, same normals (merged from the passes' grid normals), same depth
     spec = SPECIMEN.read(refs["segment"])
-    normals = estimate_normals(spec.points, spec.sensor_positions, k=cfg.mesh.normals_k)
+    normals = spec.normals.astype(np.float64)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(spec.points))
     pc.normals = o3d.utility.Vector3dVector(normals)
     sc = cfg.mesh
