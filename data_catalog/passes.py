@@ -52,11 +52,12 @@ class PassData:
 
 
 def create_chunked_array(group: zarr.Group, name: str, shape: tuple[int, ...], chunk_rows: int,
-                         dtype: str, fill_value) -> zarr.Array:
-    """An array chunked along its first axis only, with every chunk written even if empty."""
+                         dtype: str, fill_value, compressors="auto") -> zarr.Array:
+    """An array chunked along its first axis only, with every chunk written even if empty
+    (``compressors``: zarr's, default its own)."""
     chunks = (max(1, min(chunk_rows, shape[0])),) + tuple(shape[1:])
     return group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill_value,
-                              config={"write_empty_chunks": True})
+                              compressors=compressors, config={"write_empty_chunks": True})
 
 
 def check_complete(array: zarr.Array, *, what: str) -> None:

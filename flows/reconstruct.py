@@ -28,7 +28,7 @@ from data_catalog.atomic import atomic_write_text
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
-from flows.stages import STAGES, Stage, StageFailed, StageRef, run_stage
+from flows.stages import STAGES, Stage, StageFailed, StageRef, code_version, run_stage
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
 from flows.stages.report import publish
@@ -255,6 +255,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
             sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s)
     log = get_run_logger()
+    for stage in STAGES:  # hash the code now, as imported: an edit during a long run is not credited to it
+        code_version(stage)
     # absolute from here on: MeshLab's Poisson changes the process's working directory while it runs
     sample, out = Path(sample_dir).resolve(), Path(out_dir).resolve()
     if follow_timeout_s is not None:

@@ -79,8 +79,10 @@ class MergeConfig(StrictModel):
         "a coarse cell is this many fine cells on an edge; its fine cells merge into one point where flat"))
     flat_normal_deg: float = Field(default=4.0, gt=0, le=90, description=(
         "flat: every fine cell's normal within this angle of the coarse cell's mean normal"))
-    flat_deviation_mm: float = Field(default=0.01, gt=0, le=1, description=(
-        "flat: every fine cell's point within this distance of the coarse cell's plane"))
+    flat_deviation_mm: float = Field(default=0.02, gt=0, le=1, description=(
+        "flat: every fine cell's point within this distance of the coarse cell's plane; above a fine "
+        "cell mean's noise and the passes' residual misalignment (measured on the paper preset: 0.01 "
+        "kept 63 % of the fine cells fine, 0.02 43 %, 0.04 39 %)"))
 
 
 class SegmentConfig(StrictModel):

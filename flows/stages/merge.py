@@ -18,7 +18,7 @@ import numpy as np
 
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import zarr_array
-from tasks.merge import CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells, combine_cell_sums
+from tasks.merge import CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells, combine_cell_sums, transform_measured
 
 __all__ = ["merge"]
 
@@ -77,12 +77,8 @@ def merge(ctx) -> dict[str, Any]:
             points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
             n, m = points.shape[:2]
             step = max(points.chunks[0], _READ_ROWS_POINTS // max(m, 1) // points.chunks[0] * points.chunks[0])
-            R, t = T[:3, :3], T[:3, 3]
             for start in range(0, n, step):
-                p = np.asarray(points[start:start + step]).reshape(-1, 3)
-                valid = np.isfinite(p).all(axis=1)
-                p = p[valid].astype(np.float64) @ R.T + t
-                q = np.asarray(normals[start:start + step]).reshape(-1, 3)[valid].astype(np.float64) @ R.T
+                p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
                 points_in += len(p)
                 part = cell_sums(p, q, cell_mm=s.cell_mm)
                 spill.add(part, np.floor_divide(cell_index_of_keys(part.keys)[:, 0], slab_cells))

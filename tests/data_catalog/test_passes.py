@@ -88,3 +88,17 @@ def test_blocks_must_come_in_order(tmp_path):
     block = np.zeros((2, 2))
     with pytest.raises(ValueError, match="expected start 0, got 2"):
         writer.write(2, x_mm=block, z_mm=block, intensity=block, timestamp_s=np.zeros(2))
+
+
+def test_a_pass_is_complete_only_once_its_writer_closed_it(tmp_path):
+    from data_catalog.passes import pass_is_complete
+
+    path = tmp_path / "p1.zarr"
+    assert not pass_is_complete(path)  # absent
+    _write(path, complete=False)
+    assert not pass_is_complete(path)  # every block written, not closed
+    shutil.rmtree(path)
+    _write(path)
+    assert pass_is_complete(path)
+    (path / "zarr.json").write_text("{not json")
+    assert not pass_is_complete(path)  # unreadable: not complete, no error

@@ -84,3 +84,12 @@ def test_presets_are_valid_and_distinct():
     seeds = {preset_config(name).seed for name in ("ci", "demo", "paper")}
     assert len(seeds) == 3
     assert SimulationConfig.model_validate(preset_config("paper").model_dump()) == preset_config("paper")
+
+
+@pytest.mark.parametrize("pace", ["fast", "x0", "x-2", "xnan"])
+def test_a_bad_pace_is_refused_before_anything_is_written(tmp_path, capsys, pace):
+    out = tmp_path / "sample"
+    assert main(["simulate", "--preset", "ci", "--pace", pace, str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--pace {pace!r}: expected realtime or xN with N > 0" in err
+    assert not out.exists()
