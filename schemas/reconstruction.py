@@ -90,7 +90,7 @@ class SegmentConfig(StrictModel):
 
 
 class MeshConfig(StrictModel):
-    poisson_depth: int = Field(default=10, ge=4, le=14)
+    poisson_depth: int = Field(default=12, ge=4, le=14, description="octree depth (paper: 12)")
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
     point_weight: float = Field(default=4.0, ge=0, le=100)
     poisson_scale: float = Field(default=1.3, ge=1.0, le=3.0, description=(
