@@ -76,16 +76,20 @@ def evaluate(sample: Path, run: Path) -> dict:
     return result
 
 
+def emit(result: dict, json_path: Path | None) -> None:
+    """Print ``result`` as JSON, and write it to ``json_path`` when given."""
+    print(json.dumps(result, indent=1))
+    if json_path:
+        json_path.write_text(json.dumps(result, indent=1) + "\n")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sample", type=Path)
     parser.add_argument("run", type=Path)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    result = evaluate(args.sample, args.run)
-    print(json.dumps(result, indent=1))
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    emit(evaluate(args.sample, args.run), args.json)
     return 0
 
 

@@ -22,7 +22,6 @@ Meshing against MeshLab's Poisson on the uniform cloud needs two reconstructions
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -50,7 +49,7 @@ def main() -> int:
 
     import open3d as o3d
 
-    from bench.accuracy import latest_stage
+    from bench.accuracy import emit, latest_stage
     from data_catalog.manifests import load_manifest
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR, read_truth_pass
@@ -151,9 +150,7 @@ def main() -> int:
         r["ours_s"], r["peer_s"] = round(r["ours_s"], 2), round(r["peer_s"], 2)
     result = {"sample": str(args.sample), "passes": [e.pass_id for _, e in manifest.passes()[:args.passes]],
               **rows}
-    print(json.dumps(result, indent=1))
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    emit(result, args.json)
     return 0
 
 

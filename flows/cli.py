@@ -134,7 +134,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
-    follow = args.follow_timeout if args.follow else None
+    follow = args.follow_timeout if getattr(args, "follow", False) else None
     if follow is not None:  # a scan in progress: its manifest (the plan) may still be coming
         from flows.reconstruct import wait_for_file
 
