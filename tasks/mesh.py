@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import open3d as o3d
+import pymeshlab
 from scipy.spatial import cKDTree
 
 from tasks.checks import check_points
@@ -217,12 +218,6 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         raise ValueError(f"scale must be >= 1, got {scale}")
     if np.any(np.linalg.norm(normal_array, axis=1) == 0):
         raise ValueError("normals holds zero vectors")
-    # Loaded here, not with the module: a Dask worker process that had pymeshlab loaded beside
-    # Open3D and scipy.spatial sometimes corrupted its heap when it exited (glibc's
-    # "malloc_consolidate(): unaligned fastbin chunk detected"; 3 of 18 exits), so only the
-    # process that meshes loads it (tests/flows/test_dask.py).
-    import pymeshlab
-
     with _MESHLAB, _one_openmp_thread():  # pymeshlab is not thread-safe: two runs at once crash (SIGSEGV)
         ms = pymeshlab.MeshSet()
         ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(points),
