@@ -37,29 +37,3 @@ def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path):
     assert {k: v["sha256"] for k, v in report["outputs"].items()} == \
         {k: v["sha256"] for k, v in threaded["outputs"].items()}
     assert verify_trail(out) == []
-
-
-_WORKER_IMPORTS = """
-from distributed import Client, LocalCluster
-def load(name):
-    __import__(name)
-    return name
-if __name__ == "__main__":
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \\
-            Client(cluster) as client:
-        print(client.submit(load, "flows.stages", pure=False).result(), flush=True)
-"""
-
-
-def test_a_worker_that_loaded_the_stages_exits_cleanly(tmp_path):
-    """Open3D or scipy.spatial loaded before pymeshlab corrupted the heap of a worker process when
-    it exited (glibc's malloc_consolidate abort); tasks/__init__.py loads pymeshlab first."""
-    import subprocess
-    import sys
-
-    script = tmp_path / "worker_imports.py"
-    script.write_text(_WORKER_IMPORTS)
-    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300,
-                          cwd=Path(__file__).resolve().parents[2])
-    assert done.returncode == 0 and "flows.stages" in done.stdout, done.stderr[-2000:]
-    assert "malloc" not in done.stderr and "free()" not in done.stderr, done.stderr[-2000:]
