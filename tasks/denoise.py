@@ -17,7 +17,7 @@ one thread only: the same bytes for any thread count).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from tasks.kernels import numba
 import numpy as np
@@ -51,7 +51,6 @@ class DistanceStats:
     n: int = 0
     s1: int = 0
     s2: int = 0
-    _parts: list = field(default_factory=list, repr=False)
 
     def add(self, mean_distance_mm: np.ndarray) -> None:
         """Add the defined (finite) values of ``mean_distance_mm`` (any shape, mm)."""

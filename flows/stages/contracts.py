@@ -19,9 +19,20 @@ import numpy as np
 from data_catalog.atomic import atomic_write_text
 from data_catalog.stages import ArrayWriter, load_arrays, open_array, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each", "zarr_array"]
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS",
+           "block_rows"]
 
 A = TypeVar("A")
+
+# Points per block a stage reads of a pass or of a per-pass output (about 2**20): ~100 MB of working
+# arrays in the heaviest per-pass stage. Results do not depend on it.
+BLOCK_POINTS = 1 << 20
+
+
+def block_rows(n_columns: int, *, chunk_profiles: int = 1, points: int = BLOCK_POINTS) -> int:
+    """Profiles per block: about ``points`` points, a whole number of the store's chunks."""
+    rows = max(1, points // max(n_columns, 1))
+    return max(chunk_profiles, rows // chunk_profiles * chunk_profiles)
 
 
 @dataclass(frozen=True)

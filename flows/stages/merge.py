@@ -17,13 +17,12 @@ from typing import Any
 import numpy as np
 
 from flows.stages.outputs import CLOUD, MERGED, REFINED
-from flows.stages.contracts import zarr_array
+from flows.stages.contracts import block_rows, zarr_array
 from tasks.merge import CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells, combine_cell_sums, transform_measured
 
 __all__ = ["merge"]
 
 SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
-_READ_ROWS_POINTS = 1 << 20  # points per block read from a denoised pass
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
 _RECORD = np.dtype([("key", "<i8"), ("count", "<i8"), ("p", "<f8", 3), ("q", "<f8", 3)])
 
@@ -76,7 +75,7 @@ def merge(ctx) -> dict[str, Any]:
         for ref, T in zip(ctx.inputs["denoise"], T_all):
             points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
             n, m = points.shape[:2]
-            step = max(points.chunks[0], _READ_ROWS_POINTS // max(m, 1) // points.chunks[0] * points.chunks[0])
+            step = block_rows(m, chunk_profiles=points.chunks[0])
             for start in range(0, n, step):
                 p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
                 points_in += len(p)

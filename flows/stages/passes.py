@@ -16,15 +16,11 @@ from typing import Any
 import numpy as np
 
 from data_catalog.passes import PassData, PassReader, open_pass
+from flows.stages.contracts import BLOCK_POINTS, block_rows
 from schemas.manifest import PassEntry, SampleManifest
 from tasks.ingest import profile_points, sensor_poses
 
 __all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "load_pass_points", "pass_view"]
-
-# Points per block (about 2**20): ~100 MB of working arrays in the heaviest per-pass stage.
-# Results do not depend on it (each stage's result is defined per profile and its window).
-BLOCK_POINTS = 1 << 20
-
 
 @dataclass(frozen=True)
 class PassBlock:
@@ -50,12 +46,6 @@ class PassBlock:
 
 def open_entry(sample_dir: Path, entry: PassEntry) -> PassReader:
     return open_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
-
-
-def block_rows(n_columns: int, *, chunk_profiles: int = 1, points: int = BLOCK_POINTS) -> int:
-    """Profiles per block: about ``points`` points, a whole number of the store's chunks."""
-    rows = max(1, points // max(n_columns, 1))
-    return max(chunk_profiles, rows // chunk_profiles * chunk_profiles)
 
 
 def _block(reader: PassReader, manifest: SampleManifest, entry: PassEntry, start: int, stop: int,

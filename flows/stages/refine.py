@@ -7,20 +7,18 @@ from typing import Any
 
 import numpy as np
 
-from flows.stages.contracts import zarr_array
+from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
 from tasks.refine import refine_poses, surface_sample
 
 __all__ = ["refine"]
-
-_READ_POINTS = 1 << 20
 
 
 def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
     """A denoised pass's points, every ``stride`` profile and column, read block by block."""
     points = zarr_array(ref, CLOUD, "points")
     n, m = points.shape[:2]
-    step = max(points.chunks[0], _READ_POINTS // max(m, 1) // points.chunks[0] * points.chunks[0])
+    step = block_rows(m, chunk_profiles=points.chunks[0])
     rs, cs = stride
     step = max(rs, step // rs * rs)  # blocks start on a kept profile
     return np.concatenate([np.asarray(points[a:a + step])[::rs, ::cs] for a in range(0, n, step)])

@@ -25,13 +25,14 @@ def segment(ctx) -> dict[str, Any]:
     points = zarr_array(ctx.inputs["merge"], MERGED, "points")
     normals = zarr_array(ctx.inputs["merge"], MERGED, "normals")
     fine = zarr_array(ctx.inputs["merge"], MERGED, "fine")
-    result = keep_specimen_components(np.asarray(points[...]), link_mm=ctx.settings.link_mm, target_points_mm=anchors)
+    all_points = np.asarray(points[...])  # labelling needs every point; normals and zones are read by block
+    result = keep_specimen_components(all_points, link_mm=ctx.settings.link_mm, target_points_mm=anchors)
     keep = result.keep
     out = SPECIMEN.writer(ctx.out, chunk_rows=1 << 18)
     kept = no_normal = 0
     for start in range(0, len(keep), _ROWS):
         rows = slice(start, start + _ROWS)
-        p, q = np.asarray(points[rows]), np.asarray(normals[rows])
+        p, q = all_points[rows], np.asarray(normals[rows])
         take = keep[rows] & np.isfinite(q).all(axis=1)  # a cell whose normals cancelled has none: left out
         no_normal += int(np.count_nonzero(keep[rows]) - np.count_nonzero(take))
         out.append("points", p[take])
