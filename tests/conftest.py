@@ -35,3 +35,13 @@ def ci_run(ci_sample, tmp_path_factory):
     out = tmp_path_factory.mktemp("recon") / "run"
     report = reconstruct_sample(str(ci_sample), str(out), str(CI_CONFIG), started_by="pytest")
     return out, report
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _stop_prefects_temporary_server():
+    """Flows run in this process start Prefect's temporary API server; stop it while pytest's
+    output is still open (at interpreter exit its goodbye line met a closed stream)."""
+    yield
+    from prefect.server.api.server import SubprocessASGIServer
+
+    SubprocessASGIServer().stop()  # the one instance Prefect started (a fresh one stops nothing)

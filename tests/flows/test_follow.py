@@ -1,67 +1,132 @@
 """Streaming: ``weldrecon simulate --pace`` writes the plan first and each pass when the robot
 would have finished it; ``weldrecon reconstruct --follow`` starts each pass's stages as soon as it
 lands, so the robot and the reconstruction overlap, and ends with the same mesh as a run on the
-finished sample."""
+finished sample.
+
+The overlap is shown causally, not by a stopwatch: the test plays the robot and holds the last
+pass back until the run has denoised an earlier one. A run that waited for the whole sample would
+never get there (and fail on the test's deadline)."""
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import shutil
 import subprocess
 import sys
 import time
-from datetime import datetime
 from pathlib import Path
 
 import pytest
 
 from data_catalog.audit import read_trail
+from data_catalog.hashing import sha256_tree
+from data_catalog.manifests import MANIFEST_NAME
 from tests.flows.cli import REPO, run_cli
+
+CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
+ENV = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING")
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _land(source: Path, passes: Path) -> None:
+    """A pass lands as a cell writes it: complete under a hidden name, then renamed into place."""
+    hidden = passes / f".{source.name}.partial"
+    shutil.copytree(source, hidden)
+    os.rename(hidden, passes / source.name)
+
+
+def _denoised(out: Path) -> list[str]:
+    try:
+        trail = read_trail(out)
+    except FileNotFoundError:
+        return []
+    return [e["item"] for e in trail if e.get("kind") == "stage" and e.get("stage") == "denoise"]
 
 
 @pytest.mark.slow
-def test_follow_a_paced_scan_overlaps_it_and_gives_the_same_mesh(ci_run, tmp_path):
+def test_follow_works_on_passes_while_the_last_is_still_being_scanned(ci_sample, ci_run, tmp_path):
     _, finished = ci_run
     sample, out = tmp_path / "live", tmp_path / "run"
-    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING")
-    # the ci plan scans for ~3.5 min; at x12 its passes land over ~18 s
-    scan = subprocess.Popen([sys.executable, "-m", "flows.cli", "simulate", "--preset", "ci", "--no-preview",
-                             "--pace", "x12", str(sample)], cwd=REPO, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        follow = run_cli("reconstruct", str(sample), "--out", str(out), "--follow", "--follow-timeout", "120",
-                         "--config", str(REPO / "deploy" / "configs" / "ci.yaml"))
-    finally:
-        _, scan_err = scan.communicate(timeout=300)
-    assert scan.returncode == 0, scan_err[-2000:]
-    assert follow.returncode == 0, follow.stderr[-3000:]
-    assert scan_err.count("passes land at 12 x") == 1
-    # the first passes were denoised while the robot was still scanning: their stage records
-    # finished before the simulation wrote its last pass
-    trail = read_trail(out)
-    denoised = sorted(datetime.fromisoformat(e["record"]["finished"]).timestamp() for e in trail
-                      if e.get("kind") == "stage" and e.get("stage") == "denoise")
-    assert len(denoised) == 14
-    last_pass_landed = (sample / "passes").stat().st_mtime  # the last rename into passes/
-    assert denoised[0] < last_pass_landed - 2.0, (denoised[0], last_pass_landed)
-    # the same mesh as the run on the finished sample (the manifest of a paced scan has no content
-    # hashes; the stages do not read them)
-    digest = lambda p: hashlib.sha256(Path(p).read_bytes()).hexdigest()  # noqa: E731
+    (sample / "passes").mkdir(parents=True)
+    shutil.copy2(ci_sample / MANIFEST_NAME, sample / MANIFEST_NAME)
+    stores = sorted((ci_sample / "passes").iterdir())
+    with open(tmp_path / "follow.err", "w") as err:
+        follow = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(sample), "--out", str(out),
+                                   "--follow", "--follow-timeout", "600", "--config", str(CI_CONFIG)],
+                                  cwd=REPO, env=ENV, stdout=subprocess.DEVNULL, stderr=err)
+        try:
+            for store in stores[:-1]:
+                _land(store, sample / "passes")
+            deadline = time.monotonic() + 600
+            while not _denoised(out):  # the robot is still scanning the last pass
+                assert follow.poll() is None, (tmp_path / "follow.err").read_text()[-3000:]
+                assert time.monotonic() < deadline, "no pass was denoised while the last one was missing"
+                time.sleep(0.5)
+            assert not (sample / "passes" / stores[-1].name).exists()
+            early = _denoised(out)
+            _land(stores[-1], sample / "passes")
+            assert follow.wait(timeout=600) == 0, (tmp_path / "follow.err").read_text()[-3000:]
+        finally:
+            if follow.poll() is None:
+                follow.kill()
+    assert early and stores[-1].stem not in early
+    assert len(_denoised(out)) == len(stores)
+    # the same mesh as the run on the finished sample
     stl_live = out / "results" / f"{finished['sample_id']}.stl"
     stl_done = Path(finished["outputs"][f"{finished['sample_id']}.stl"]["path"])
-    assert digest(stl_live) == digest(stl_done)
+    assert _digest(stl_live) == _digest(stl_done)
+
+
+@pytest.mark.slow
+def test_a_paced_scan_shows_the_plan_first_and_lands_the_same_passes_at_the_robots_pace(ci_sample, tmp_path):
+    sample = tmp_path / "live"
+    seen: dict[str, float] = {}
+    scan = subprocess.Popen([sys.executable, "-m", "flows.cli", "simulate", "--preset", "ci", "--no-preview",
+                             "--pace", "x40", str(sample)], cwd=REPO, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        while scan.poll() is None:  # what a follower sees, in order
+            if (sample / MANIFEST_NAME).exists():
+                seen.setdefault(MANIFEST_NAME, time.monotonic())
+            if (sample / "passes").is_dir():
+                for store in (sample / "passes").iterdir():
+                    if not store.name.startswith("."):
+                        seen.setdefault(store.name, time.monotonic())
+            time.sleep(0.05)
+        _, scan_err = scan.communicate(timeout=60)
+    finally:
+        if scan.poll() is None:
+            scan.kill()
+    assert scan.returncode == 0, scan_err[-2000:]
+    assert scan_err.count("passes land at 40 x") == 1
+    plan = json.loads((sample / MANIFEST_NAME).read_text())
+    entries = [e for setup in plan["setups"] for e in setup["passes"]]
+    stores = [Path(e["file"]).name for e in entries]
+    assert set(seen) == {MANIFEST_NAME, *stores}
+    # the plan first, then each pass in the robot's order, the last no sooner than the robot allows
+    order = sorted(seen, key=seen.get)
+    assert order[0] == MANIFEST_NAME and order[1:] == stores
+    assert seen[stores[-1]] - seen[MANIFEST_NAME] >= 0.9 * sum(e["duration_s"] for e in entries[1:]) / 40
+    # the plan has no content hashes (not known until scanned); the passes are those of an unpaced scan
+    finished = json.loads((ci_sample / MANIFEST_NAME).read_text())
+    expected = {e["pass_id"]: e["content_sha256"] for setup in finished["setups"] for e in setup["passes"]}
+    assert all(e["content_sha256"] is None for e in entries)
+    assert {e["pass_id"]: sha256_tree(sample / e["file"]) for e in entries} == expected
 
 
 def test_follow_names_the_pass_that_never_lands(ci_sample, tmp_path):
-    import shutil
-
     sample = tmp_path / "partial"
     shutil.copytree(ci_sample, sample)
     missing = sorted((sample / "passes").iterdir())[-1]
     shutil.rmtree(missing)
     started = time.monotonic()
     done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--follow", "--follow-timeout", "3",
-                   "--config", str(REPO / "deploy" / "configs" / "ci.yaml"))
+                   "--config", str(CI_CONFIG))
     assert done.returncode == 2
     assert f"{missing.name} did not appear (complete) within 3 s" in done.stderr, done.stderr[-2000:]
     assert time.monotonic() - started < 300
