@@ -79,7 +79,8 @@ def main() -> int:
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat))
         t_ours, ours = _timed(lambda: remove_statistical_outliers(grid, k=dc.k, alpha=dc.alpha,
                                                                   window_rows=dc.window_rows,
-                                                                  window_cols=dc.window_cols))
+                                                                  window_cols=dc.window_cols,
+                                                                  pitch_mm=manifest.grid_pitch_mm(entry)))
         t_peer, (_, kept_index) = _timed(lambda: cloud.remove_statistical_outlier(nb_neighbors=dc.k,
                                                                                   std_ratio=dc.alpha))
         peer_keep = np.zeros(len(flat), bool)

@@ -83,7 +83,8 @@ def _peers(sample: Path, refs: dict) -> list[dict]:
         n_points += len(flat)
         cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(flat))
         ours += timed(lambda: remove_statistical_outliers(grid, k=dc.k, alpha=dc.alpha, window_rows=dc.window_rows,
-                                                          window_cols=dc.window_cols))
+                                                          window_cols=dc.window_cols,
+                                                          pitch_mm=m.grid_pitch_mm(e)))
         peer += timed(lambda: cloud.remove_statistical_outlier(nb_neighbors=dc.k, std_ratio=dc.alpha))
     rows.append({"stage": "denoise", "points": n_points, "ours_s": ours, "peer": "o3d remove_statistical_outlier",
                  "peer_s": peer})

@@ -119,11 +119,19 @@ class PassEntry(StrictModel):
 
 
 class Setup(StrictModel):
-    """One placement of the specimen in the cell; the robot frame ('world') is the cell's."""
+    """One placement of the specimen in the cell; the robot frame ('world') is the cell's.
+
+    ``T_world_specimen_nominal``: where the fixture puts the specimen frame in this setup, as
+    drawn (optional); the specimen lies within ``placement_tolerance_mm`` of it at its weld line.
+    With it, the reconstruction knows roughly where the weld is before it has seen the weld and
+    keeps that zone at full resolution."""
 
     name: str = Field(pattern=_ID_PATTERN)
     description: str = ""
     passes: list[PassEntry] = Field(min_length=1)
+    T_world_specimen_nominal: Pose4x4 | None = None
+    placement_tolerance_mm: float = Field(default=0.0, ge=0, le=1000, description=(
+        "how far the specimen's weld line may lie from where T_world_specimen_nominal puts it"))
 
 
 class SampleManifest(StrictModel):

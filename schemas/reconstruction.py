@@ -60,6 +60,9 @@ class RefineConfig(StrictModel):
         "the local-plane model leaves on rough, textured, differently sampled surfaces; measured on "
         "the demo sample, worst pass misalignment 64/42/30/28/33 um at 0.02/0.03/0.05/0.1/0.2 mm"))
     max_points_per_pair: int = Field(default=3000, ge=100, le=1_000_000)
+    normal_space_sampling: bool = Field(default=False, description=(
+        "a pair's points are taken round-robin over bins of normal direction (slopes before more "
+        "plate) instead of at random"))
     max_iterations: int = Field(default=10, ge=1, le=100)
     tolerance_mm: float = Field(default=0.001, gt=0, le=1, description="stop when no pass point moves more")
 
@@ -83,6 +86,10 @@ class MergeConfig(StrictModel):
         "flat: every fine cell's point within this distance of the coarse cell's plane; above a fine "
         "cell mean's noise and the passes' residual misalignment (measured on the paper preset: 0.01 "
         "kept 63 % of the fine cells fine, 0.02 43 %, 0.04 39 %)"))
+    weld_zone_mm: float = Field(default=15.0, ge=0, le=1000, description=(
+        "cells within this distance of the manifest's weld line (plus the setup's placement "
+        "tolerance) stay fine, flat or not: the zone FE models of the weld toes need; 0: off "
+        "(needs the setups' T_world_specimen_nominal, else curvature alone decides)"))
 
 
 class SegmentConfig(StrictModel):

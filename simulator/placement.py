@@ -9,7 +9,7 @@ from schemas.simulation import FixtureConfig, PlacementConfig
 from simulator.specimen import Specimen
 from simulator.transforms import apply, make_pose, rotation_deg, translation
 
-__all__ = ["place_on_fixture", "FLIP"]
+__all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "FLIP"]
 
 FLIP = make_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
 """Turned over by hand: 180 degrees about the specimen's length axis."""
@@ -24,6 +24,20 @@ def _contact_heights(vertices: np.ndarray, fixture: FixtureConfig) -> np.ndarray
             raise ValueError(f"the specimen does not rest on the support block at x = {cx} mm")
         out.append(vertices[inside, 2].min())
     return np.array(out)
+
+
+def nominal_placement(fixture: FixtureConfig, thickness_mm: float, *, flipped: bool) -> np.ndarray:
+    """T_world_specimen as the fixture is drawn: centred on the blocks, flat on them."""
+    return translation([0.0, 0.0, fixture.block_size_mm[2] + thickness_mm / 2]) @ (FLIP if flipped else np.eye(4))
+
+
+def placement_tolerance_mm(placement: PlacementConfig, half_width_mm: float, weld_centre_x_mm: float = 0.0) -> float:
+    """How far a point of the weld line (specimen x = ``weld_centre_x_mm``, |y| <= ``half_width_mm``)
+    can stray along the specimen's x from where the nominal placement puts it: the hand's offset and
+    yaw (``place_on_fixture``), plus 0.5 mm for settling on the blocks."""
+    yaw = np.radians(placement.yaw_deg)
+    return float(placement.translation_mm + half_width_mm * np.sin(yaw)
+                 + abs(weld_centre_x_mm) * (1 - np.cos(yaw)) + 0.5)
 
 
 def place_on_fixture(specimen: Specimen, fixture: FixtureConfig, placement: PlacementConfig,

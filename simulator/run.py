@@ -35,7 +35,7 @@ from schemas.simulation import SimulationConfig
 from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
-from simulator.placement import place_on_fixture
+from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
 from simulator.robot import PassMotion, PlannedPass, draw_motion, plan_passes
 from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
@@ -144,7 +144,10 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
                 n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
                 has_profile_poses=robot.log_profile_poses, content_sha256=hashes.get(p.pass_id)))
         description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
-        setups.append(Setup(name=setup, description=description, passes=entries))
+        nominal = nominal_placement(config.fixture, sp.thickness_mm, flipped=(setup == "bottom"))
+        setups.append(Setup(name=setup, description=description, passes=entries,
+                            T_world_specimen_nominal=nominal.tolist(),
+                            placement_tolerance_mm=round(placement_tolerance_mm(config.placement, sp.grip_width_mm / 2), 3)))
     return SampleManifest(
         sample_id=config.sample_id, created=SCAN_DATE, material="S355",
         specimen=SpecimenGeometry(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,

@@ -25,7 +25,7 @@ import numpy as np
 from tasks.checks import check_points
 from tasks.kernels import numba
 
-__all__ = ["MergeResult", "CellSums", "AdaptiveCloud", "merge_box_grid", "cell_sums", "combine_cell_sums",
+__all__ = ["MergeResult", "CellSums", "AdaptiveCloud", "Band", "merge_box_grid", "cell_sums", "combine_cell_sums",
            "cell_index_of_keys", "coarsen_flat_cells", "transform_measured"]
 
 
@@ -166,20 +166,6 @@ def transform_measured(points_mm: np.ndarray, normals: np.ndarray, T: np.ndarray
     return out_p[:m], out_n[:m]
 
 
-@numba.njit(cache=True)
-def _point_keys(points, cell, out):
-    """Packed (i, j, k) cell keys of points, or -1 for a cell index outside the packable range."""
-    for n in range(points.shape[0]):
-        key = 0
-        for d in range(3):
-            c = np.int64(np.floor(points[n, d] / cell)) + _KEY_OFFSET
-            if c < 0 or c > _KEY_MASK:
-                key = -1
-                break
-            key = (key << _KEY_BITS) | c
-        out[n] = key
-
-
 def _pack(ijk: np.ndarray) -> np.ndarray:
     if ijk.size and (ijk.min() < -_KEY_OFFSET or ijk.max() >= _KEY_OFFSET):
         raise ValueError(f"cell indices outside +-{_KEY_OFFSET}: the points span too many cells for the cell size")
@@ -194,14 +180,67 @@ def cell_index_of_keys(keys: np.ndarray) -> np.ndarray:
                     axis=1) - _KEY_OFFSET
 
 
-def _sums_by_key(keys, counts, *values):
-    unique, inverse = np.unique(keys, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    m = len(unique)
-    total = np.bincount(inverse, weights=counts, minlength=m).astype(np.int64) if counts is not None \
-        else np.bincount(inverse, minlength=m).astype(np.int64)
-    sums = [np.stack([np.bincount(inverse, weights=v[:, d], minlength=m) for d in range(3)], axis=1) for v in values]
-    return unique, total, sums
+@numba.njit(cache=True)
+def _run_sums(points, normals, cell, keys, counts, point_sums, normal_sums):
+    """Packed (i, j, k) cell keys of the points, each run of equal keys in input order summed into
+    one record; the number of runs, or -1 when a cell index is outside the packable range."""
+    m = -1
+    previous = np.int64(-2)
+    for n in range(points.shape[0]):
+        key = np.int64(0)
+        for d in range(3):
+            c = np.int64(np.floor(points[n, d] / cell)) + _KEY_OFFSET
+            if c < 0 or c > _KEY_MASK:
+                return -1
+            key = (key << _KEY_BITS) | c
+        if key != previous:
+            m += 1
+            keys[m] = key
+            counts[m] = 0
+            for d in range(3):
+                point_sums[m, d] = 0.0
+                normal_sums[m, d] = 0.0
+            previous = key
+        counts[m] += 1
+        for d in range(3):
+            point_sums[m, d] += points[n, d]
+            normal_sums[m, d] += normals[n, d]
+    return m + 1
+
+
+@numba.njit(cache=True)
+def _gather_sums(order, keys, counts, point_sums, normal_sums, out_keys, out_counts, out_p, out_q):
+    """Sum the records in ``order`` (a stable sort of ``keys``: each key's records in input order)
+    per key; the number of distinct keys."""
+    m = -1
+    previous = np.int64(0)
+    for o in range(len(order)):
+        r = order[o]
+        if m < 0 or keys[r] != previous:
+            m += 1
+            previous = keys[r]
+            out_keys[m] = previous
+            out_counts[m] = 0
+            for d in range(3):
+                out_p[m, d] = 0.0
+                out_q[m, d] = 0.0
+        out_counts[m] += counts[r]
+        for d in range(3):
+            out_p[m, d] += point_sums[r, d]
+            out_q[m, d] += normal_sums[r, d]
+    return m + 1
+
+
+def _sums_by_key(keys, counts, point_sums, normal_sums):
+    """Records with equal keys added, in input order (a stable sort): the distinct keys ascending,
+    their counts, point sums and normal sums."""
+    order = np.argsort(keys, kind="stable")  # timsort: the concatenated sorted parts are runs
+    n = len(keys)
+    out_keys, out_counts = np.empty(n, np.int64), np.empty(n, np.int64)
+    out_p, out_q = np.empty((n, 3)), np.empty((n, 3))
+    m = _gather_sums(order, keys, np.asarray(counts, np.int64), np.ascontiguousarray(point_sums, np.float64),
+                     np.ascontiguousarray(normal_sums, np.float64), out_keys, out_counts, out_p, out_q)
+    return out_keys[:m], out_counts[:m], (out_p[:m], out_q[:m])
 
 
 def cell_sums(points_mm: np.ndarray, normals: np.ndarray, *, cell_mm: float) -> CellSums:
@@ -217,16 +256,15 @@ def cell_sums(points_mm: np.ndarray, normals: np.ndarray, *, cell_mm: float) -> 
         raise ValueError(f"cell_mm must be positive and finite, got {cell_mm}")
     if len(points) == 0:
         return CellSums(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-    keys = np.empty(len(points), np.int64)
-    _point_keys(points, float(cell_mm), keys)
-    if keys.min() < 0:
+    n = len(points)
+    keys, counts = np.empty(n, np.int64), np.empty(n, np.int64)
+    point_sums, normal_sums = np.empty((n, 3)), np.empty((n, 3))
+    runs = _run_sums(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(normal_in, np.float64),
+                     float(cell_mm), keys, counts, point_sums, normal_sums)
+    if runs < 0:
         raise ValueError(f"cell indices outside +-{_KEY_OFFSET}: the points span too many cells for the cell size")
-    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
-    run_counts = np.diff(np.r_[starts, len(keys)])
-    run_points = np.add.reduceat(points, starts, axis=0)
-    run_normals = np.add.reduceat(normal_in, starts, axis=0)
-    unique, counts, (p, q) = _sums_by_key(keys[starts], run_counts, run_points, run_normals)
-    return CellSums(unique, counts, p, q)
+    unique, totals, (p, q) = _sums_by_key(keys[:runs], counts[:runs], point_sums[:runs], normal_sums[:runs])
+    return CellSums(unique, totals, p, q)
 
 
 def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
@@ -243,20 +281,36 @@ def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
 # --- non-uniform resolution: fine cells where the surface bends, coarse cells where it is flat ---
 
 @dataclass(frozen=True)
+class Band:
+    """The slab of space within ``half_width_mm`` of the plane through ``point_mm`` with unit
+    ``normal`` (both in the cloud's frame): e.g. the zone around a weld's centre line."""
+
+    point_mm: tuple[float, float, float]
+    normal: tuple[float, float, float]
+    half_width_mm: float
+
+    def contains(self, points_mm: np.ndarray) -> np.ndarray:
+        offset = (np.asarray(points_mm, np.float64) - np.asarray(self.point_mm)) @ np.asarray(self.normal, np.float64)
+        return np.abs(offset) <= self.half_width_mm
+
+
+@dataclass(frozen=True)
 class AdaptiveCloud:
     """A merged cloud at two resolutions: ``points_mm`` (m, 3) float64, ``normals`` (m, 3) unit,
     ``counts`` (m,) int64 measured points per output point, ``fine`` (m,) bool whether the point is
-    a fine cell (a bent neighbourhood) or a whole coarse cell (a flat one); sorted by coarse cell,
+    a fine cell (a bent neighbourhood, or in a band kept fine) or a whole coarse cell (a flat one);
+    ``banded`` (m,) bool whether its coarse cell lies in a band kept fine; sorted by coarse cell,
     then fine cell."""
 
     points_mm: np.ndarray
     normals: np.ndarray
     counts: np.ndarray
     fine: np.ndarray
+    banded: np.ndarray
 
 
 def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: float,
-                       max_deviation_mm: float) -> AdaptiveCloud:
+                       max_deviation_mm: float, fine_bands: tuple[Band, ...] = ()) -> AdaptiveCloud:
     """Merge the fine cells of each coarse cell (``factor`` fine cells on an edge) into one point
     where the surface in it is flat: every fine normal within ``max_normal_deg`` of the coarse
     cell's mean normal, and every fine point within ``max_deviation_mm`` of the plane through the
@@ -264,7 +318,8 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
 
     A coarse cell's mean is the count-weighted mean of its fine cells (the mean of all the measured
     points in it). ``merged`` needs normals; cells without one (NaN) keep their coarse cell fine.
-    ``factor`` 1 returns the fine cloud unchanged (all ``fine``).
+    A coarse cell whose mean point lies in one of the ``fine_bands`` (the weld's zone) keeps
+    its fine cells, flat or not. ``factor`` 1 returns the fine cloud unchanged (all ``fine``).
     """
     if merged.normals is None:
         raise ValueError("coarsening needs the merged normals")
@@ -272,7 +327,10 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
         raise ValueError(f"factor must be an integer >= 1, got {factor}")
     n = merged.n_points
     if factor == 1 or n == 0:
-        return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool))
+        banded = np.zeros(n, bool)
+        for band in fine_bands:
+            banded |= band.contains(merged.points_mm)
+        return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool), banded)
     coarse = np.floor_divide(merged.cells, factor)
     keys = _pack(coarse)
     order = np.argsort(keys, kind="stable")  # fine cells stay in (i, j, k) order within a coarse cell
@@ -291,7 +349,10 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
     cos_dev = np.einsum("ij,ij->i", safe_n, mean_n[group])
     off_plane = np.abs(np.einsum("ij,ij->i", cells_p - mean_p[group], mean_n[group]))
     bent = ~has_normal | ~(cos_dev >= np.cos(np.radians(max_normal_deg))) | ~(off_plane <= max_deviation_mm)
-    flat = ~np.logical_or.reduceat(bent, starts) & (length > 0)
+    banded = np.zeros(len(starts), bool)
+    for band in fine_bands:
+        banded |= band.contains(mean_p)
+    flat = ~np.logical_or.reduceat(bent, starts) & (length > 0) & ~banded
     keep_fine = ~flat[group]
     first = np.zeros(len(keys), bool)
     first[starts] = True
@@ -299,4 +360,5 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
     out_p = np.where(keep_fine[:, None], cells_p, mean_p[group])[take]
     out_n = np.where(keep_fine[:, None], cells_n, mean_n[group])[take]
     out_c = np.where(keep_fine, counts, total[group].astype(np.int64))[take]
-    return AdaptiveCloud(points_mm=out_p, normals=out_n, counts=out_c, fine=keep_fine[take])
+    return AdaptiveCloud(points_mm=out_p, normals=out_n, counts=out_c, fine=keep_fine[take],
+                         banded=banded[group][take])

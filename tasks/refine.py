@@ -124,11 +124,38 @@ def _overlapping_pairs(boxes: np.ndarray, margin: float) -> list[tuple[int, int]
             if np.all(boxes[a, 0] - margin <= boxes[b, 1]) and np.all(boxes[b, 0] - margin <= boxes[a, 1])]
 
 
+def _priority(normals: np.ndarray, *, seed: int, normal_space: bool) -> np.ndarray:
+    """The order in which a pass's thinned points are taken when a pair has more than it may use
+    (lower first): random, or with ``normal_space`` round-robin over bins of normal direction
+    (normal-space sampling, Rusinkiewicz & Levoy 2001): the few points on slopes (weld cap, edges)
+    that hold a pass against sliding on the plate are taken before more of the plate."""
+    m = len(normals)
+    order = np.random.default_rng(seed).permutation(m)
+    if not normal_space or m == 0:
+        return order
+    up = np.median(normals, axis=0)
+    up /= max(np.linalg.norm(up), 1e-12)
+    n = normals * np.where(normals @ up < 0, -1.0, 1.0)[:, None]
+    tilt = np.degrees(np.arccos(np.clip(n @ up, -1.0, 1.0)))
+    e1 = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    azimuth = np.degrees(np.arctan2(n @ e2, n @ e1)) % 360.0
+    bins = np.where(tilt < 5.0, 0, 1 + np.minimum(tilt // 5.0, 8).astype(np.int64) * 8 + (azimuth // 45.0).astype(np.int64))
+    # rank within bin by the random order; then round-robin over the bins
+    by = np.lexsort((order, bins))
+    rank = np.empty(m, np.int64)
+    starts = np.flatnonzero(np.r_[True, bins[by][1:] != bins[by][:-1]])
+    counts = np.diff(np.r_[starts, m])
+    rank[by] = np.arange(m) - np.repeat(starts, counts)
+    return rank * m + order
+
+
 def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_passes: np.ndarray,
                  points_a: np.ndarray, points_b: np.ndarray, *, max_iterations: int, tolerance_mm: float,
                  max_distance_mm: float, final_distance_mm: float, neighbour_mm: float, normal_neighbours: int,
                  target_sigma_mm: float, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
-                 max_plane_rms_mm: float, fixed: int = 0) -> RefineResult:
+                 max_plane_rms_mm: float, fixed: int = 0, normal_space: bool = False) -> RefineResult:
     """Refine ``T_common_pass`` (n, 4, 4; pass frame -> common frame, from target registration).
 
     ``edge_passes`` (e, 2), ``points_a``/``points_b`` (e, 3): the inlier target pairs, each centre
@@ -157,7 +184,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     gates += [final_distance_mm] * max(max_iterations - len(gates), 0)
     gates = gates[:max_iterations]
     cache = [np.full((len(s.dense_mm), 8), np.nan) for s in samples]
-    priority = [np.random.default_rng(k).permutation(len(s.points_mm)) for k, s in enumerate(samples)]
+    priority = [_priority(s.normals, seed=k, normal_space=normal_space) for k, s in enumerate(samples)]
 
     def planes(k: int, idx: np.ndarray) -> np.ndarray:
         """Local planes at pass k's dense points idx (see _planes_at), each computed once."""

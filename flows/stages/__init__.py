@@ -37,8 +37,9 @@ STAGES: tuple[Stage, ...] = (
           "match targets between passes, solve all pass poses"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
           refine.refine, _sample_wide_grids, "all pass poses on targets and overlapping surfaces together"),
-    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, _sample_wide,
-          "box-grid merge in the common frame, out of core; coarse cells where the surface is flat"),
+    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, merge.merge_view,
+          "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
+          "away from the weld"),
     Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, _sample_wide,
           "remove unwanted objects (the fixture): components of occupied grid cells"),
     Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), mesh.mesh, _sample_wide,

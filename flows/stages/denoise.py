@@ -33,7 +33,8 @@ def denoise(ctx) -> dict[str, Any]:
     reader = open_entry(ctx.sample_dir, ctx.entry)
     n, m = reader.n_profiles, reader.n_columns
     rows = BLOCK_ROWS or block_rows(m, chunk_profiles=reader.chunk_profiles)
-    nr, nc = normal_window(s.normal_window_mm, ctx.manifest.grid_pitch_mm(ctx.entry))
+    pitch = ctx.manifest.grid_pitch_mm(ctx.entry)
+    nr, nc = normal_window(s.normal_window_mm, pitch)
     stats = DistanceStats()
     points_in = 0
     reference = None  # the sensor at the first profile: normals sum coordinates relative to it
@@ -43,7 +44,7 @@ def denoise(ctx) -> dict[str, Any]:
             for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=s.window_rows, rows=rows,
                                      reader=reader):
                 md = mean_knn_distance(block.points, k=s.k, window_rows=s.window_rows, window_cols=s.window_cols,
-                                       rows=block.core)
+                                       rows=block.core, pitch_mm=pitch)
                 stats.add(md)
                 if reference is None:
                     reference = block.T_world_sensor[0, :3, 3].copy()

@@ -45,7 +45,7 @@ def refine(ctx) -> dict[str, Any]:
                               max_distance_mm=rc.max_distance_mm, final_distance_mm=rc.final_distance_mm,
                               neighbour_mm=rc.neighbour_mm, normal_neighbours=rc.normal_neighbours,
                               target_sigma_mm=rc.target_sigma_mm, surface_sigma_mm=rc.surface_sigma_mm,
-                              max_points_per_pair=rc.max_points_per_pair, min_normal_cos=rc.min_normal_cos,
+                              max_points_per_pair=rc.max_points_per_pair, normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
                               max_plane_rms_mm=rc.max_plane_rms_mm)
         T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
         target_res = result.target_residual_mm

@@ -82,3 +82,30 @@ def test_bad_arguments(kwargs, message):
         _denoise(np.zeros((4, 4, 3)), **kwargs)
     with pytest.raises(ValueError, match=r"shape \(profiles, columns, 3\)"):
         _denoise(np.zeros((4, 3)))
+
+
+def test_the_order_neighbours_are_tried_in_changes_nothing():
+    """Neighbours are tried nearest first by the grid's pitch, for speed: any pitch gives the same
+    bytes, and they are those of a plain sort of the window's distances."""
+    from tasks.denoise import mean_knn_distance
+
+    rng = np.random.default_rng(11)
+    grid = np.stack(np.meshgrid(np.arange(40) * 0.02, np.arange(30) * 0.1), -1)[..., ::-1]
+    points = np.concatenate([grid, rng.normal(0, 0.01, (30, 40, 1))], axis=-1)
+    points[rng.random((30, 40)) < 0.1] = np.nan
+    points[5, 7] += 3.0  # an outlier
+    runs = [mean_knn_distance(points, k=6, window_rows=2, window_cols=3, pitch_mm=pitch)
+            for pitch in ((0.1, 0.02), (1.0, 1.0), (0.02, 0.1), (5.0, 0.001))]
+    assert all(np.array_equal(runs[0], r, equal_nan=True) for r in runs[1:])
+    expected = np.full((30, 40), np.nan)
+    for i in range(30):
+        for j in range(40):
+            if not np.isfinite(points[i, j]).all():
+                continue
+            window = points[max(i - 2, 0):i + 3, max(j - 3, 0):j + 4].reshape(-1, 3)
+            d = np.sort(np.linalg.norm(window - points[i, j], axis=1))
+            d = d[np.isfinite(d)][1:]  # the point itself (0) first
+            if len(d) >= 6:
+                expected[i, j] = np.sum(d[:6]) / 6
+    np.testing.assert_allclose(runs[0], expected, rtol=1e-12, atol=1e-15)
+    assert np.array_equal(np.isnan(runs[0]), np.isnan(expected))

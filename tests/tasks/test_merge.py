@@ -159,3 +159,26 @@ def test_flat_cells_coarsen_and_bent_cells_stay_fine():
     # factor 1: the fine cloud unchanged
     same = coarsen_flat_cells(fine, factor=1, max_normal_deg=4.0, max_deviation_mm=0.01)
     assert same.fine.all() and np.array_equal(same.points_mm, fine.points_mm)
+
+
+def test_cells_in_a_fine_band_stay_fine_even_where_flat():
+    """The weld's zone from the manifest: a band across a flat plate keeps its fine cells; outside
+    it the plate coarsens as before, and nothing is lost."""
+    from tasks.merge import Band, coarsen_flat_cells
+
+    rng = np.random.default_rng(4)
+    points = np.column_stack([rng.uniform(0.0, 20.0, (200_000, 2)), rng.normal(0, 0.001, 200_000)])
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    fine = merge_box_grid(points, cell_mm=0.1, normals=normals)
+    band = Band(point_mm=(10.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0), half_width_mm=2.0)
+    plain = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01)
+    banded = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01, fine_bands=(band,))
+    assert plain.fine.sum() < 0.01 * len(plain.fine) and not plain.banded.any()
+    assert banded.counts.sum() == len(points)
+    x = banded.points_mm[:, 0]
+    # a coarse cell (0.4 mm) is in the band when its mean is: its fine cells reach 0.2 mm further
+    assert np.all(banded.fine[np.abs(x - 10.0) <= 1.8])
+    assert np.all(~banded.fine[np.abs(x - 10.0) > 2.4])
+    assert np.array_equal(banded.banded, banded.fine)
+    inside = np.abs(fine.points_mm[:, 0] - 10.0) <= 1.8
+    assert banded.fine.sum() >= inside.sum()
