@@ -34,12 +34,9 @@ def latest_stage(run: Path, stage: str) -> Path:
 
 
 def evaluate(sample: Path, run: Path) -> dict:
-    import open3d as o3d
-
-    from data_catalog.manifests import load_manifest
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR, read_truth
-    from simulator.evaluate import fit_gauge, pass_misalignment
+    from simulator.evaluate import pass_misalignment
 
     result: dict = {}
     for poses, stage, name in (("targets alone", "registration", "registration.zarr"),
@@ -48,18 +45,35 @@ def evaluate(sample: Path, run: Path) -> dict:
         m = pass_misalignment(sample, T)
         result[poses] = {"worst_um": round(1000 * float(np.nanmax(m.max_mm)), 1),
                          "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
+    mesh = load_arrays(latest_stage(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
+    accuracy = mesh_to_truth(sample, run, mesh)
+    result["mesh to truth, scanned length"] = accuracy["scanned length"]
+    result["mesh to truth, within 15 mm of the weld"] = accuracy["within 15 mm of the weld"]
+    result["gauge targets"] = accuracy["gauge targets"]
+    result["sample"] = read_truth(sample / TRUTH_DIR / "truth.json").sample_id
+    return result
+
+
+def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
+    """Distances of mesh ``vertices`` (in ``run``'s common frame) to the true specimen surface:
+    statistics over the scanned length and within 15 mm of the weld's centre line."""
+    import open3d as o3d
+
+    from data_catalog.manifests import load_manifest
+    from data_catalog.stages import load_arrays
+    from data_catalog.truth import TRUTH_DIR
+    from simulator.evaluate import fit_gauge
+
     refined = load_arrays(latest_stage(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
     positions = refined["track_positions_mm"]
     gauge = fit_gauge(sample, positions[refined["specimen_track"].astype(bool)], positions)
-    mesh = load_arrays(latest_stage(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
     G_inv = np.linalg.inv(gauge.T_recon_specimen)
-    v = mesh @ G_inv[:3, :3].T + G_inv[:3, 3]
+    v = np.asarray(vertices, np.float64) @ G_inv[:3, :3].T + G_inv[:3, 3]
     true_mesh = o3d.io.read_triangle_mesh(str(sample / TRUTH_DIR / "specimen.ply"))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(true_mesh))
     dist = scene.compute_distance(o3d.core.Tensor(v.astype(np.float32))).numpy().astype(np.float64)
     manifest = load_manifest(sample)
-    truth = read_truth(sample / TRUTH_DIR / "truth.json")
     length = manifest.specimen.length_mm
     scanned = np.abs(v[:, 0]) < length / 2 - 2  # the ends were never scanned: Poisson closes them freely
     weld = scanned & (np.abs(v[:, 0] - manifest.weld.centre_x_mm) <= 15.0)
@@ -69,11 +83,8 @@ def evaluate(sample: Path, run: Path) -> dict:
                 "rms_um": round(1000 * float(np.sqrt(np.mean(d**2))), 1),
                 "p95_um": round(1000 * float(np.quantile(d, 0.95)), 1)}
 
-    result["mesh to truth, scanned length"] = stats(dist[scanned])
-    result["mesh to truth, within 15 mm of the weld"] = stats(dist[weld])
-    result["gauge targets"] = gauge.n_targets
-    result["sample"] = truth.sample_id
-    return result
+    return {"scanned length": stats(dist[scanned]), "within 15 mm of the weld": stats(dist[weld]),
+            "gauge targets": gauge.n_targets}
 
 
 def emit(result: dict, json_path: Path | None) -> None:

@@ -142,3 +142,20 @@ def test_a_rerun_executes_no_stage_and_a_new_depth_only_meshing(run, ci_sample, 
     deeper.write_text(Path(CI_CONFIG).read_text().replace("poisson_depth: 8", "poisson_depth: 7"))
     changed = reconstruct_sample(str(ci_sample), str(out), str(deeper))
     assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "report"}
+
+
+def test_the_weld_zone_stays_fine(run, ci_sample):
+    """The manifest's nominal placement puts the weld line in the common frame: every merged
+    point within 15 mm of the true weld centre is a fine cell, flat or not; the flat plate beyond
+    the zone and its tolerance is coarse."""
+    out, report = run
+    metrics = report["stages"]["merge"]
+    assert len(metrics["weld_zones"]) == 2 and metrics["weld_zone_points_out"] > 0
+    reach = max(z["half_width_mm"] for z in metrics["weld_zones"])
+    G_inv = np.linalg.inv(_gauge(report, ci_sample).T_recon_specimen)
+    merged = MERGED.read(report["refs"]["merge"])
+    x = (merged.points @ G_inv[:3, :3].T + G_inv[:3, 3])[:, 0]
+    near = np.abs(x) <= 15.0 - 0.5  # minus a coarse cell: a coarse cell is in the zone when its mean is
+    assert near.sum() > 1000 and merged.fine[near].all()
+    beyond = np.abs(x) > reach + 1.0
+    assert (~merged.fine[beyond]).sum() > 0.3 * beyond.sum()
