@@ -31,7 +31,7 @@ from typing import Any
 
 from data_catalog.hashing import sha256_tree
 
-__all__ = ["TRAIL", "append", "read_trail", "AuditProblem", "verify_trail", "GENESIS"]
+__all__ = ["TRAIL", "append", "read_trail", "AuditProblem", "TrailError", "verify_trail", "GENESIS"]
 
 TRAIL = Path("audit") / "trail.jsonl"
 GENESIS = "0" * 64
@@ -42,44 +42,145 @@ def _digest(entry: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
 
 
+class TrailError(RuntimeError):
+    """The trail could not be read or written; the message names the file, the line and the cause."""
+
+
+@dataclass(frozen=True)
+class _Line:
+    number: int  # 1-based
+    start: int  # byte offset
+    raw: bytes
+    entry: dict[str, Any] | None  # None: unreadable
+    problem: str | None
+
+
+def _parse(raw: bytes, number: int, start: int) -> _Line:
+    if not raw.endswith(b"\n"):
+        return _Line(number, start, raw, None, "no line end (the write was cut short)")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return _Line(number, start, raw, None, f"not UTF-8 (byte {exc.start}: {raw[exc.start:exc.start + 1]!r})")
+    try:
+        entry = json.loads(text)
+    except json.JSONDecodeError as exc:
+        return _Line(number, start, raw, None, f"not valid JSON ({exc.msg}, column {exc.colno})")
+    if not isinstance(entry, dict) or not isinstance(entry.get("hash"), str) or not isinstance(entry.get("seq"), int):
+        return _Line(number, start, raw, None, "not a trail entry (no seq or hash)")
+    return _Line(number, start, raw, entry, None)
+
+
+def _lines(data: bytes) -> list[_Line]:
+    out, start, number = [], 0, 0
+    while start < len(data):
+        end = data.find(b"\n", start)
+        end = len(data) if end < 0 else end + 1
+        number += 1
+        if data[start:end].strip():
+            out.append(_parse(data[start:end], number, start))
+        start = end
+    return out
+
+
+def _set_aside(path: Path, handle, damaged: list[_Line]) -> dict[str, Any]:
+    """Move a damaged tail (``damaged``: the last lines, none readable) out of the trail into
+    ``audit/damaged/``, truncate the trail before it; the facts for the entry that records it."""
+    first = damaged[0]
+    data = b"".join(line.raw for line in damaged)
+    folder = path.parent / "damaged"
+    folder.mkdir(exist_ok=True)
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%fZ")
+    kept = folder / f"{stamp}-line{first.number}.bin"
+    with open(kept, "wb") as out:
+        out.write(data)
+        out.flush()
+        os.fsync(out.fileno())
+    handle.truncate(first.start)
+    handle.flush()
+    os.fsync(handle.fileno())
+    return {"lines": [line.number for line in damaged], "bytes": len(data),
+            "sha256": hashlib.sha256(data).hexdigest(), "cause": first.problem,
+            "kept_at": str(kept.relative_to(path.parent.parent))}
+
+
 def append(run_dir: Path, kind: str, **fields: Any) -> dict[str, Any]:
-    """Append one entry to the run folder's trail (created on first use); returns it."""
+    """Append one entry to the run folder's trail (created on first use); returns it.
+
+    The entry is written with one ``write`` and synced; if the write fails (a full disk), the
+    trail is cut back to where it was and TrailError says why. A damaged tail left by an earlier
+    write that was cut short (the last lines unreadable: no line end, not UTF-8, not JSON) is moved
+    to ``audit/damaged/`` and a ``trail-damage-set-aside`` entry records its lines, bytes, hash and
+    cause before this entry; damage with readable entries after it is not a cut-short write, and
+    TrailError names its line (``weldrecon audit verify`` shows the rest)."""
     path = Path(run_dir) / TRAIL
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+", encoding="utf-8") as handle:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle = open(path, "a+b")
+    except OSError as exc:
+        raise TrailError(f"{path}: cannot open the audit trail ({exc.strerror or exc})") from exc
+    with handle:
         fcntl.flock(handle, fcntl.LOCK_EX)
         try:
             handle.seek(0)
-            last = None
-            for line in handle:
-                if line.strip():
-                    last = line
-            prev = json.loads(last) if last else None
-            entry = {"seq": 0 if prev is None else prev["seq"] + 1, "prev": GENESIS if prev is None else prev["hash"],
-                     "time": datetime.now(UTC).isoformat(), "kind": kind, **fields}
-            entry["hash"] = _digest(entry)
-            handle.seek(0, os.SEEK_END)
-            handle.write(json.dumps(entry, sort_keys=True, default=str) + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
+            lines = _lines(handle.read())
+            good = [line for line in lines if line.entry is not None]
+            bad = [line for line in lines if line.entry is None]
+            pending = []
+            if bad:
+                if good and good[-1].number > bad[0].number:
+                    raise TrailError(f"{path} line {bad[0].number}: {bad[0].problem}, with readable entries after "
+                                     "it; not a cut-short write: the trail was damaged or edited")
+                try:
+                    facts = _set_aside(path, handle, bad)
+                except OSError as exc:
+                    raise TrailError(f"{path} line {bad[0].number}: {bad[0].problem}; could not set it aside "
+                                     f"({exc.strerror or exc})") from exc
+                pending.append(("trail-damage-set-aside", facts))
+            pending.append((kind, fields))
+            prev = good[-1].entry if good else None
+            for entry_kind, entry_fields in pending:
+                entry = {"seq": 0 if prev is None else prev["seq"] + 1,
+                         "prev": GENESIS if prev is None else prev["hash"],
+                         "time": datetime.now(UTC).isoformat(), "kind": entry_kind, **entry_fields}
+                entry["hash"] = _digest(entry)
+                _write_line(path, handle, (json.dumps(entry, sort_keys=True, default=str) + "\n").encode("utf-8"))
+                prev = entry
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
     return entry
 
 
+def _write_line(path: Path, handle, data: bytes) -> None:
+    handle.seek(0, os.SEEK_END)
+    size = handle.tell()
+    try:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    except OSError as exc:
+        try:  # nothing half written stays in the trail
+            handle.truncate(size)
+            handle.flush()
+        except OSError:
+            pass
+        raise TrailError(f"{path}: could not append an audit entry ({exc.strerror or exc}); the trail is as it "
+                         "was before") from exc
+
+
 def read_trail(run_dir: Path) -> list[dict[str, Any]]:
+    """Every entry of the trail, in order; an unreadable line comes as ``{"_unreadable": why,
+    "_line": number}``."""
     path = Path(run_dir) / TRAIL
     if not path.is_file():
         raise FileNotFoundError(f"{run_dir}: no audit trail ({TRAIL}) there")
-    entries = []
-    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        if not line.strip():
-            continue
-        try:
-            entries.append(json.loads(line))
-        except json.JSONDecodeError as exc:
-            entries.append({"_unreadable": f"line {number}: {exc.msg}", "_line": number})
-    return entries
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise TrailError(f"{path}: cannot read the audit trail ({exc.strerror or exc})") from exc
+    return [line.entry if line.entry is not None else {"_unreadable": f"line {line.number}: {line.problem}",
+                                                         "_line": line.number}
+            for line in _lines(data)]
 
 
 @dataclass(frozen=True)
@@ -106,7 +207,7 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]
     for number, entry in enumerate(read_trail(run_dir), start=1):
         where = f"trail line {number}"
         if "_unreadable" in entry:
-            problems.append(AuditProblem(where, f"not valid JSON ({entry['_unreadable']})"))
+            problems.append(AuditProblem(where, f"unreadable ({entry['_unreadable']})"))
             prev = None
             continue
         where = f"trail line {number} (seq {entry.get('seq')}, {entry.get('kind')})"

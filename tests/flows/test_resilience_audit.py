@@ -170,3 +170,21 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     assert [e["kind"] for e in entries].count("run-started") == 2
     assert verify_trail(run) == []
     assert sha256_file(run / "results" / stl) == report["outputs"][stl]["sha256"]
+
+
+def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(run_copy, ci_sample):
+    """A write cut short (a crash, a full disk) left half a line at the trail's end: the next run
+    of the folder sets it aside with a record of it and finishes; the trail verifies."""
+    run, report = run_copy
+    half = b'{"kind": "stage", "seq": 9'
+    with open(run / TRAIL, "ab") as f:
+        f.write(half)
+    done = run_cli("audit", "verify", str(run))
+    assert done.returncode != 0 and "no line end (the write was cut short)" in done.stdout + done.stderr
+    again = run_cli("reconstruct", str(ci_sample), "--out", str(run), "--config", CI_CONFIG)
+    assert again.returncode == 0, again.stderr[-2000:]
+    entries = read_trail(run)
+    aside = [e for e in entries if e["kind"] == "trail-damage-set-aside"]
+    assert len(aside) == 1 and (run / aside[0]["kept_at"]).read_bytes() == half
+    assert entries[-1]["kind"] == "run-finished"
+    assert verify_trail(run) == []
