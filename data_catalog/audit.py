@@ -197,9 +197,30 @@ def _artefacts(entry: dict[str, Any]) -> dict[str, str]:
     return dict(entry.get("artefacts") or {})
 
 
+def _unrecorded(run_dir: Path, expected: dict[str, Any]) -> list[AuditProblem]:
+    """What the folder holds that no entry records: a stage folder or a published result with no
+    entry naming it means the trail lost its end (cut, or emptied), or the thing was put there."""
+    problems = []
+    recorded_folders = {"/".join(rel.split("/")[:3]) for rel in expected if rel.startswith("stages/")}
+    stages = run_dir / "stages"
+    for folder in sorted(stages.glob("*/*")) if stages.is_dir() else []:
+        rel = folder.relative_to(run_dir).as_posix()
+        if folder.is_dir() and not folder.name.startswith(".") and rel not in recorded_folders:
+            problems.append(AuditProblem(rel, "no trail entry records this stage output (the trail was cut "
+                                              "short, or the folder was put there)"))
+    results = run_dir / "results"
+    for path in sorted(results.iterdir()) if results.is_dir() else []:
+        rel = path.relative_to(run_dir).as_posix()
+        if not path.name.startswith(".") and rel not in expected:
+            problems.append(AuditProblem(rel, "no run-finished entry records this result (the trail was cut "
+                                              "short, or the file was put there)"))
+    return problems
+
+
 def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]:
-    """Every break in the chain, and (with ``artefacts``) every recorded artefact whose content no
-    longer matches: the latest entry naming a path decides what it should hold. Empty: intact."""
+    """Every break in the chain, every stage folder or result no entry records (a trail cut short
+    or emptied), and (with ``artefacts``) every recorded artefact whose content no longer matches:
+    the latest entry naming a path decides what it should hold. Empty: intact."""
     run_dir = Path(run_dir)
     problems: list[AuditProblem] = []
     prev = GENESIS
@@ -222,6 +243,7 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]
         prev = entry.get("hash")
         for rel, digest in _artefacts(entry).items():
             expected[rel] = (digest, number)
+    problems += _unrecorded(run_dir, expected)
     if artefacts:
         for rel, (digest, number) in sorted(expected.items()):
             path = run_dir / rel

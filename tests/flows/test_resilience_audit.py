@@ -188,3 +188,20 @@ def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(ru
     assert len(aside) == 1 and (run / aside[0]["kept_at"]).read_bytes() == half
     assert entries[-1]["kind"] == "run-finished"
     assert verify_trail(run) == []
+
+
+@pytest.mark.parametrize("keep", [0, 1, -1, -3])
+def test_a_shortened_or_emptied_trail_fails_verification(run_copy, keep):
+    """Deleting the trail's last line(s) or all of it leaves results and stage folders that no
+    entry records: verify names them."""
+    run, report = run_copy
+    lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
+    (run / TRAIL).write_bytes(b"".join(lines[:keep]))
+    problems = [str(p) for p in verify_trail(run)]
+    assert problems
+    if keep != 0 and keep > -2:  # at least the run-finished entry went: the results are unrecorded
+        assert any(p.startswith(f"results/{report['sample_id']}.stl: no run-finished entry") for p in problems)
+    if keep in (0, 1):
+        assert any(p.startswith("stages/merge/") and "no trail entry records" in p for p in problems)
+    done = run_cli("audit", "verify", str(run))
+    assert done.returncode == 1 and "NOT intact" in done.stdout
