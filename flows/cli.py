@@ -243,9 +243,13 @@ def _run_folder(args: argparse.Namespace) -> Path:
     target = Path(args.target)
     if (target / "audit").is_dir() or target.is_dir():
         return target
-    from data_catalog.catalog import Catalog
+    from data_catalog.catalog import CATALOG_NAME, Catalog
 
-    record = Catalog(_workspace(args)).get(args.target)
+    workspace = _workspace(args)
+    if not (workspace / CATALOG_NAME).is_file():  # looking must not create a catalog
+        raise FileNotFoundError(f"{args.target}: not a run folder, and no catalog at {workspace / CATALOG_NAME} "
+                                "to look it up in as a sample id (--workspace)")
+    record = Catalog(workspace).get(args.target)
     if not record.out_dir:
         raise ValueError(f"sample {args.target} has not been reconstructed yet")
     return Path(record.out_dir)

@@ -205,3 +205,12 @@ def test_a_shortened_or_emptied_trail_fails_verification(run_copy, keep):
         assert any(p.startswith("stages/merge/") and "no trail entry records" in p for p in problems)
     done = run_cli("audit", "verify", str(run))
     assert done.returncode == 1 and "NOT intact" in done.stdout
+
+
+def test_audit_on_a_wrong_path_says_so_and_creates_nothing(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "flows.cli", "audit", "verify", "no-such-run"], cwd=tmp_path,
+                          capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=120)
+    assert done.returncode == 2
+    assert done.stderr.strip() == ("weldrecon audit: error: no-such-run: not a run folder, and no catalog at "
+                                   "workspace/catalog.sqlite to look it up in as a sample id (--workspace)")
+    assert list(tmp_path.iterdir()) == []
