@@ -9,7 +9,30 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_directory"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_directory", "default_mode"]
+
+
+def _umask() -> int:
+    """The process's umask, read without changing it (``os.umask`` would set it, for a moment,
+    for every thread of the flow)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return _UMASK_AT_START
+
+
+_UMASK_AT_START = os.umask(0o022)
+os.umask(_UMASK_AT_START)  # imported before any thread writes: set back at once
+
+
+def default_mode(path: Path) -> None:
+    """Give ``path`` the permissions a plain ``open``/``mkdir`` would have (0666/0777 less the
+    umask): temporary files and folders start private (0600/0700), and a result the lab group
+    cannot read is no deliverable."""
+    os.chmod(path, (0o777 if Path(path).is_dir() else 0o666) & ~_umask())
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -21,6 +44,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
+        default_mode(Path(tmp))
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -45,6 +69,7 @@ def atomic_directory(path: Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent))
     try:
+        default_mode(tmp)
         yield tmp
         os.rename(tmp, path)
     except BaseException:

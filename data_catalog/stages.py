@@ -25,7 +25,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
-from data_catalog.atomic import atomic_write_text
+from data_catalog.atomic import atomic_write_text, default_mode
 from data_catalog.hashing import sha256_tree
 from data_catalog.passes import create_chunked_array
 from schemas.provenance import StageRecord
@@ -155,7 +155,9 @@ class StageStore:
     def build_dir(self, stage: str) -> Path:
         parent = self.root / "stages" / stage
         parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=".build-", dir=parent))
+        build = Path(tempfile.mkdtemp(prefix=".build-", dir=parent))
+        default_mode(build)  # mkdtemp makes it 0700: the committed stage folder would stay so
+        return build
 
     def commit(self, build: Path, record: StageRecord) -> Path:
         """Hash the outputs, write the record, move the build folder into place atomically."""
