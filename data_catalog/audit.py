@@ -31,7 +31,7 @@ from typing import Any
 
 from data_catalog.hashing import sha256_tree
 
-__all__ = ["TRAIL", "append", "read_trail", "AuditProblem", "TrailError", "verify_trail", "GENESIS"]
+__all__ = ["TRAIL", "append", "read_trail", "recorded", "AuditProblem", "TrailError", "verify_trail", "GENESIS"]
 
 TRAIL = Path("audit") / "trail.jsonl"
 GENESIS = "0" * 64
@@ -215,6 +215,22 @@ def _unrecorded(run_dir: Path, expected: dict[str, Any]) -> list[AuditProblem]:
             problems.append(AuditProblem(rel, "no run-finished entry records this result (the trail was cut "
                                               "short, or the file was put there)"))
     return problems
+
+
+def recorded(run_dir: Path, prefix: str) -> tuple[dict[str, str], int | None]:
+    """What the trail last recorded for the artefacts under ``prefix`` (a folder relative to the
+    run folder, e.g. ``stages/merge/<key>``): path -> sha256 from the latest entry naming any of
+    them, and that entry's line; ({}, None) when no entry names them (or there is no trail)."""
+    try:
+        entries = read_trail(run_dir)
+    except FileNotFoundError:
+        return {}, None
+    head = prefix.rstrip("/") + "/"
+    for number in range(len(entries), 0, -1):
+        named = {k: v for k, v in _artefacts(entries[number - 1]).items() if k.startswith(head)}
+        if named:
+            return named, number
+    return {}, None
 
 
 def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]:

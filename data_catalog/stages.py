@@ -148,9 +148,17 @@ class StageStore:
                     break
         if problem is None:
             return record, None
-        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
-        os.rename(folder, folder.parent / f".corrupt-{key}-{stamp}")
+        self.set_aside(stage, key)
         return None, problem
+
+    def set_aside(self, stage: str, key: str, why: str = "corrupt") -> Path:
+        """Move a stage folder out of the way (``stages/<stage>/.<why>-<key>-<time>``), kept for
+        inspection, never used again."""
+        folder = self.path(stage, key)
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%S%f")
+        target = folder.parent / f".{why}-{key}-{stamp}"
+        os.rename(folder, target)
+        return target
 
     def build_dir(self, stage: str) -> Path:
         parent = self.root / "stages" / stage

@@ -62,7 +62,8 @@ class RefineConfig(StrictModel):
     max_points_per_pair: int = Field(default=3000, ge=100, le=1_000_000)
     normal_space_sampling: bool = Field(default=False, description=(
         "a pair's points are taken round-robin over bins of normal direction (slopes before more "
-        "plate) instead of at random"))
+        "plate) instead of at random; measured, median of the pass medians / worst pass: demo 8.8 -> "
+        "7.8 / 31.4 -> 31.8 um, paper 8.4 -> 7.8 / 17.7 -> 18.9 um: off until it helps the worst pass"))
     max_iterations: int = Field(default=10, ge=1, le=100)
     tolerance_mm: float = Field(default=0.001, gt=0, le=1, description="stop when no pass point moves more")
 

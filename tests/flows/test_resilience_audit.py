@@ -214,3 +214,38 @@ def test_audit_on_a_wrong_path_says_so_and_creates_nothing(tmp_path):
     assert done.stderr.strip() == ("weldrecon audit: error: no-such-run: not a run folder, and no catalog at "
                                    "workspace/catalog.sqlite to look it up in as a sample id (--workspace)")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("how", ["metrics", "output"])
+def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_launder_it(run_copy, ci_sample, how):
+    """A cached stage edited by hand together with the hashes in its record (its metrics, or an
+    output replaced and its recorded hash refreshed) is self-consistent: ``audit verify`` names it
+    against the trail, and the next run recomputes it instead of publishing it."""
+    from data_catalog.hashing import sha256_tree
+    from data_catalog.stages import RECORD_NAME
+
+    run, report = run_copy
+    folder = run / "stages" / "registration" / report["stage_keys"]["registration"]
+    record = json.loads((folder / RECORD_NAME).read_text())
+    if how == "metrics":
+        record["metrics"]["residual_max_mm"] = 0.001  # a nicer figure
+    else:
+        summary = folder / "registration.json"
+        body = json.loads(summary.read_text())
+        body["pairs_below_min_common"] = []
+        summary.write_text(json.dumps(body))
+        record["outputs"]["registration.json"] = sha256_tree(summary)
+    (folder / RECORD_NAME).write_text(json.dumps(record))
+    before = [str(p) for p in verify_trail(run)]
+    assert any(p.startswith(f"stages/registration/{folder.name}/") and "content changed" in p for p in before)
+    again = run_cli("reconstruct", str(ci_sample), "--out", str(run), "--config", CI_CONFIG)
+    assert again.returncode == 0, again.stderr[-2000:]
+    entries = read_trail(run)
+    redone = [e for e in entries if e["kind"] == "stage-recomputed" and e["stage"] == "registration"]
+    assert len(redone) == 1 and "do not match the audit trail" in redone[0]["reason"]
+    last = [e for e in entries if e["kind"] == "stage" and e["stage"] == "registration"][-1]
+    assert last["cached"] is False and last["record"]["metrics"]["residual_max_mm"] != 0.001
+    assert list((run / "stages" / "registration").glob(".tampered-*"))
+    assert verify_trail(run) == []
+    published = json.loads((run / "results" / "report.json").read_text())
+    assert published["stages"]["registration"]["residual_max_mm"] != 0.001
