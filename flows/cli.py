@@ -147,8 +147,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     n_passes = len(manifest.passes())
     expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
     with contextlib.ExitStack() as stack:
+        # the run's own temporary API server, which the kernel stops if this process dies
+        # (Prefect's own would outlive a kill -9); Dask workers report to it too
+        api = stack.enter_context(prefect_api_for_workers())
         if dask:
-            api = stack.enter_context(prefect_api_for_workers())
             print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
         stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
         report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",

@@ -3,6 +3,7 @@ cached artefacts, and the tamper-evident audit trail (real flows on the ``ci`` s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -249,3 +250,47 @@ def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_l
     assert verify_trail(run) == []
     published = json.loads((run / "results" / "report.json").read_text())
     assert published["stages"]["registration"]["residual_max_mm"] != 0.001
+
+
+def _children(pid: int) -> set[int]:
+    out: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out |= {int(c) for c in (task / "children").read_text().split()}
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return False
+    return state != "Z"
+
+
+def test_a_run_killed_alone_leaves_no_server_behind(ci_sample, tmp_path):
+    """The out-of-memory killer kills one process, not its group: the run's temporary Prefect API
+    server (uvicorn, a child) must go with it."""
+    run = tmp_path / "killed"
+    env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    env.pop("PREFECT_API_URL", None)
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(ci_sample), "--config", CI_CONFIG,
+                             "--out", str(run)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 300
+    try:
+        while not (run / TRAIL).is_file():  # the flow runs: its API server is up
+            assert proc.poll() is None, "the run ended before it started"
+            assert time.monotonic() < deadline, "the run never started"
+            time.sleep(0.1)
+        servers = {c for c in _children(proc.pid)
+                   if b"uvicorn" in Path(f"/proc/{c}/cmdline").read_bytes()}
+        assert servers, "no temporary API server among the run's children"
+        os.kill(proc.pid, signal.SIGKILL)  # this process alone
+        proc.wait()
+        gone_by = time.monotonic() + 30
+        while any(_alive(s) for s in servers) and time.monotonic() < gone_by:
+            time.sleep(0.2)
+        assert not any(_alive(s) for s in servers), "the API server outlived the run"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
