@@ -271,11 +271,30 @@ def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
     """The merged cloud from partial sums (several partials of one cell are added, in input order):
     each cell's mean point, its normals' mean renormalised (NaN where they cancel), its count."""
     unique, counts, (p, q) = _sums_by_key(parts.keys, parts.counts, parts.point_sums, parts.normal_sums)
-    length = np.linalg.norm(q, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        normals = np.where(length > 0, q / length, np.nan)
-    return MergeResult(points_mm=p / counts[:, None], normals=normals, sensor_positions_mm=None, counts=counts,
-                       cells=cell_index_of_keys(unique), cell_mm=float(cell_mm))
+    points, normals, cells = np.empty_like(p), np.empty_like(q), np.empty((len(unique), 3), np.int64)
+    _finish_cells(unique, counts, p, q, points, normals, cells)
+    return MergeResult(points_mm=points, normals=normals, sensor_positions_mm=None, counts=counts, cells=cells,
+                       cell_mm=float(cell_mm))
+
+
+@numba.njit(cache=True)
+def _finish_cells(keys, counts, point_sums, normal_sums, points, normals, cells):
+    """Per cell: the mean point, the normal sum renormalised (NaN where it cancels), the (i, j, k)
+    index unpacked from the key; one pass."""
+    for m in range(len(keys)):
+        c = np.float64(counts[m])
+        for d in range(3):
+            points[m, d] = point_sums[m, d] / c
+        a, b, e = normal_sums[m, 0], normal_sums[m, 1], normal_sums[m, 2]
+        length = np.sqrt(a * a + b * b + e * e)
+        if length > 0:
+            normals[m, 0], normals[m, 1], normals[m, 2] = a / length, b / length, e / length
+        else:
+            normals[m, 0] = normals[m, 1] = normals[m, 2] = np.nan
+        key = keys[m]
+        cells[m, 0] = ((key >> (2 * _KEY_BITS)) & _KEY_MASK) - _KEY_OFFSET
+        cells[m, 1] = ((key >> _KEY_BITS) & _KEY_MASK) - _KEY_OFFSET
+        cells[m, 2] = (key & _KEY_MASK) - _KEY_OFFSET
 
 
 # --- non-uniform resolution: fine cells where the surface bends, coarse cells where it is flat ---

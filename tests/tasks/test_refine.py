@@ -137,3 +137,22 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="points_a"):
         _refine([s, s], np.repeat(np.eye(4)[None], 2, axis=0), np.array([[0, 1]]), np.full((1, 3), np.nan),
                      np.zeros((1, 3)))
+
+
+def test_normal_space_priority_takes_slopes_before_more_plate():
+    """With normal-space sampling a pair's first points spread over the normal bins: the few on
+    slopes come before most of the plate; without it the order is random (by seed) and the same
+    on every call."""
+    from tasks.refine import _priority
+
+    rng = np.random.default_rng(0)
+    plate = np.tile([0.0, 0.0, 1.0], (9000, 1))
+    tilt = np.radians(30.0)
+    slope = np.tile([np.sin(tilt), 0.0, np.cos(tilt)], (100, 1))
+    normals = np.concatenate([plate, slope])[rng.permutation(9100)]
+    on_slope = normals[:, 0] > 0.1
+    first = np.argsort(_priority(normals, seed=3, normal_space=True), kind="stable")[:200]
+    assert on_slope[first].sum() == 100  # all the slope within the first 200
+    plain = np.argsort(_priority(normals, seed=3, normal_space=False), kind="stable")[:200]
+    assert on_slope[plain].sum() < 20
+    assert np.array_equal(_priority(normals, seed=3, normal_space=True), _priority(normals, seed=3, normal_space=True))
