@@ -25,7 +25,7 @@ import numpy as np
 import zarr
 from zarr.codecs import BloscCodec
 
-from data_catalog.atomic import atomic_write_text, default_mode
+from data_catalog.atomic import atomic_write_text, default_mode, owner_tag
 from data_catalog.hashing import sha256_tree
 from data_catalog.passes import create_chunked_array
 from schemas.provenance import StageRecord
@@ -163,7 +163,7 @@ class StageStore:
     def build_dir(self, stage: str) -> Path:
         parent = self.root / "stages" / stage
         parent.mkdir(parents=True, exist_ok=True)
-        build = Path(tempfile.mkdtemp(prefix=".build-", dir=parent))
+        build = Path(tempfile.mkdtemp(prefix=f".build-{owner_tag()}-", dir=parent))
         default_mode(build)  # mkdtemp makes it 0700: the committed stage folder would stay so
         return build
 

@@ -24,7 +24,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from pydantic import ValidationError
 
 from data_catalog import audit
-from data_catalog.atomic import atomic_write_text
+from data_catalog.atomic import atomic_write_text, sweep_leftovers
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
@@ -301,6 +301,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     atomic_write_text(out / "config.json", config.model_dump_json(indent=2) + "\n")
     audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
+    swept = sweep_leftovers(out)  # what runs of this folder that died (kill -9, power cut) left half written
+    if swept:
+        audit.append(out, "leftovers-swept", paths=[p.relative_to(out).as_posix() for p in swept])
     entries = [e for _, e in manifest.passes()]
     log.info("sample %s: %d passes in %d setups", manifest.sample_id, len(entries), len(manifest.setups))
     pending: dict[str, Any] = {}

@@ -42,6 +42,11 @@ def _stop_prefects_temporary_server():
     """Flows run in this process start Prefect's temporary API server; stop it while pytest's
     output is still open (at interpreter exit its goodbye line met a closed stream)."""
     yield
+    import contextlib
+
+    from prefect.logging.handlers import APILogHandler
     from prefect.server.api.server import SubprocessASGIServer
 
+    with contextlib.suppress(Exception):  # the last log lines while the server still listens
+        APILogHandler().flush()
     SubprocessASGIServer().stop()  # the one instance Prefect started (a fresh one stops nothing)

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD
 from flows.stages.passes import block_rows, open_entry, pass_blocks
 from tasks.denoise import DistanceStats, check_window, mean_knn_distance
@@ -38,7 +39,7 @@ def denoise(ctx) -> dict[str, Any]:
     stats = DistanceStats()
     points_in = 0
     reference = None  # the sensor at the first profile: normals sum coordinates relative to it
-    with tempfile.TemporaryDirectory(prefix=".scratch-", dir=ctx.out.parent) as scratch:
+    with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         distances = Path(scratch) / "mean_distance.f8"
         with open(distances, "wb") as f:
             for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=s.window_rows, rows=rows,

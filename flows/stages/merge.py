@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import block_rows, zarr_array
 from schemas.manifest import SampleManifest
@@ -105,7 +106,7 @@ def merge(ctx) -> dict[str, Any]:
     T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
     bands = weld_bands(ctx.manifest, T_all, s.weld_zone_mm)
     points_in = 0
-    with tempfile.TemporaryDirectory(prefix=".scratch-", dir=ctx.out.parent) as scratch:
+    with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         spill = _Spill(Path(scratch))
         for ref, T in zip(ctx.inputs["denoise"], T_all):
             points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")

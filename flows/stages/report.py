@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from data_catalog.atomic import owner_tag
 from flows.stages.contracts import StageRef
 from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
 from data_catalog.hashing import sha256_file
@@ -62,7 +63,7 @@ def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: Sta
     sources[REPORT.name] = (report_ref, REPORT.name)
     published = {}
     for name, (ref, source) in sources.items():
-        tmp = results / f".{name}.partial"
+        tmp = results / f".{name}.{owner_tag()}.partial"
         shutil.copyfile(ref.file(source), tmp)
         digest = sha256_file(tmp)
         if digest != ref.outputs[source]:

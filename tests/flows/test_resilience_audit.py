@@ -154,10 +154,16 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
         proc.wait()
     assert not list((run / "stages" / "mesh").glob("*/record.json"))  # meshing did not finish
     assert not (run / "results").exists()
+    left = list((run / "stages" / "mesh").glob(".build-*"))
+    assert left  # the killed run's half-built mesh
     again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
     stl = f"{report['sample_id']}.stl"
     assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
     assert again["stage_keys"] == report["stage_keys"]
+    # the rerun swept what the dead run left half written, and said so in the trail
+    assert not any(p.exists() for p in left) and not list(run.rglob(".scratch-*"))
+    swept = [e for e in read_trail(run) if e["kind"] == "leftovers-swept"]
+    assert len(swept) == 1 and all(p.startswith("stages/") for p in swept[0]["paths"])
     # every stage's outputs, those of the killed run and those rerun, are the uninterrupted run's bytes
     reference = read_trail(ci_run[0])
     reference = reference[:next(i for i, e in enumerate(reference) if e["kind"] == "run-finished")]
