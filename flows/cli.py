@@ -92,6 +92,33 @@ def _quiet_prefect() -> None:
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
 
 
+_LOG_FILE: Path | None = None
+
+
+def _log_to_file(folder: Path, name: str) -> Path:
+    """Send Prefect's and the libraries' log records (tracebacks included) to a log file in
+    ``folder`` instead of the terminal, which gets one line per problem; returns the file."""
+    import logging
+    from datetime import UTC, datetime
+
+    from prefect.logging.configuration import setup_logging
+
+    global _LOG_FILE
+    setup_logging()  # Prefect's own configuration first (later calls only adjust it)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    handler = logging.FileHandler(path, encoding="utf-8", delay=True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
+    for logger in [logging.getLogger()] + [logging.getLogger(n) for n in list(logging.root.manager.loggerDict)]:
+        for old in [h for h in getattr(logger, "handlers", []) if type(h).__name__ == "PrefectConsoleHandler"]:
+            logger.removeHandler(old)
+            logger.addHandler(handler)
+    logging.getLogger().setLevel(logging.INFO)
+    logging.captureWarnings(True)
+    _LOG_FILE = path
+    return path
+
+
 def _print_report(report: dict, out: Path) -> None:
     from flows.stages import STAGES
 
@@ -143,6 +170,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
+    _log_to_file(out / "logs", "reconstruct")
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
     n_passes = len(manifest.passes())
     expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
@@ -383,6 +411,11 @@ def main(argv: list[str] | None = None) -> int:
         stage = getattr(exc, "stage", None)
         where = f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else ""
         print(f"weldrecon {args.command}: error: {where}{exc}", file=sys.stderr)
+        if _LOG_FILE is not None:
+            import logging
+
+            logging.getLogger("weldrecon").error("%s failed", args.command, exc_info=exc)
+            print(f"  (the details and the traceback: {_LOG_FILE})", file=sys.stderr)
         return 2
 
 

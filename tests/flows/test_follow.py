@@ -130,3 +130,10 @@ def test_follow_names_the_pass_that_never_lands(ci_sample, tmp_path):
     assert done.returncode == 2
     assert f"{missing.name} did not appear (complete) within 3 s" in done.stderr, done.stderr[-2000:]
     assert time.monotonic() - started < 300
+    # one line for the problem and one naming the log; Prefect's tracebacks go to that log
+    assert "Traceback" not in done.stderr, done.stderr[-3000:]
+    problems = [line for line in done.stderr.splitlines() if "error" in line.lower()]
+    assert len(problems) == 1, done.stderr[-3000:]
+    logs = list((tmp_path / "run" / "logs").glob("reconstruct-*.log"))
+    assert len(logs) == 1 and f"the details and the traceback: {logs[0]}" in done.stderr
+    assert "Traceback" in logs[0].read_text()
