@@ -241,7 +241,8 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]
     problems: list[AuditProblem] = []
     prev = GENESIS
     expected: dict[str, tuple[str, int]] = {}
-    for number, entry in enumerate(read_trail(run_dir), start=1):
+    entries = read_trail(run_dir)
+    for number, entry in enumerate(entries, start=1):
         where = f"trail line {number}"
         if "_unreadable" in entry:
             problems.append(AuditProblem(where, f"unreadable ({entry['_unreadable']})"))
@@ -259,6 +260,11 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]
         prev = entry.get("hash")
         for rel, digest in _artefacts(entry).items():
             expected[rel] = (digest, number)
+    runs = [(n, e.get("kind")) for n, e in enumerate(entries, start=1)
+            if e.get("kind") in ("run-started", "run-finished", "run-failed")]
+    if runs and runs[-1][1] == "run-started":
+        problems.append(AuditProblem(f"trail line {runs[-1][0]} (run-started)", "the last run has no run-finished or "
+                                     "run-failed entry (it is still running, it was killed, or the trail was cut)"))
     problems += _unrecorded(run_dir, expected)
     if artefacts:
         for rel, (digest, number) in sorted(expected.items()):

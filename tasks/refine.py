@@ -155,7 +155,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
                  points_a: np.ndarray, points_b: np.ndarray, *, max_iterations: int, tolerance_mm: float,
                  max_distance_mm: float, final_distance_mm: float, neighbour_mm: float, normal_neighbours: int,
                  target_sigma_mm: float, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
-                 max_plane_rms_mm: float, fixed: int = 0, normal_space: bool = False) -> RefineResult:
+                 max_plane_rms_mm: float, normal_space: bool, fixed: int = 0) -> RefineResult:
     """Refine ``T_common_pass`` (n, 4, 4; pass frame -> common frame, from target registration).
 
     ``edge_passes`` (e, 2), ``points_a``/``points_b`` (e, 3): the inlier target pairs, each centre

@@ -88,7 +88,8 @@ def test_a_full_disk_leaves_the_trail_as_it_was_and_the_folder_recovers(tmp_path
         assert (run / TRAIL).read_bytes() == before
         filler.unlink()  # space freed: the folder goes on
         audit.append(run, "stage", stage="denoise", item="p0")
-        assert [e["kind"] for e in read_trail(run)] == ["run-started", "stage"]
+        audit.append(run, "run-finished", sample_id="s")
+        assert [e["kind"] for e in read_trail(run)] == ["run-started", "stage", "run-finished"]
         assert verify_trail(run) == []
     finally:
         subprocess.run(["umount", str(mount)], check=False)

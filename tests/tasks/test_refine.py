@@ -62,7 +62,8 @@ def _refine(samples, start, edges, targets_a, targets_b, **changes):
                         final_distance_mm=cfg.final_distance_mm, neighbour_mm=cfg.neighbour_mm,
                         normal_neighbours=cfg.normal_neighbours, target_sigma_mm=cfg.target_sigma_mm,
                         surface_sigma_mm=cfg.surface_sigma_mm, max_points_per_pair=cfg.max_points_per_pair,
-                        min_normal_cos=cfg.min_normal_cos, max_plane_rms_mm=cfg.max_plane_rms_mm)
+                        min_normal_cos=cfg.min_normal_cos, max_plane_rms_mm=cfg.max_plane_rms_mm,
+                        normal_space=cfg.normal_space_sampling)
 
 
 def _error(T_b, T_true_b, b):
