@@ -156,11 +156,12 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from data_catalog.manifests import check_sample_files, load_manifest
     from flows.progress import TrailProgress
-    from flows.reconstruct import load_config, prefect_api_for_workers, reconstruct_sample
+    from flows.reconstruct import check_out_dir, load_config, prefect_api_for_workers, reconstruct_sample
     from flows.stages import STAGES
 
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
+    check_out_dir(sample, out)
     follow = args.follow_timeout if getattr(args, "follow", False) else None
     if follow is not None:  # a scan in progress: its manifest (the plan) may still be coming
         from flows.reconstruct import wait_for_file

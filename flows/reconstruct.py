@@ -35,7 +35,7 @@ from flows.stages.report import publish
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 
-__all__ = ["reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
+__all__ = ["check_out_dir", "reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
            "wait_for_file"]
 
 
@@ -271,6 +271,16 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
     return pending
 
 
+def check_out_dir(sample: Path, out: Path) -> None:
+    """Refuse a run folder that would write into the run's own inputs: the sample folder itself,
+    or anything inside its pass stores, ground truth or manifest. ValueError naming both."""
+    sample, out = Path(sample).resolve(), Path(out).resolve()
+    inputs = [sample / "passes", sample / "truth", sample / MANIFEST_NAME]
+    if out == sample or any(out == p or p in out.parents for p in inputs):
+        raise ValueError(f"--out {out}: inside the sample {sample}'s own inputs (its passes, truth or "
+                         "manifest); a run must not write into what it reads: give a folder outside them")
+
+
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
                        dask: str | None = None, follow_timeout_s: float | None = None) -> dict[str, Any]:
@@ -293,6 +303,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     sample, out = Path(sample_dir).resolve(), Path(out_dir).resolve()
     if follow_timeout_s is not None:
         wait_for_file(sample / MANIFEST_NAME, timeout_s=follow_timeout_s, what=f"sample {sample}")
+    check_out_dir(sample, out)
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)
     config = load_config(config_path)

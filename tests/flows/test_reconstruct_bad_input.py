@@ -121,3 +121,20 @@ def test_too_few_common_stickers_names_the_pair_and_the_lost_passes(ci_sample, t
     text = str(info.value)
     assert "passes ['top-W01'] share no chain of 3+ common targets" in text
     assert "top-L04|top-W01 (1)" in text
+
+
+@pytest.mark.parametrize("where", [".", "passes/{store}/run", "passes/{store}", "truth/run", "manifest.json/run"])
+def test_a_run_folder_inside_the_samples_own_inputs_is_refused_and_nothing_is_written(ci_sample, tmp_path, where):
+    from data_catalog.hashing import sha256_tree
+    from tests.flows.cli import run_cli
+
+    sample = tmp_path / "sample"
+    shutil.copytree(ci_sample, sample)
+    store = sorted((sample / "passes").iterdir())[0].name
+    before = sha256_tree(sample)
+    out = sample / where.format(store=store)
+    done = run_cli("reconstruct", str(sample), "--out", str(out), "--config", str(CI_CONFIG))
+    assert done.returncode == 2
+    assert "inside the sample" in done.stderr and "a run must not write into what it reads" in done.stderr
+    assert len([line for line in done.stderr.splitlines() if line.strip()]) == 1, done.stderr
+    assert sha256_tree(sample) == before
