@@ -109,8 +109,9 @@ def _log_to_file(folder: Path, name: str) -> Path:
     path = folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
     handler = logging.FileHandler(path, encoding="utf-8", delay=True)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
-    for logger in [logging.getLogger()] + [logging.getLogger(n) for n in list(logging.root.manager.loggerDict)]:
-        for old in [h for h in getattr(logger, "handlers", []) if type(h).__name__ == "PrefectConsoleHandler"]:
+    loggers = [lg for lg in list(logging.root.manager.loggerDict.values()) if isinstance(lg, logging.Logger)]
+    for logger in [logging.getLogger(), *loggers]:
+        for old in [h for h in logger.handlers if type(h).__name__ == "PrefectConsoleHandler"]:
             logger.removeHandler(old)
             logger.addHandler(handler)
     logging.getLogger().setLevel(logging.INFO)

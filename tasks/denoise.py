@@ -138,7 +138,7 @@ def window_offsets(window_rows: int, window_cols: int, pitch_mm: tuple[float, fl
     offsets = [(dr, dc) for dr in range(-window_rows, window_rows + 1) for dc in range(-window_cols, window_cols + 1)
                if (dr, dc) != (0, 0)]
     offsets.sort(key=lambda o: ((o[0] * pitch_mm[0]) ** 2 + (o[1] * pitch_mm[1]) ** 2, o))
-    return (np.array([o[0] for o in offsets], np.int64).reshape(-1), np.array([o[1] for o in offsets], np.int64).reshape(-1))
+    return np.array([o[0] for o in offsets], np.int64), np.array([o[1] for o in offsets], np.int64)
 
 
 def check_window(*, k: int, window_rows: int, window_cols: int) -> None:

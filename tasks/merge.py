@@ -175,9 +175,19 @@ def _pack(ijk: np.ndarray) -> np.ndarray:
 
 def cell_index_of_keys(keys: np.ndarray) -> np.ndarray:
     """(m,) packed keys -> (m, 3) int64 cell indices (i, j, k)."""
-    keys = np.asarray(keys, dtype=np.int64)
-    return np.stack([(keys >> (2 * _KEY_BITS)) & _KEY_MASK, (keys >> _KEY_BITS) & _KEY_MASK, keys & _KEY_MASK],
-                    axis=1) - _KEY_OFFSET
+    keys = np.ascontiguousarray(keys, dtype=np.int64).reshape(-1)
+    cells = np.empty((len(keys), 3), np.int64)
+    _unpack_keys(keys, cells)
+    return cells
+
+
+@numba.njit(cache=True)
+def _unpack_keys(keys, cells):
+    for m in range(len(keys)):
+        key = keys[m]
+        cells[m, 0] = ((key >> (2 * _KEY_BITS)) & _KEY_MASK) - _KEY_OFFSET
+        cells[m, 1] = ((key >> _KEY_BITS) & _KEY_MASK) - _KEY_OFFSET
+        cells[m, 2] = (key & _KEY_MASK) - _KEY_OFFSET
 
 
 @numba.njit(cache=True)
@@ -271,17 +281,16 @@ def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
     """The merged cloud from partial sums (several partials of one cell are added, in input order):
     each cell's mean point, its normals' mean renormalised (NaN where they cancel), its count."""
     unique, counts, (p, q) = _sums_by_key(parts.keys, parts.counts, parts.point_sums, parts.normal_sums)
-    points, normals, cells = np.empty_like(p), np.empty_like(q), np.empty((len(unique), 3), np.int64)
-    _finish_cells(unique, counts, p, q, points, normals, cells)
-    return MergeResult(points_mm=points, normals=normals, sensor_positions_mm=None, counts=counts, cells=cells,
-                       cell_mm=float(cell_mm))
+    points, normals = np.empty_like(p), np.empty_like(q)
+    _finish_cells(counts, p, q, points, normals)
+    return MergeResult(points_mm=points, normals=normals, sensor_positions_mm=None, counts=counts,
+                       cells=cell_index_of_keys(unique), cell_mm=float(cell_mm))
 
 
 @numba.njit(cache=True)
-def _finish_cells(keys, counts, point_sums, normal_sums, points, normals, cells):
-    """Per cell: the mean point, the normal sum renormalised (NaN where it cancels), the (i, j, k)
-    index unpacked from the key; one pass."""
-    for m in range(len(keys)):
+def _finish_cells(counts, point_sums, normal_sums, points, normals):
+    """Per cell: the mean point and the normal sum renormalised (NaN where it cancels); one pass."""
+    for m in range(len(counts)):
         c = np.float64(counts[m])
         for d in range(3):
             points[m, d] = point_sums[m, d] / c
@@ -291,10 +300,6 @@ def _finish_cells(keys, counts, point_sums, normal_sums, points, normals, cells)
             normals[m, 0], normals[m, 1], normals[m, 2] = a / length, b / length, e / length
         else:
             normals[m, 0] = normals[m, 1] = normals[m, 2] = np.nan
-        key = keys[m]
-        cells[m, 0] = ((key >> (2 * _KEY_BITS)) & _KEY_MASK) - _KEY_OFFSET
-        cells[m, 1] = ((key >> _KEY_BITS) & _KEY_MASK) - _KEY_OFFSET
-        cells[m, 2] = (key & _KEY_MASK) - _KEY_OFFSET
 
 
 # --- non-uniform resolution: fine cells where the surface bends, coarse cells where it is flat ---
@@ -311,6 +316,14 @@ class Band:
     def contains(self, points_mm: np.ndarray) -> np.ndarray:
         offset = (np.asarray(points_mm, np.float64) - np.asarray(self.point_mm)) @ np.asarray(self.normal, np.float64)
         return np.abs(offset) <= self.half_width_mm
+
+
+def _in_bands(points_mm: np.ndarray, bands: tuple[Band, ...]) -> np.ndarray:
+    """(n,) bool: the point lies in at least one of ``bands``."""
+    inside = np.zeros(len(points_mm), bool)
+    for band in bands:
+        inside |= band.contains(points_mm)
+    return inside
 
 
 @dataclass(frozen=True)
@@ -346,10 +359,8 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
         raise ValueError(f"factor must be an integer >= 1, got {factor}")
     n = merged.n_points
     if factor == 1 or n == 0:
-        banded = np.zeros(n, bool)
-        for band in fine_bands:
-            banded |= band.contains(merged.points_mm)
-        return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool), banded)
+        return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool),
+                             _in_bands(merged.points_mm, fine_bands))
     coarse = np.floor_divide(merged.cells, factor)
     keys = _pack(coarse)
     order = np.argsort(keys, kind="stable")  # fine cells stay in (i, j, k) order within a coarse cell
@@ -368,9 +379,7 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
     cos_dev = np.einsum("ij,ij->i", safe_n, mean_n[group])
     off_plane = np.abs(np.einsum("ij,ij->i", cells_p - mean_p[group], mean_n[group]))
     bent = ~has_normal | ~(cos_dev >= np.cos(np.radians(max_normal_deg))) | ~(off_plane <= max_deviation_mm)
-    banded = np.zeros(len(starts), bool)
-    for band in fine_bands:
-        banded |= band.contains(mean_p)
+    banded = _in_bands(mean_p, fine_bands)
     flat = ~np.logical_or.reduceat(bent, starts) & (length > 0) & ~banded
     keep_fine = ~flat[group]
     first = np.zeros(len(keys), bool)

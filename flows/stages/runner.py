@@ -257,23 +257,20 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
                      reason=f"cached outputs failed their hash check: {problem}; set aside and recomputed", **ids)
     if found is not None:
+        now = _artefacts(store, stage.name, key, found.outputs)
         # consistent with itself is not enough: a record edited together with the hashes in it
         # must also match what the trail recorded when the stage was made
-        now = _artefacts(store, stage.name, key, found.outputs)
         then, line = audit.recorded(store.root, store.path(stage.name, key).relative_to(store.root).as_posix())
-        changed = sorted(k for k in set(now) | set(then) if then and now.get(k) != then.get(k))
-        if changed:
-            aside = store.set_aside(stage.name, key, "tampered")
-            audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
-                         reason=f"cached outputs do not match the audit trail (line {line}): "
-                                f"{', '.join(Path(c).name for c in changed)}; set aside to {aside.name} and recomputed",
-                         **ids)
-            found = None
-    if found is not None:
-        audit.append(store.root, "stage", stage=stage.name, item=item, cache_key=key, cached=True,
-                     record=found.model_dump(mode="json"),
-                     artefacts=_artefacts(store, stage.name, key, found.outputs), **ids)
-        return _ref(stage.name, item, key, store, found, cached=True)
+        changed = sorted(k for k in set(now) | set(then) if now.get(k) != then.get(k)) if then else []
+        if not changed:
+            audit.append(store.root, "stage", stage=stage.name, item=item, cache_key=key, cached=True,
+                         record=found.model_dump(mode="json"), artefacts=now, **ids)
+            return _ref(stage.name, item, key, store, found, cached=True)
+        aside = store.set_aside(stage.name, key, "tampered")
+        audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
+                     reason=f"cached outputs do not match the audit trail (line {line}): "
+                            f"{', '.join(Path(c).name for c in changed)}; set aside to {aside.name} and recomputed",
+                     **ids)
     build = store.build_dir(stage.name)
     started = datetime.now(UTC)
     t0 = time.perf_counter()
