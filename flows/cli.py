@@ -149,6 +149,11 @@ def _print_report(report: dict, out: Path) -> None:
              if residual is not None else ""))
     for item in report["outputs"].values():
         print(f"  {item['path']}")
+    checks = report.get("checks", [])
+    flagged = [c for c in checks if c["result"] != "ok"]
+    print(f"checks: {len(checks) - len(flagged)} of {len(checks)} ok (report.json, 'checks')")
+    for c in flagged:
+        print(f"weldrecon reconstruct: warning: pass {c['pass']}: {c['check']}: {c['what']}", file=sys.stderr)
 
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:

@@ -19,6 +19,7 @@ import numpy as np
 from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD
 from flows.stages.passes import block_rows, open_entry, pass_blocks
+from tasks.consistency import MotionCheck, chunk_jumps, profile_steps
 from tasks.denoise import DistanceStats, check_window, mean_knn_distance
 from tasks.normals import grid_normals, normal_window
 
@@ -37,16 +38,24 @@ def denoise(ctx) -> dict[str, Any]:
     pitch = ctx.manifest.grid_pitch_mm(ctx.entry)
     nr, nc = normal_window(s.normal_window_mm, pitch)
     stats = DistanceStats()
+    motion = MotionCheck(ctx.entry.pass_id, ctx.entry.nominal_motion.speed_mm_s)
+    steps = np.full(max(n - 1, 0), np.nan)  # the surface's step from each profile to the next
     points_in = 0
     reference = None  # the sensor at the first profile: normals sum coordinates relative to it
     with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         distances = Path(scratch) / "mean_distance.f8"
         with open(distances, "wb") as f:
-            for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=s.window_rows, rows=rows,
+            for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=max(s.window_rows, 1), rows=rows,
                                      reader=reader):
                 md = mean_knn_distance(block.points, k=s.k, window_rows=s.window_rows, window_cols=s.window_cols,
                                        rows=block.core, pitch_mm=pitch)
                 stats.add(md)
+                core = block.data
+                motion.feed(block.core_start, core.timestamp_s[block.core],
+                            None if core.T_world_flange is None else core.T_world_flange[block.core])
+                last = min(block.core.stop + 1, block.stop - block.start)  # one row past the core
+                steps[block.core_start:block.core_start + last - block.core.start - 1] = \
+                    profile_steps(core.z_mm[block.core.start:last])
                 if reference is None:
                     reference = block.T_world_sensor[0, :3, 3].copy()
                 points_in += int(np.isfinite(block.points[block.core]).all(axis=-1).sum())
@@ -70,4 +79,5 @@ def denoise(ctx) -> dict[str, Any]:
             kept_total += int(keep[block.core].sum())
         out.close()
     return {"points_in": points_in, "points_out": kept_total, "removed": points_in - kept_total,
-            "threshold_mm": threshold, "normal_window": [2 * nr + 1, 2 * nc + 1]}
+            "threshold_mm": threshold, "normal_window": [2 * nr + 1, 2 * nc + 1],
+            "checks": {"motion": motion.summary(), "chunk_jumps": chunk_jumps(steps, reader.chunk_profiles)}}

@@ -9,6 +9,7 @@ import numpy as np
 
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from tasks.consistency import residual_outliers
 from tasks.refine import refine_poses, surface_sample
 
 __all__ = ["refine"]
@@ -40,6 +41,12 @@ def refine(ctx) -> dict[str, Any]:
             samples.append(surface_sample(_thinned_grid(r, stride), spacing_mm=rc.sample_spacing_mm,
                                           normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
                                           max_plane_rms_mm=rc.max_plane_rms_mm))
+        if not any(len(sample.points_mm) for sample in samples):
+            raise ValueError(
+                f"refine: no pass kept a surface point to match: none has {rc.normal_neighbours} points "
+                f"(refine.normal_neighbours) within {rc.neighbour_mm} mm (refine.neighbour_mm) on a plane within "
+                f"{rc.max_plane_rms_mm} mm (refine.max_plane_rms_mm) at this sample's point spacing; widen "
+                f"refine.neighbour_mm or lower refine.normal_neighbours, or set refine.enabled: false")
         result = refine_poses(samples, T_targets, reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier],
                               max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm,
                               max_distance_mm=rc.max_distance_mm, final_distance_mm=rc.final_distance_mm,
@@ -66,9 +73,20 @@ def refine(ctx) -> dict[str, Any]:
                                                       "rms_mm": pairs[(a, b)]} for a, b in sorted(pairs)],
                                    "step_mm": steps})
     surface_rms = list(pairs.values())
+    # each pass's target residuals (its edges) against the sample's: a pass whose data or poses
+    # disagree with the others stands out here even when every file is valid
+    edges = reg.edge_passes[inlier]
+    per_pass = {}
+    for k, name in enumerate(names):
+        mine = np.asarray(target_res)[(edges == k).any(axis=1)] if len(edges) else np.zeros(0)
+        per_pass[name] = float(np.median(mine)) if len(mine) else float("nan")
+    flagged = residual_outliers(per_pass, floor_mm=rc.target_sigma_mm)
     return {"enabled": rc.enabled, "iterations": len(steps), "last_step_mm": steps[-1] if steps else 0.0,
             "surface_pairs": len(pairs), "surface_points": int(sum(counts.values())),
             "largest_pose_change_mm": moved,
             "surface_rms_median_mm": float(np.median(surface_rms)) if surface_rms else None,
             "target_residual_median_mm": float(np.median(target_res)) if len(target_res) else None,
-            "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None}
+            "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None,
+            "checks": {"target_residuals": {"per_pass_median_mm": {p: (round(v, 6) if np.isfinite(v) else None)
+                                                                   for p, v in per_pass.items()},
+                                            "flagged": flagged}}}

@@ -15,7 +15,7 @@ from flows.stages.contracts import StageRef
 from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
 from data_catalog.hashing import sha256_file
 
-__all__ = ["report", "report_view", "publish", "RESULTS"]
+__all__ = ["report", "report_view", "publish", "checks", "RESULTS"]
 
 RESULTS = "results"
 
@@ -35,6 +35,37 @@ def _metrics(ref: StageRef | list[StageRef]) -> Any:
     return {k: v for k, v in ref.metrics.items() if k != "seconds"}
 
 
+def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[dict[str, Any]]:
+    """Every consistency check the run made (tasks.consistency), one entry per check and pass:
+    ``result`` "ok" or "flagged", ``what`` in words. Checks that fail stop the run instead."""
+    out = []
+    for name, ref in zip(names, denoise):
+        found = ref.metrics.get("checks", {})
+        motion = found.get("motion", {})
+        out.append({"check": "profile times and poses", "pass": name, "result": "ok",
+                    "what": ("times in order; logged flange poses rigid, no jump or turn beyond the limits"
+                             if motion.get("logged_poses") else "times in order (nominal motion, no logged poses)"),
+                    "measured": motion})
+        jumps = found.get("chunk_jumps", [])
+        out.append({"check": "surface continuity at chunk boundaries", "pass": name,
+                    "result": "flagged" if jumps else "ok",
+                    "what": ("; ".join(f"the surface steps {j['step_mm']} mm into profile {j['profile']} (a storage "
+                                       f"chunk's first), at most {j['around_mm']} mm around it: a chunk may be out of place"
+                                       for j in jumps) or "every chunk continues its neighbours"),
+                    "measured": jumps})
+    residuals = refine.metrics.get("checks", {}).get("target_residuals", {})
+    flagged = {f["pass"]: f for f in residuals.get("flagged", [])}
+    for name, value in residuals.get("per_pass_median_mm", {}).items():
+        f = flagged.get(name)
+        out.append({"check": "target residuals against the sample's", "pass": name,
+                    "result": "flagged" if f else "ok",
+                    "what": (f"median target residual {f['residual_median_mm'] * 1000:.0f} um, over 3 x the sample's "
+                             f"{f['sample_median_mm'] * 1000:.0f} um: its data or poses disagree with the other passes"
+                             if f else "in line with the other passes"),
+                    "measured": value})
+    return out
+
+
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     registration = REGISTRATION_SUMMARY.read(inputs["registration"])
@@ -47,6 +78,7 @@ def report(ctx) -> dict[str, Any]:
         "stages": {name: _metrics(ref) for name, ref in inputs.items()},
         "registration": registration,
         "mesh": _metrics(inputs["mesh"]),
+        "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),
         "deliverables": {name: export.outputs[source] for name, source in _deliverables(ctx.manifest.sample_id).items()},
         "stage_keys": {name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
     }

@@ -59,6 +59,16 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     assert (out / "config.json").is_file()
 
 
+def test_every_consistency_check_is_stated_and_passes_on_a_clean_sample(run):
+    _, report = run
+    checks = report["checks"]
+    # per pass: profile times and poses, chunk continuity, target residuals
+    assert len(checks) == 3 * 14 and {c["result"] for c in checks} == {"ok"}
+    motion = [c["measured"] for c in checks if c["check"] == "profile times and poses"]
+    assert all(m["logged_poses"] and m["rotation_off_orthonormal"] < 1e-6 and m["largest_step_of_allowed"] < 1
+               for m in motion)
+
+
 def test_every_true_specimen_sticker_was_found(run, ci_sample):
     _, report = run
     truth = read_truth(ci_sample / "truth" / "truth.json")

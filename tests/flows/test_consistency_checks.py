@@ -1,0 +1,140 @@
+"""Valid-looking input that is inconsistent (issue 10, item 5): every file decodes and every hash
+matches, yet the poses are not rigid, the robot jumps, the clock runs back or a chunk of a pass is
+out of place. The run refuses what cannot be right (naming pass and profile) and flags what may be
+wrong (in report.json's checks and on the terminal)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from data_catalog.hashing import sha256_tree
+from tests.flows.cli import run_cli
+
+REPO = Path(__file__).resolve().parents[2]
+CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
+os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+
+
+def _copy(ci_sample: Path, dst: Path, keep: list[str]) -> Path:
+    dst.mkdir(parents=True)
+    manifest = json.loads((ci_sample / "manifest.json").read_text())
+    for setup in manifest["setups"]:
+        setup["passes"] = [p for p in setup["passes"] if p["pass_id"] in keep]
+        for p in setup["passes"]:
+            shutil.copytree(ci_sample / p["file"], dst / p["file"])
+    manifest["setups"] = [s for s in manifest["setups"] if s["passes"]]
+    (dst / "manifest.json").write_text(json.dumps(manifest))
+    return dst
+
+
+def _doctor(sample: Path, pass_id: str, edit) -> None:
+    """Edit one pass's arrays in place, then refresh its manifest hash, as a careful forger would."""
+    store = sample / "passes" / f"{pass_id}.zarr"
+    edit(zarr.open_group(str(store), mode="r+"))
+    manifest = json.loads((sample / "manifest.json").read_text())
+    for setup in manifest["setups"]:
+        for p in setup["passes"]:
+            if p["pass_id"] == pass_id:
+                p["content_sha256"] = sha256_tree(store)
+    (sample / "manifest.json").write_text(json.dumps(manifest))
+
+
+def _scale(g):
+    T = g["T_world_flange"][...]
+    T[:, :3, :3] *= 1.01  # a 1 % scale on every logged pose
+    g["T_world_flange"][...] = T
+
+
+def _shear(g):
+    T = g["T_world_flange"][...]
+    T[:, :3, :3] = T[:, :3, :3] @ np.array([[1.0, 0.01, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    g["T_world_flange"][...] = T
+
+
+def _jump(g):
+    T = g["T_world_flange"][...]
+    T[400:, 1, 3] += 2.0  # from profile 400 on, the log is 2 mm off
+    g["T_world_flange"][...] = T
+
+
+def _time_order(g):
+    t = g["timestamp_s"][...]
+    t[300], t[301] = t[301], t[300]
+    g["timestamp_s"][...] = t
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_scale, r"pass top-L02: profile 0: T_world_flange is not rigid: its rotation part is off orthonormal by 0\.02"),
+    (_shear, r"pass top-L02: profile 0: T_world_flange is not rigid"),
+    (_jump, r"pass top-L02: profile 400: the logged flange pose jumps 2\.\d+ mm"),
+    (_time_order, r"pass top-L02: profile 301: timestamp_s .* is not after the profile before"),
+], ids=["scale", "shear", "jump", "time-order"])
+def test_poses_and_times_that_cannot_be_right_are_refused_naming_pass_and_profile(ci_sample, tmp_path, edit, message):
+    from flows.reconstruct import ReconstructionFailed, reconstruct_sample
+
+    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    _doctor(sample, "top-L02", edit)
+    with pytest.raises(ReconstructionFailed, match=message):
+        reconstruct_sample(str(sample), str(tmp_path / "out"), str(CI_CONFIG))
+    assert not (tmp_path / "out" / "results").exists()
+
+
+def test_the_refusal_is_one_line_on_the_terminal(ci_sample, tmp_path):
+    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    _doctor(sample, "top-L02", _scale)
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "out"), "--config", str(CI_CONFIG))
+    assert done.returncode != 0
+    error = done.stderr[done.stderr.index("weldrecon reconstruct: error:"):].splitlines()
+    assert error[0] == "weldrecon reconstruct: error: stage denoise failed for 1 pass(es):"
+    assert error[1].startswith("  pass top-L02: profile 0: T_world_flange is not rigid")
+    assert error[2].startswith("  (the details and the traceback: ") and len(error) == 3
+    assert "Traceback" not in done.stderr
+
+
+def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sample, tmp_path):
+    """A chunk of top-L02 swapped with another of the same pass (x, z and intensity; times and poses
+    as they were), the hash refreshed: exit 0 as before, but the report flags the pass twice (the
+    surface steps at the chunk boundaries, its target residuals stand far above the others') and the
+    terminal says so; then a rerun with settings refine cannot use fails clearly and leaves the
+    published results as they were."""
+    sample = _copy(ci_sample, tmp_path / "s",
+                   ["top-L01", "top-L02", "top-L03", "bottom-L01", "bottom-L02", "bottom-L03"])
+
+    def swap(g):
+        c = g["z_mm"].chunks[0]
+        for name in ("x_mm", "z_mm", "intensity"):
+            a, b = g[name][2 * c:3 * c], g[name][4 * c:5 * c]
+            g[name][2 * c:3 * c], g[name][4 * c:5 * c] = b, a
+
+    _doctor(sample, "top-L02", swap)
+    out = tmp_path / "out"
+    done = run_cli("reconstruct", str(sample), "--out", str(out), "--config", str(CI_CONFIG))
+    assert done.returncode == 0, done.stderr
+    report = json.loads((out / "results" / "report.json").read_text())
+    flagged = {(c["pass"], c["check"]) for c in report["checks"] if c["result"] != "ok"}
+    assert flagged == {("top-L02", "surface continuity at chunk boundaries"),
+                       ("top-L02", "target residuals against the sample's")}
+    assert len(report["checks"]) == 3 * 6
+    jumps = next(c for c in report["checks"] if c["pass"] == "top-L02" and c["check"].startswith("surface"))
+    assert {j["profile"] for j in jumps["measured"]} <= {256, 384, 512, 640} and jumps["measured"]
+    assert "checks: 16 of 18 ok" in done.stdout
+    warnings = [line for line in done.stderr.splitlines() if "warning: pass top-L02" in line]
+    assert len(warnings) == 2 and "a chunk may be out of place" in warnings[0]
+    assert "disagree with the other passes" in warnings[1]
+
+    published = {p.name: p.read_bytes() for p in (out / "results").iterdir()}
+    config = tmp_path / "tight.yaml"
+    config.write_text(CI_CONFIG.read_text() + "refine:\n  neighbour_mm: 0.2\n")
+    done = run_cli("reconstruct", str(sample), "--out", str(out), "--config", str(config))
+    assert done.returncode != 0
+    assert ("refine: no pass kept a surface point to match: none has 16 points (refine.normal_neighbours) "
+            "within 0.2 mm (refine.neighbour_mm)") in done.stderr
+    assert "Traceback" not in done.stderr
+    assert {p.name: p.read_bytes() for p in (out / "results").iterdir()} == published
