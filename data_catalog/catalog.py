@@ -25,9 +25,13 @@ from typing import Any
 from data_catalog.hashing import sha256_file, sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, check_sample_files, load_manifest
 
-__all__ = ["CATALOG_NAME", "SampleState", "SampleRecord", "Catalog", "fingerprint"]
+__all__ = ["CATALOG_NAME", "CatalogError", "SampleState", "SampleRecord", "Catalog", "fingerprint"]
 
 CATALOG_NAME = "catalog.sqlite"
+
+
+class CatalogError(ValueError):
+    """The catalog file cannot be used (damaged, not a database, not writable); names the file."""
 
 
 class SampleState:
@@ -97,6 +101,8 @@ class Catalog:
     def __init__(self, workspace: Path) -> None:
         self.workspace = Path(workspace)
         self.path = self.workspace / CATALOG_NAME
+        if self.workspace.exists() and not self.workspace.is_dir():
+            raise CatalogError(f"workspace {self.workspace} is a file, not a folder (--workspace)")
         self.workspace.mkdir(parents=True, exist_ok=True)
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
@@ -104,10 +110,18 @@ class Catalog:
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
-        db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        """A connection; any database error becomes a CatalogError naming the catalog file."""
+        try:
+            db = sqlite3.connect(self.path, timeout=30, isolation_level=None)
+        except sqlite3.Error as exc:
+            raise CatalogError(f"catalog {self.path}: cannot be opened ({exc})") from exc
         db.row_factory = sqlite3.Row
         try:
             yield db
+        except sqlite3.DatabaseError as exc:
+            hint = ("; it is damaged or not a catalog: move it aside (sample and run folders are untouched) and "
+                    "register the samples again" if "not a database" in str(exc) or "malformed" in str(exc) else "")
+            raise CatalogError(f"catalog {self.path}: {exc}{hint}") from exc
         finally:
             db.close()
 
@@ -139,14 +153,24 @@ class Catalog:
 
     def scan(self, folder: Path) -> tuple[list[SampleRecord], list[str]]:
         """Register every sample folder (one holding a manifest) directly under ``folder``.
-        Returns the registered samples and, per folder that could not be, why."""
+        Returns the registered samples and, per folder that could not be, why: one bad sample
+        never stops the others."""
+        folder = Path(folder)
+        if not folder.is_dir():
+            raise ValueError(f"{folder}: " + ("does not exist" if not folder.exists() else
+                                              "is a file, neither a sample folder (with manifest.json) nor a "
+                                              "folder of sample folders"))
         registered, refused = [], []
-        for child in sorted(Path(folder).iterdir()):
-            if (child / MANIFEST_NAME).is_file():
-                try:
-                    registered.append(self.register(child))
-                except (ValueError, OSError) as exc:
-                    refused.append(f"{child}: {exc}")
+        for child in sorted(folder.iterdir()):
+            if not (child / MANIFEST_NAME).exists():
+                continue
+            try:
+                registered.append(self.register(child))
+            except CatalogError:
+                raise  # the catalog itself is broken: no sample can be registered
+            except Exception as exc:  # noqa: BLE001 - named in the refusals, the others go on
+                refused.append(f"{child}: {exc}" if isinstance(exc, (ValueError, OSError))
+                               else f"{child}: {type(exc).__name__}: {exc}")
         return registered, refused
 
     # -- queries ------------------------------------------------------------------------------
@@ -168,9 +192,11 @@ class Catalog:
         with self._connect() as db:
             return [self._record(r) for r in db.execute("SELECT * FROM samples ORDER BY sample_id")]
 
-    def due(self, fresh: Iterable[str] = ()) -> list[SampleRecord]:
+    def due(self, fresh: Iterable[str] = (), unreadable: dict[str, str] | None = None) -> list[SampleRecord]:
         """Samples to reconstruct. Their fingerprints are refreshed from disk first, except for
-        the ``fresh`` sample ids (just registered: their fingerprints are current)."""
+        the ``fresh`` sample ids (just registered: their fingerprints are current). A sample whose
+        folder cannot be read (deleted, moved, damaged) is marked failed at "register" and, when
+        ``unreadable`` is given, put there with why: it is neither due nor up to date."""
         fresh = set(fresh)
         out = []
         for record in self.list():
@@ -181,8 +207,10 @@ class Catalog:
             try:
                 current = fingerprint(Path(record.sample_dir))
             except (ValueError, OSError) as exc:
-                self._set(record.sample_id, state=SampleState.FAILED, failed_stage="register",
-                          error=f"cannot read the sample: {exc}")
+                error = f"cannot read the sample folder {record.sample_dir}: {exc}"
+                self._set(record.sample_id, state=SampleState.FAILED, failed_stage="register", error=error)
+                if unreadable is not None:
+                    unreadable[record.sample_id] = error
                 continue
             if current != record.fingerprint:
                 self._set(record.sample_id, fingerprint=current)

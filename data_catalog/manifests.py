@@ -39,6 +39,12 @@ def load_manifest(path: Path) -> SampleManifest:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ManifestError(f"{path}: no manifest file there") from None
+    except IsADirectoryError:
+        raise ManifestError(f"{path}: is a folder, expected the sample's manifest file (JSON)") from None
+    except UnicodeDecodeError as exc:
+        raise ManifestError(f"{path}: not UTF-8 text at byte {exc.start}, expected a JSON manifest") from None
+    except OSError as exc:
+        raise ManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
         raw = json.loads(text)
     except json.JSONDecodeError as exc:

@@ -31,6 +31,13 @@ PASS_FORMAT_VERSION = 1
 INTENSITY_MAX = 1023
 
 
+# per array: the dtype kinds accepted, in words, and the largest item size (bytes)
+_DTYPES = {"x_mm": ("f", "float32 (mm)"), "z_mm": ("f", "float32 (mm)"),
+           "intensity": ("u", "uint16 (0..1023)"), "timestamp_s": ("f", "float64 (s)"),
+           "T_world_flange": ("f", "float64 (4 x 4 poses, mm)")}
+_MAX_ITEMSIZE = {"x_mm": 8, "z_mm": 8, "intensity": 2, "timestamp_s": 8, "T_world_flange": 8}
+
+
 class PassFormatError(ValueError):
     """A pass store is missing, truncated or not in the weldrecon pass format."""
 
@@ -158,6 +165,10 @@ class PassReader:
             array = group[name]
             if tuple(array.shape) != shape:
                 raise PassFormatError(f"{self.what}: {self.path}/{name} has shape {tuple(array.shape)}, expected {shape}")
+            kinds, wanted = _DTYPES[name]
+            if (array.dtype.kind not in kinds or array.dtype.itemsize > _MAX_ITEMSIZE[name]
+                    or (kinds == "f" and array.dtype.itemsize < 4)):  # float16: 0.1 mm steps at 300 mm
+                raise PassFormatError(f"{self.what}: {self.path}/{name} has dtype {array.dtype}, expected {wanted}")
             check_complete(array, what=f"{self.what} ({self.path})")
             self._arrays[name] = array
         self.pass_id: str = attrs.get("pass_id")
@@ -177,9 +188,18 @@ class PassReader:
         for name, array in self._arrays.items():
             try:
                 arrays[name] = np.asarray(array[start:stop])
+            except MemoryError:
+                raise MemoryError(f"{self.what}: profiles {start}:{stop} of {self.path}/{name} "
+                                  f"({(stop - start) * int(np.prod(array.shape[1:])) * array.dtype.itemsize / 2**20:.0f} MiB) "
+                                  "do not fit in the memory left") from None
             except Exception as exc:
                 raise PassFormatError(f"{self.what}: {self.path}/{name} cannot be decoded ({exc}); "
                                       "the file is corrupt") from exc
+        high = arrays["intensity"] > INTENSITY_MAX
+        if high.any():
+            row, col = (int(v[0]) for v in np.nonzero(high))
+            raise PassFormatError(f"{self.what}: {self.path}/intensity is {int(arrays['intensity'][row, col])} at "
+                                  f"profile {start + row}, column {col}; expected 0..{INTENSITY_MAX} (10-bit backscatter)")
         return PassData(pass_id=self.pass_id, x_mm=arrays["x_mm"], z_mm=arrays["z_mm"], intensity=arrays["intensity"],
                         timestamp_s=arrays["timestamp_s"], T_world_flange=arrays.get("T_world_flange"))
 

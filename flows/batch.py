@@ -102,7 +102,10 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
         registered, refused = catalog.scan(Path(samples_root))
         for line in refused:
             log.warning("not registered: %s", line)
-    due = catalog.due(fresh=[r.sample_id for r in registered])
+    unreadable: dict[str, str] = {}
+    due = catalog.due(fresh=[r.sample_id for r in registered], unreadable=unreadable)
+    for sample_id, why in unreadable.items():
+        log.warning("sample %s: %s", sample_id, why)
     log.info("%d sample(s) due: %s", len(due), ", ".join(r.sample_id for r in due) or "none")
     trigger = started_by or "batch"
     if max_concurrent < 1:
@@ -110,11 +113,13 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
     with _batch_limit(max_concurrent) as limit:
         futures = [reconstruct_one.submit(workspace, record, config_path, trigger, limit) for record in due]
         results = [f.result() for f in futures]
+    failed = {r["sample_id"]: {"stage": r["stage"], "error": r["error"]} for r in results if r["state"] == "failed"}
+    failed.update({sample_id: {"stage": "register", "error": why} for sample_id, why in unreadable.items()})
     summary = {"done": [r["sample_id"] for r in results if r["state"] == "done"],
-               "failed": {r["sample_id"]: {"stage": r["stage"], "error": r["error"]}
-                          for r in results if r["state"] == "failed"},
+               "failed": dict(sorted(failed.items())),
                "not_registered": refused,
-               "up_to_date": sorted({r.sample_id for r in catalog.list()} - {r.sample_id for r in due})}
+               "up_to_date": sorted({r.sample_id for r in catalog.list()}
+                                    - {r.sample_id for r in due} - set(unreadable))}
     for sample_id, why in summary["failed"].items():
         log.error("sample %s failed at %s: %s", sample_id, why["stage"], why["error"])
     log.info("batch: %d done, %d failed, %d up to date", len(summary["done"]), len(summary["failed"]),

@@ -162,7 +162,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from data_catalog.manifests import check_sample_files, load_manifest
     from flows.progress import TrailProgress
-    from flows.reconstruct import check_out_dir, load_config, prefect_api_for_workers, reconstruct_sample
+    from flows.reconstruct import (check_dask_scheduler, check_out_dir, load_config, prefect_api_for_workers,
+                                   reconstruct_sample)
     from flows.stages import STAGES
 
     sample = Path(args.sample_dir)
@@ -177,8 +178,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
-    _log_to_file(out / "logs", "reconstruct")
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
+    if dask and not dask.startswith("local:"):
+        check_dask_scheduler(dask)
+    _log_to_file(out / "logs", "reconstruct")
     n_passes = len(manifest.passes())
     expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
     with contextlib.ExitStack() as stack:
@@ -232,18 +235,27 @@ def _workspace(args: argparse.Namespace) -> Path:
 
 
 def _cmd_catalog(args: argparse.Namespace) -> int:
-    from data_catalog.catalog import Catalog
+    from data_catalog.catalog import Catalog, CatalogError
 
     catalog = Catalog(_workspace(args))
     if args.action == "register":
         status = 0
-        for path in args.paths:
+        for path in args.paths:  # one bad path is named; the others are still registered
             folder = Path(path)
-            if (folder / "manifest.json").is_file():
-                record = catalog.register(folder)
-                print(f"{record.sample_id}: {record.state}{' (changed)' if record.due and record.state == 'done' else ''}")
-                continue
-            records, refused = catalog.scan(folder)
+            try:
+                if (folder / "manifest.json").exists():
+                    record = catalog.register(folder)
+                    print(f"{record.sample_id}: {record.state}"
+                          f"{' (changed)' if record.due and record.state == 'done' else ''}")
+                    continue
+                records, refused = catalog.scan(folder)
+            except CatalogError:
+                raise
+            except (ValueError, OSError) as exc:
+                records, refused = [], [f"{folder}: {exc}" if str(folder) not in str(exc) else str(exc)]
+            else:
+                if not records and not refused:
+                    refused = [f"{folder}: no sample folder (one holding manifest.json) in it or under it"]
             for record in records:
                 print(f"{record.sample_id}: {record.state}")
             for line in refused:
@@ -335,15 +347,26 @@ def _cmd_audit(args: argparse.Namespace) -> int:
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     _quiet_prefect()
+    from data_catalog.catalog import Catalog
     from flows.batch import reconstruct_batch
 
-    summary = reconstruct_batch(str(_workspace(args)), args.samples, args.config, args.max_concurrent,
+    workspace = _workspace(args)
+    Catalog(workspace)  # a damaged catalog is named before any flow runs
+    if args.config is not None:
+        from flows.reconstruct import load_config
+
+        load_config(args.config)
+    log = _log_to_file(workspace / "logs", "batch")
+    print(f"batch log: {log}", file=sys.stderr)
+    summary = reconstruct_batch(str(workspace), args.samples, args.config, args.max_concurrent,
                                 started_by="cli batch")
     print(f"done: {', '.join(summary['done']) or 'none'}")
     for sample_id, why in summary["failed"].items():
         print(f"FAILED {sample_id} at {why['stage']}: {why['error']}")
+    for line in summary["not_registered"]:
+        print(f"NOT REGISTERED {line}")
     print(f"up to date: {', '.join(summary['up_to_date']) or 'none'}")
-    return 1 if summary["failed"] else 0
+    return 1 if summary["failed"] or summary["not_registered"] else 0
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -404,25 +427,53 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _traceback_log(command: str, exc: BaseException) -> Path | None:
+    """Where the traceback of a failure goes: the run's log file when the command opened one,
+    else a file under $WELDRECON_LOG_DIR (default ~/.local/state/weldrecon/logs); None if
+    neither can be written (a full disk: the one line must still reach the terminal)."""
+    import logging
+    import traceback
+    from datetime import UTC, datetime
+
+    if _LOG_FILE is not None:
+        logging.getLogger("weldrecon").error("%s failed", command, exc_info=exc)
+        return _LOG_FILE
+    folder = Path(os.environ.get("WELDRECON_LOG_DIR") or Path.home() / ".local" / "state" / "weldrecon" / "logs")
+    path = folder / f"{command}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
+    except OSError:
+        return None
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     import signal
+    import sqlite3
 
     signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `weldrecon audit show X | head` ends quietly
     args = _parser().parse_args(argv)
     try:
         return args.func(args)
-    except KeyError as exc:
-        print(f"weldrecon {args.command}: error: {exc.args[0]}", file=sys.stderr)
-        return 2
-    except (ValueError, FileExistsError, FileNotFoundError, RuntimeError, TimeoutError) as exc:
-        stage = getattr(exc, "stage", None)
-        where = f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else ""
-        print(f"weldrecon {args.command}: error: {where}{exc}", file=sys.stderr)
-        if _LOG_FILE is not None:
-            import logging
-
-            logging.getLogger("weldrecon").error("%s failed", args.command, exc_info=exc)
-            print(f"  (the details and the traceback: {_LOG_FILE})", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"weldrecon {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - one line on the terminal, the traceback in a log file
+        if isinstance(exc, KeyError):
+            what = exc.args[0] if exc.args else exc
+        elif isinstance(exc, (ValueError, OSError, RuntimeError, TimeoutError, sqlite3.Error)):
+            stage = getattr(exc, "stage", None)
+            what = (f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else "") + str(exc)
+        elif isinstance(exc, MemoryError):
+            what = f"out of memory ({exc or 'no detail'}); give the run more memory or smaller blocks"
+        else:  # not an input problem we know of: say so, and keep the evidence
+            what = f"unexpected {type(exc).__name__}: {exc} (please report it with the log below)"
+        print(f"weldrecon {args.command}: error: {what}", file=sys.stderr)
+        if _LOG_FILE is not None or not isinstance(exc, (KeyError, ValueError)):  # not a plain input error
+            log = _traceback_log(args.command, exc)
+            if log is not None:
+                print(f"  (the details and the traceback: {log})", file=sys.stderr)
         return 2
 
 

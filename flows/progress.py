@@ -74,7 +74,8 @@ class TrailProgress:
             self._rich.stop()
         for name, c in self._counts.items():
             if c.failed:
-                self._say(f"{name} {c.done}/{c.expected} done, FAILED: {', '.join(c.failed)}", final=True)
+                failed = list(dict.fromkeys(c.failed))  # a retried item failed more than once: named once
+                self._say(f"{name} {c.done}/{c.expected} done, FAILED: {', '.join(failed)}", final=True)
 
     def _watch(self) -> None:
         while not self._stop.wait(self._interval):

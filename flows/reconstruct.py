@@ -170,7 +170,28 @@ def task_runner(dask: str | None):
         return DaskTaskRunner(cluster_class="distributed.LocalCluster",
                               cluster_kwargs={"n_workers": workers, "threads_per_worker": 1, "processes": True,
                                               "dashboard_address": None})
+    check_dask_scheduler(dask)
     return DaskTaskRunner(address=dask)
+
+
+def check_dask_scheduler(address: str, timeout_s: float = 5.0) -> None:
+    """A Dask scheduler address (``tcp://host:port`` or ``host:port``) that answers; ValueError
+    naming it and why not (before any work, instead of a client's traceback after a long wait)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port or 8786
+    except ValueError as exc:  # a port that is not a number
+        raise ValueError(f"dask {address!r}: not a scheduler address ({exc}); expected tcp://host:port or local:N") from None
+    if parts.scheme != "tcp" or not host:
+        raise ValueError(f"dask {address!r}: not a scheduler address; expected tcp://host:port or local:N")
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"dask {address!r}: no Dask scheduler answers at {host}:{port} ({exc.strerror or exc}); "
+                         "start one (dask scheduler) or give local:N for worker processes here") from None
 
 
 def _server_that_dies_with_us():
@@ -279,6 +300,13 @@ def check_out_dir(sample: Path, out: Path) -> None:
     if out == sample or any(out == p or p in out.parents for p in inputs):
         raise ValueError(f"--out {out}: inside the sample {sample}'s own inputs (its passes, truth or "
                          "manifest); a run must not write into what it reads: give a folder outside them")
+    existing = next((p for p in [out, *out.parents] if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ValueError(f"--out {out}: {existing} is a file, not a folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {out}: {existing} is not writable by this user"
+                         + (" (the default run folder is beside the sample): give --out a folder you can write"
+                            if existing != out else ""))
 
 
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)

@@ -137,7 +137,12 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
     for s in setup_names[1:]:
         ta = [k for k, ts in enumerate(track_setup) if ts == setup_names[0]]
         tb = [k for k, ts in enumerate(track_setup) if ts == s]
-        rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5), min_shared=2)
+        try:
+            rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5),
+                                          min_shared=2)
+        except ValueError as exc:
+            raise ValueError(f"setups {setup_names[0]} and {s} ({len(ta)} and {len(tb)} targets): {exc}; the specimen "
+                             "must show 3 or more stickers, not on one line, to passes of both setups") from None
         T_first_setup[s] = rm.T_a_b
         for k in range(n):
             if setups[k] == s:

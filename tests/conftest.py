@@ -12,6 +12,14 @@ CI_CONFIG = Path(__file__).resolve().parents[1] / "deploy" / "configs" / "ci.yam
 from simulator.run import simulate
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _traceback_logs_in_a_temporary_folder(tmp_path_factory):
+    """The command line's traceback logs (flows.cli) go under the session's temporary folder."""
+    import os
+
+    os.environ["WELDRECON_LOG_DIR"] = str(tmp_path_factory.mktemp("logs"))
+
+
 @pytest.fixture(scope="session")
 def ci_sample(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("ci") / "sample"

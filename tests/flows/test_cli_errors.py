@@ -1,0 +1,226 @@
+"""Failures the command line meets in a lab (issue 10, item 6): one clear line per problem that
+names the file, pass or field and what was expected, no traceback on the terminal (it goes to a
+log file), and nothing that already existed damaged."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zarr
+
+from data_catalog.audit import read_trail
+from data_catalog.hashing import sha256_tree
+from tests.flows.cli import run_cli
+
+REPO = Path(__file__).resolve().parents[2]
+CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
+# a subset of the ci sample that reconstructs on its own: both setups, 3 passes each
+SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
+
+
+def _copy(ci_sample: Path, dst: Path, keep: list[str]) -> Path:
+    dst.mkdir(parents=True)
+    manifest = json.loads((ci_sample / "manifest.json").read_text())
+    for setup in manifest["setups"]:
+        setup["passes"] = [p for p in setup["passes"] if p["pass_id"] in keep]
+        for p in setup["passes"]:
+            shutil.copytree(ci_sample / p["file"], dst / p["file"])
+    manifest["setups"] = [s for s in manifest["setups"] if s["passes"]]
+    (dst / "manifest.json").write_text(json.dumps(manifest))
+    return dst
+
+
+def _problems(stderr: str) -> list[str]:
+    """The terminal's lines that are not progress ("[  1.2 s] ...")."""
+    return [line for line in stderr.splitlines() if line.strip() and not line.startswith("[")]
+
+
+def _mount_tmpfs(where: Path, size: str) -> None:
+    where.mkdir(parents=True)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (needs root)")
+
+
+def test_a_damaged_catalog_is_named_and_left_as_it_was(tmp_path):
+    workspace = tmp_path / "ws"
+    workspace.mkdir()
+    (workspace / "catalog.sqlite").write_bytes(b"this is not an SQLite database" * 100)
+    before = (workspace / "catalog.sqlite").read_bytes()
+    for args in (["catalog", "list"], ["catalog", "show", "x"], ["catalog", "register", str(tmp_path)],
+                 ["batch"], ["audit", "verify", "some-sample"]):
+        done = run_cli(*args, "--workspace", str(workspace))
+        assert done.returncode == 2, (args, done.stderr)
+        problems = _problems(done.stderr)
+        assert problems[0] == (f"weldrecon {args[0]}: error: catalog {workspace / 'catalog.sqlite'}: file is not a "
+                               "database; it is damaged or not a catalog: move it aside (sample and run folders are "
+                               "untouched) and register the samples again"), (args, done.stderr)
+        assert "Traceback" not in done.stderr and len(problems) <= 2, (args, done.stderr)
+    assert (workspace / "catalog.sqlite").read_bytes() == before
+
+
+def test_register_names_what_is_not_a_sample_and_registers_the_rest(ci_sample, tmp_path):
+    workspace = tmp_path / "ws"
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("not a sample")
+    folder_manifest = _copy(ci_sample, tmp_path / "samples" / "odd", ["top-L01"])
+    (folder_manifest / "manifest.json").unlink()
+    (folder_manifest / "manifest.json").mkdir()  # a manifest that is a folder
+    broken = tmp_path / "samples" / "broken"
+    broken.mkdir()
+    (broken / "manifest.json").write_bytes(b"\xff\xfe not json")
+    good = _copy(ci_sample, tmp_path / "samples" / "good", ["top-L01"])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    done = run_cli("catalog", "register", str(a_file), str(tmp_path / "samples"), str(empty), str(tmp_path / "gone"),
+                   "--workspace", str(workspace))
+    assert done.returncode == 2
+    assert done.stdout.splitlines() == ["sim-ci-0011: new"]  # the good sample, despite the others
+    lines = _problems(done.stderr)
+    assert lines == [
+        f"not registered: {a_file}: is a file, neither a sample folder (with manifest.json) nor a folder of "
+        "sample folders",
+        f"not registered: {broken}: {broken / 'manifest.json'}: not UTF-8 text at byte 0, expected a JSON manifest",
+        f"not registered: {folder_manifest}: {folder_manifest / 'manifest.json'}: is a folder, expected the "
+        "sample's manifest file (JSON)",
+        f"not registered: {empty}: no sample folder (one holding manifest.json) in it or under it",
+        f"not registered: {tmp_path / 'gone'}: does not exist",
+    ]
+    assert (good / "manifest.json").is_file()
+    done = run_cli("reconstruct", str(folder_manifest), "--out", str(tmp_path / "run"))
+    assert done.returncode == 2 and _problems(done.stderr) == [
+        f"weldrecon reconstruct: error: {folder_manifest / 'manifest.json'}: is a folder, expected the sample's "
+        "manifest file (JSON)"]
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_batch_names_a_deleted_sample_and_a_malformed_one_instead_of_up_to_date(ci_sample, tmp_path):
+    workspace = tmp_path / "ws"
+    samples = tmp_path / "samples"
+    sample = _copy(ci_sample, samples / "one", ["top-L01"])
+    assert run_cli("catalog", "register", str(sample), "--workspace", str(workspace)).returncode == 0
+    shutil.rmtree(sample)  # deleted after it was registered
+    malformed = samples / "two"
+    malformed.mkdir()
+    (malformed / "manifest.json").write_text('{"sample_id": "x"}')
+    done = run_cli("batch", "--samples", str(samples), "--workspace", str(workspace))
+    assert done.returncode == 1, done.stderr
+    out = done.stdout.splitlines()
+    assert out[0] == "done: none"
+    assert out[1].startswith(f"FAILED sim-ci-0011 at register: cannot read the sample folder {sample}: ")
+    assert out[2].startswith(f"NOT REGISTERED {malformed}: {malformed / 'manifest.json'}: ")
+    assert out[-1] == "up to date: none"  # each missing manifest field on its own line before
+    shown = run_cli("catalog", "show", "sim-ci-0011", "--workspace", str(workspace)).stdout
+    assert "state       failed at stage register" in shown
+
+
+def test_unreachable_dask_scheduler_is_named_before_any_work(ci_sample, tmp_path):
+    sample = _copy(ci_sample, tmp_path / "s", ["top-L01"])
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--dask", "tcp://127.0.0.1:9")
+    assert done.returncode == 2
+    assert _problems(done.stderr) == [
+        "weldrecon reconstruct: error: dask 'tcp://127.0.0.1:9': no Dask scheduler answers at 127.0.0.1:9 "
+        "(Connection refused); start one (dask scheduler) or give local:N for worker processes here"]
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("edit, message", [
+    ("int32", r"pass top-L02: .*top-L02\.zarr/x_mm has dtype int32, expected float32 \(mm\)"),
+    ("intensity", r"pass top-L02: .*top-L02\.zarr/intensity is 2000 at profile 3, column 7; expected 0\.\.1023"),
+])
+def test_pass_values_outside_the_format_are_named_not_reported_as_missing_stickers(ci_sample, tmp_path, edit,
+                                                                                   message):
+    import re
+
+    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    store = sample / "passes" / "top-L02.zarr"
+    group = zarr.open_group(str(store), mode="r+")
+    if edit == "int32":  # what a converter writing micrometre integers leaves
+        x = np.nan_to_num(group["x_mm"][...] * 1000).astype(np.int32)
+        chunks = group["x_mm"].chunks
+        del group["x_mm"]
+        group.create_array("x_mm", data=x, chunks=chunks, config={"write_empty_chunks": True})
+    else:  # a 12-bit sensor's intensities
+        intensity = group["intensity"][...]
+        intensity[3, 7] = 2000
+        group["intensity"][...] = intensity
+    manifest = json.loads((sample / "manifest.json").read_text())
+    manifest["setups"][0]["passes"][1]["content_sha256"] = sha256_tree(store)
+    (sample / "manifest.json").write_text(json.dumps(manifest))
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
+    assert done.returncode == 2
+    assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
+    assert "no sticker" not in done.stderr and "Traceback" not in done.stderr
+
+
+def test_a_read_only_place_for_the_default_run_folder_is_named(ci_sample, tmp_path):
+    disk = tmp_path / "ro"
+    _mount_tmpfs(disk, "16m")
+    try:
+        sample = _copy(ci_sample, disk / "s", ["top-L01"])
+        subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+        done = run_cli("reconstruct", str(sample))
+        assert done.returncode == 2
+        assert _problems(done.stderr) == [
+            f"weldrecon reconstruct: error: --out {disk / 's-reconstruction'}: {disk} is not writable by this user "
+            "(the default run folder is beside the sample): give --out a folder you can write"]
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
+
+
+def test_an_unexpected_error_is_one_line_and_its_traceback_goes_to_a_log(tmp_path, monkeypatch, capsys):
+    import flows.cli
+
+    def broken(args):
+        raise TypeError("something the code did not expect")
+
+    monkeypatch.setattr(flows.cli, "_cmd_stages", broken)
+    monkeypatch.setenv("WELDRECON_LOG_DIR", str(tmp_path / "logs"))
+    assert flows.cli.main(["stages"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == ("weldrecon stages: error: unexpected TypeError: something the code did not expect "
+                      "(please report it with the log below)")
+    log = Path(err[1].removeprefix("  (the details and the traceback: ").removesuffix(")"))
+    assert log.parent == tmp_path / "logs" and len(err) == 2
+    assert "Traceback" in log.read_text() and "something the code did not expect" in log.read_text()
+
+
+def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recovers(ci_sample, tmp_path):
+    """The run folder on an 8 MiB tmpfs: the denoise stage of some passes meets a full disk. The
+    terminal names the passes and the cause, the trail stays intact, and after space is freed the
+    same command finishes, remaking what failed and reusing what was complete."""
+    sample = _copy(ci_sample, tmp_path / "s", SIX)
+    disk = tmp_path / "disk"
+    _mount_tmpfs(disk, "8m")
+    try:
+        run = disk / "run"
+        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        assert done.returncode == 2
+        problems = _problems(done.stderr)
+        assert problems[0].startswith("weldrecon reconstruct: error: stage denoise failed for ")
+        assert all(line.startswith("  pass ") and line.endswith(": [Errno 28] No space left on device")
+                   for line in problems[1:-1]) and len(problems) >= 3
+        assert problems[-1].startswith("  (the details and the traceback: ")
+        assert "Traceback" not in done.stderr
+        assert not (run / "results").exists()
+        verify = run_cli("audit", "verify", str(run))
+        assert verify.returncode == 0 and "audit trail intact" in verify.stdout
+        subprocess.run(["mount", "-o", "remount,size=64m", str(disk)], check=True)  # space freed
+        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        assert done.returncode == 0, done.stderr
+        report = json.loads((run / "results" / "report.json").read_text())
+        assert report["mesh"]["triangles"] > 10_000  # (this subset's mesh is open: 3 passes per side)
+        trail = read_trail(run)
+        second = max(k for k, e in enumerate(trail) if e["kind"] == "run-started")
+        reused = [bool(e.get("cached")) for e in trail[second:] if e["kind"] == "stage" and e["stage"] == "denoise"]
+        assert len(reused) == len(SIX) and 0 < sum(reused) < len(SIX)  # what failed was made again
+        verify = run_cli("audit", "verify", str(run))
+        assert verify.returncode == 0 and "audit trail intact" in verify.stdout
+        assert not list(run.rglob("*.partial")) and not list(run.rglob(".build-*"))
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
