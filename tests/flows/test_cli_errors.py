@@ -16,23 +16,12 @@ import zarr
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from tests.flows.cli import run_cli
+from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 # a subset of the ci sample that reconstructs on its own: both setups, 3 passes each
 SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
-
-
-def _copy(ci_sample: Path, dst: Path, keep: list[str]) -> Path:
-    dst.mkdir(parents=True)
-    manifest = json.loads((ci_sample / "manifest.json").read_text())
-    for setup in manifest["setups"]:
-        setup["passes"] = [p for p in setup["passes"] if p["pass_id"] in keep]
-        for p in setup["passes"]:
-            shutil.copytree(ci_sample / p["file"], dst / p["file"])
-    manifest["setups"] = [s for s in manifest["setups"] if s["passes"]]
-    (dst / "manifest.json").write_text(json.dumps(manifest))
-    return dst
 
 
 def _problems(stderr: str) -> list[str]:
@@ -68,13 +57,13 @@ def test_register_names_what_is_not_a_sample_and_registers_the_rest(ci_sample, t
     workspace = tmp_path / "ws"
     a_file = tmp_path / "notes.txt"
     a_file.write_text("not a sample")
-    folder_manifest = _copy(ci_sample, tmp_path / "samples" / "odd", ["top-L01"])
+    folder_manifest = copy_sample(ci_sample, tmp_path / "samples" / "odd", ["top-L01"])
     (folder_manifest / "manifest.json").unlink()
     (folder_manifest / "manifest.json").mkdir()  # a manifest that is a folder
     broken = tmp_path / "samples" / "broken"
     broken.mkdir()
     (broken / "manifest.json").write_bytes(b"\xff\xfe not json")
-    good = _copy(ci_sample, tmp_path / "samples" / "good", ["top-L01"])
+    good = copy_sample(ci_sample, tmp_path / "samples" / "good", ["top-L01"])
     empty = tmp_path / "empty"
     empty.mkdir()
     done = run_cli("catalog", "register", str(a_file), str(tmp_path / "samples"), str(empty), str(tmp_path / "gone"),
@@ -102,7 +91,7 @@ def test_register_names_what_is_not_a_sample_and_registers_the_rest(ci_sample, t
 def test_a_batch_names_a_deleted_sample_and_a_malformed_one_instead_of_up_to_date(ci_sample, tmp_path):
     workspace = tmp_path / "ws"
     samples = tmp_path / "samples"
-    sample = _copy(ci_sample, samples / "one", ["top-L01"])
+    sample = copy_sample(ci_sample, samples / "one", ["top-L01"])
     assert run_cli("catalog", "register", str(sample), "--workspace", str(workspace)).returncode == 0
     shutil.rmtree(sample)  # deleted after it was registered
     malformed = samples / "two"
@@ -120,7 +109,7 @@ def test_a_batch_names_a_deleted_sample_and_a_malformed_one_instead_of_up_to_dat
 
 
 def test_unreachable_dask_scheduler_is_named_before_any_work(ci_sample, tmp_path):
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01"])
     done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--dask", "tcp://127.0.0.1:9")
     assert done.returncode == 2
     assert _problems(done.stderr) == [
@@ -137,7 +126,7 @@ def test_pass_values_outside_the_format_are_named_not_reported_as_missing_sticke
                                                                                    message):
     import re
 
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     store = sample / "passes" / "top-L02.zarr"
     group = zarr.open_group(str(store), mode="r+")
     if edit == "int32":  # what a converter writing micrometre integers leaves
@@ -162,7 +151,7 @@ def test_a_read_only_place_for_the_default_run_folder_is_named(ci_sample, tmp_pa
     disk = tmp_path / "ro"
     _mount_tmpfs(disk, "16m")
     try:
-        sample = _copy(ci_sample, disk / "s", ["top-L01"])
+        sample = copy_sample(ci_sample, disk / "s", ["top-L01"])
         subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
         done = run_cli("reconstruct", str(sample))
         assert done.returncode == 2
@@ -194,7 +183,7 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
     """The run folder on an 8 MiB tmpfs: the denoise stage of some passes meets a full disk. The
     terminal names the passes and the cause, the trail stays intact, and after space is freed the
     same command finishes, remaking what failed and reusing what was complete."""
-    sample = _copy(ci_sample, tmp_path / "s", SIX)
+    sample = copy_sample(ci_sample, tmp_path / "s", SIX)
     disk = tmp_path / "disk"
     _mount_tmpfs(disk, "8m")
     try:

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -16,22 +15,11 @@ import zarr
 
 from data_catalog.hashing import sha256_tree
 from tests.flows.cli import run_cli
+from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-
-
-def _copy(ci_sample: Path, dst: Path, keep: list[str]) -> Path:
-    dst.mkdir(parents=True)
-    manifest = json.loads((ci_sample / "manifest.json").read_text())
-    for setup in manifest["setups"]:
-        setup["passes"] = [p for p in setup["passes"] if p["pass_id"] in keep]
-        for p in setup["passes"]:
-            shutil.copytree(ci_sample / p["file"], dst / p["file"])
-    manifest["setups"] = [s for s in manifest["setups"] if s["passes"]]
-    (dst / "manifest.json").write_text(json.dumps(manifest))
-    return dst
 
 
 def _doctor(sample: Path, pass_id: str, edit) -> None:
@@ -79,7 +67,7 @@ def _time_order(g):
 def test_poses_and_times_that_cannot_be_right_are_refused_naming_pass_and_profile(ci_sample, tmp_path, edit, message):
     from flows.reconstruct import ReconstructionFailed, reconstruct_sample
 
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     _doctor(sample, "top-L02", edit)
     with pytest.raises(ReconstructionFailed, match=message):
         reconstruct_sample(str(sample), str(tmp_path / "out"), str(CI_CONFIG))
@@ -87,7 +75,7 @@ def test_poses_and_times_that_cannot_be_right_are_refused_naming_pass_and_profil
 
 
 def test_the_refusal_is_one_line_on_the_terminal(ci_sample, tmp_path):
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     _doctor(sample, "top-L02", _scale)
     done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "out"), "--config", str(CI_CONFIG))
     assert done.returncode != 0
@@ -104,7 +92,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     surface steps at the chunk boundaries, its target residuals stand far above the others') and the
     terminal says so; then a rerun with settings refine cannot use fails clearly and leaves the
     published results as they were."""
-    sample = _copy(ci_sample, tmp_path / "s",
+    sample = copy_sample(ci_sample, tmp_path / "s",
                    ["top-L01", "top-L02", "top-L03", "bottom-L01", "bottom-L02", "bottom-L03"])
 
     def swap(g):
