@@ -470,7 +470,8 @@ def main(argv: list[str] | None = None) -> int:
         else:  # not an input problem we know of: say so, and keep the evidence
             what = f"unexpected {type(exc).__name__}: {exc} (please report it with the log below)"
         print(f"weldrecon {args.command}: error: {what}", file=sys.stderr)
-        if _LOG_FILE is not None or not isinstance(exc, (KeyError, ValueError)):  # not a plain input error
+        plain = (KeyError, ValueError, FileNotFoundError, FileExistsError, TimeoutError)  # input errors we name
+        if _LOG_FILE is not None or not isinstance(exc, plain):
             log = _traceback_log(args.command, exc)
             if log is not None:
                 print(f"  (the details and the traceback: {log})", file=sys.stderr)
