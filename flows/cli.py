@@ -95,18 +95,24 @@ def _quiet_prefect() -> None:
 _LOG_FILE: Path | None = None
 
 
+def _log_path(folder: Path, name: str) -> Path:
+    """A new log file's name in ``folder``: the command, UTC time and process id."""
+    from datetime import UTC, datetime
+
+    return folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+
+
 def _log_to_file(folder: Path, name: str) -> Path:
     """Send Prefect's and the libraries' log records (tracebacks included) to a log file in
     ``folder`` instead of the terminal, which gets one line per problem; returns the file."""
     import logging
-    from datetime import UTC, datetime
 
     from prefect.logging.configuration import setup_logging
 
     global _LOG_FILE
     setup_logging()  # Prefect's own configuration first (later calls only adjust it)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    path = _log_path(folder, name)
     handler = logging.FileHandler(path, encoding="utf-8", delay=True)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
     loggers = [lg for lg in list(logging.root.manager.loggerDict.values()) if isinstance(lg, logging.Logger)]
@@ -433,13 +439,12 @@ def _traceback_log(command: str, exc: BaseException) -> Path | None:
     neither can be written (a full disk: the one line must still reach the terminal)."""
     import logging
     import traceback
-    from datetime import UTC, datetime
 
     if _LOG_FILE is not None:
         logging.getLogger("weldrecon").error("%s failed", command, exc_info=exc)
         return _LOG_FILE
     folder = Path(os.environ.get("WELDRECON_LOG_DIR") or Path.home() / ".local" / "state" / "weldrecon" / "logs")
-    path = folder / f"{command}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+    path = _log_path(folder, command)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")

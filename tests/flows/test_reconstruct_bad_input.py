@@ -13,25 +13,11 @@ import pytest
 import zarr
 
 from data_catalog.manifests import ManifestError
+from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-
-
-def _copy(ci_sample: Path, dst: Path, keep: list[str] | None = None) -> Path:
-    """A copy of the ci sample (passes and manifest only), optionally with only some passes."""
-    dst.mkdir(parents=True)
-    manifest = json.loads((ci_sample / "manifest.json").read_text())
-    if keep is not None:
-        for setup in manifest["setups"]:
-            setup["passes"] = [p for p in setup["passes"] if p["pass_id"] in keep]
-        manifest["setups"] = [s for s in manifest["setups"] if s["passes"]]
-    for setup in manifest["setups"]:
-        for p in setup["passes"]:
-            shutil.copytree(ci_sample / p["file"], dst / p["file"])
-    (dst / "manifest.json").write_text(json.dumps(manifest))
-    return dst
 
 
 def _reconstruct(sample, out, config=CI_CONFIG):
@@ -48,7 +34,7 @@ def test_missing_and_truncated_pass_files_are_named_and_earlier_outputs_kept(ci_
     from flows.reconstruct import ReconstructionFailed
 
     keep = ["top-L01", "top-L02", "top-L03"]
-    sample = _copy(ci_sample, tmp_path / "s", keep)
+    sample = copy_sample(ci_sample, tmp_path / "s", keep)
     out = tmp_path / "out"
     # first, a stage that succeeds, to see it survive the failures below
     (out / "stages").mkdir(parents=True)
@@ -70,7 +56,7 @@ def test_missing_and_truncated_pass_files_are_named_and_earlier_outputs_kept(ci_
 def test_truncated_pass_without_a_manifest_hash_is_caught_by_the_reader(ci_sample, tmp_path):
     from flows.reconstruct import ReconstructionFailed
 
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     manifest = json.loads((sample / "manifest.json").read_text())
     for p in manifest["setups"][0]["passes"]:
         p["content_sha256"] = None
@@ -86,7 +72,7 @@ def test_truncated_pass_without_a_manifest_hash_is_caught_by_the_reader(ci_sampl
     (lambda m: m.update(operator="bob"), r"operator: Extra inputs are not permitted"),
 ])
 def test_bad_manifest_is_refused_before_any_work(ci_sample, tmp_path, edit, message):
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01"])
     manifest = json.loads((sample / "manifest.json").read_text())
     edit(manifest)
     (sample / "manifest.json").write_text(json.dumps(manifest))
@@ -98,7 +84,7 @@ def test_bad_manifest_is_refused_before_any_work(ci_sample, tmp_path, edit, mess
 def test_a_pass_without_stickers_is_named(ci_sample, tmp_path):
     from flows.reconstruct import ReconstructionFailed
 
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     manifest = json.loads((sample / "manifest.json").read_text())
     entry = next(p for p in manifest["setups"][0]["passes"] if p["pass_id"] == "top-L02")
     entry["content_sha256"] = None
@@ -114,7 +100,7 @@ def test_too_few_common_stickers_names_the_pair_and_the_lost_passes(ci_sample, t
     from flows.stages import StageFailed
 
     # top-L04 and top-W01 overlap, but share only one sticker that both see whole
-    sample = _copy(ci_sample, tmp_path / "s", ["top-L04", "top-W01"])
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L04", "top-W01"])
     with pytest.raises(StageFailed) as info:
         _reconstruct(sample, tmp_path / "out")
     assert info.value.stage == "registration" and not info.value.retryable
