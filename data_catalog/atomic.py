@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 __all__ = ["atomic_write_bytes", "atomic_write_text", "atomic_directory", "default_mode", "owner_tag",
-           "sweep_leftovers"]
+           "sweep_leftovers", "replace_directory", "folder_lock", "fsync_tree", "check_can_create"]
 
 
 def owner_tag() -> str:
@@ -125,3 +125,99 @@ def atomic_directory(path: Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def fsync_tree(folder: Path) -> None:
+    """Flush every file in ``folder`` (one level) and the folder itself to the disk."""
+    folder = Path(folder)
+    for child in folder.iterdir():
+        if child.is_file():
+            fd = os.open(child, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+    fd = os.open(folder, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths in one step (Linux ``renameat2(RENAME_EXCHANGE)``); False where the
+    system or the filesystem cannot."""
+    import ctypes
+    import errno
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(code, f"cannot swap {a} and {b}: {os.strerror(code)}")
+
+
+def replace_directory(new: Path, target: Path) -> None:
+    """Put the complete folder ``new`` at ``target`` in one step, replacing the folder there:
+    readers see the old folder whole or the new one whole, never a mix (a kill between any two
+    instructions included). The old folder is removed afterwards. Where the filesystem cannot
+    swap two folders at once, the old one is first renamed aside (a tagged ``.partial`` name, swept
+    by the next run if this process dies before it is removed): ``target`` is then briefly absent,
+    but never mixed."""
+    new, target = Path(new), Path(target)
+    if not target.exists():
+        os.rename(new, target)
+        return
+    if _exchange(new, target):
+        shutil.rmtree(new)  # now the old folder
+        return
+    aside = target.with_name(f".{target.name}.old.{owner_tag()}.partial")
+    os.rename(target, aside)
+    os.rename(new, target)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def folder_lock(path: Path) -> Iterator[None]:
+    """An exclusive lock (``flock``) on the file ``path`` (created if missing), held for the block:
+    serialises what several processes do to one folder."""
+    import fcntl
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def check_can_create(path: Path, what: str) -> None:
+    """That ``path`` (a folder to be made or written into) can be: its nearest existing ancestor
+    is a folder this process can create things in (tried, not only asked: root's ``access`` says
+    yes on a read-only or virtual filesystem). ValueError naming ``what`` (``--out X``) and why,
+    before any work is done."""
+    path = Path(path).absolute()
+    existing = next((p for p in [path, *path.parents] if p.exists()), None)
+    if existing is None:  # pragma: no cover - "/" always exists
+        return
+    if not existing.is_dir():
+        raise ValueError(f"{what}: {existing} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=f".probe.{owner_tag()}.", suffix=".partial", dir=existing)
+    except OSError as exc:
+        raise ValueError(f"{what}: cannot create anything in {existing} ({exc.strerror or exc}); give a folder "
+                         "you can write") from None
+    os.close(fd)
+    os.unlink(probe)

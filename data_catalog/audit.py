@@ -233,10 +233,13 @@ def recorded(run_dir: Path, prefix: str) -> tuple[dict[str, str], int | None]:
     return {}, None
 
 
-def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]:
+def verify_trail(run_dir: Path, *, artefacts: bool = True, heads: dict[str, str] | None = None) -> list[AuditProblem]:
     """Every break in the chain, every stage folder or result no entry records (a trail cut short
     or emptied), and (with ``artefacts``) every recorded artefact whose content no longer matches:
-    the latest entry naming a path decides what it should hold. Empty: intact."""
+    the latest entry naming a path decides what it should hold. ``heads``: entry hashes kept
+    outside the folder (the catalog's run-finished entry, one noted from a run's output) -> where
+    they were kept; the trail must still hold each: a trail cut back together with the files its
+    last entries recorded, or rewritten and re-chained, passes every other check. Empty: intact."""
     run_dir = Path(run_dir)
     problems: list[AuditProblem] = []
     prev = GENESIS
@@ -266,6 +269,11 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True) -> list[AuditProblem]
         problems.append(AuditProblem(f"trail line {runs[-1][0]} (run-started)", "the last run has no run-finished or "
                                      "run-failed entry (it is still running, it was killed, or the trail was cut)"))
     problems += _unrecorded(run_dir, expected)
+    held = {e.get("hash"): n for n, e in enumerate(entries, start=1)}
+    for digest, source in (heads or {}).items():
+        if digest not in held:
+            problems.append(AuditProblem("trail", f"holds no entry with hash {digest[:12]}…, which {source} recorded "
+                                                  "(the trail was cut short, or rewritten and chained anew)"))
     if artefacts:
         for rel, (digest, number) in sorted(expected.items()):
             path = run_dir / rel

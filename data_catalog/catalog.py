@@ -54,9 +54,12 @@ CREATE TABLE IF NOT EXISTS samples (
     artefacts TEXT NOT NULL DEFAULT '{}',
     flow_run_id TEXT,
     registered TEXT NOT NULL,
-    updated TEXT NOT NULL
+    updated TEXT NOT NULL,
+    trail_head TEXT
 )
 """
+# columns added since the first schema: (name, SQL type), added to an older catalog when opened
+_ADDED_COLUMNS = (("trail_head", "TEXT"),)
 
 
 @dataclass(frozen=True)
@@ -73,6 +76,7 @@ class SampleRecord:
     flow_run_id: str | None
     registered: str
     updated: str
+    trail_head: dict[str, Any] | None = None  # {"seq", "hash"}: the last finished run's run-finished entry
 
     @property
     def due(self) -> bool:
@@ -80,10 +84,16 @@ class SampleRecord:
         return self.state != SampleState.DONE or self.fingerprint != self.done_fingerprint
 
 
-def fingerprint(sample_dir: Path) -> str:
-    """sha256 over the manifest file and every pass file's content (in manifest order)."""
+def fingerprint(sample_dir: Path, sample_id: str | None = None) -> str:
+    """sha256 over the manifest file and every pass file's content (in manifest order).
+    ``sample_id``: the sample the folder should hold; ValueError when its manifest names another
+    (the sample was renamed, or its folder reused for another specimen)."""
     sample_dir = Path(sample_dir)
     manifest = load_manifest(sample_dir)
+    if sample_id is not None and manifest.sample_id != sample_id:
+        raise ValueError(f"the folder now holds sample {manifest.sample_id} (its manifest), not {sample_id}: the "
+                         f"sample was renamed or its folder reused; {sample_id}'s run folder and results are kept "
+                         "as they are")
     digest = hashlib.sha256(sha256_file(sample_dir / MANIFEST_NAME).encode())
     for _, entry in manifest.passes():
         path = sample_dir / entry.file
@@ -107,6 +117,10 @@ class Catalog:
         with self._connect() as db:
             db.execute("PRAGMA journal_mode=WAL")
             db.execute(_SCHEMA)
+            have = {row["name"] for row in db.execute("PRAGMA table_info(samples)")}
+            for name, kind in _ADDED_COLUMNS:
+                if name not in have:
+                    db.execute(f"ALTER TABLE samples ADD COLUMN {name} {kind}")
 
     @contextmanager
     def _connect(self) -> Iterator[sqlite3.Connection]:
@@ -149,6 +163,15 @@ class Catalog:
             else:
                 db.execute("UPDATE samples SET fingerprint = ?, updated = ? WHERE sample_id = ?",
                            (digest, now, manifest.sample_id))
+            # a sample registered from this folder before under another id: renamed, or the folder
+            # reused for another specimen; it is never rebuilt from this folder's data
+            displaced = db.execute("SELECT sample_id FROM samples WHERE sample_dir = ? AND sample_id != ?",
+                                   (str(sample_dir), manifest.sample_id)).fetchall()
+        for row in displaced:
+            self._set(row["sample_id"], state=SampleState.FAILED, failed_stage="register",
+                      error=f"cannot read the sample folder {sample_dir}: the folder now holds sample "
+                            f"{manifest.sample_id} (its manifest), not {row['sample_id']}: the sample was renamed or "
+                            f"its folder reused; {row['sample_id']}'s run folder and results are kept as they are")
         return self.get(manifest.sample_id)
 
     def scan(self, folder: Path) -> tuple[list[SampleRecord], list[str]]:
@@ -179,6 +202,7 @@ class Catalog:
     def _record(row: sqlite3.Row) -> SampleRecord:
         values = dict(row)
         values["artefacts"] = json.loads(values["artefacts"] or "{}")
+        values["trail_head"] = json.loads(values["trail_head"]) if values.get("trail_head") else None
         return SampleRecord(**values)
 
     def get(self, sample_id: str) -> SampleRecord:
@@ -205,7 +229,7 @@ class Catalog:
                     out.append(record)
                 continue
             try:
-                current = fingerprint(Path(record.sample_dir))
+                current = fingerprint(Path(record.sample_dir), record.sample_id)
             except (ValueError, OSError) as exc:
                 error = f"cannot read the sample folder {record.sample_dir}: {exc}"
                 self._set(record.sample_id, state=SampleState.FAILED, failed_stage="register", error=error)
@@ -223,8 +247,9 @@ class Catalog:
 
     def _set(self, sample_id: str, **fields: Any) -> None:
         fields["updated"] = _now()
-        if "artefacts" in fields:
-            fields["artefacts"] = json.dumps(fields["artefacts"], sort_keys=True)
+        for name in ("artefacts", "trail_head"):
+            if name in fields and fields[name] is not None:
+                fields[name] = json.dumps(fields[name], sort_keys=True)
         columns = ", ".join(f"{k} = ?" for k in fields)
         with self._connect() as db:
             db.execute(f"UPDATE samples SET {columns} WHERE sample_id = ?", (*fields.values(), sample_id))  # noqa: S608
@@ -233,9 +258,12 @@ class Catalog:
         self._set(sample_id, state=SampleState.RUNNING, out_dir=str(out_dir), failed_stage=None, error=None,
                   flow_run_id=flow_run_id)
 
-    def mark_done(self, sample_id: str, fingerprint_seen: str, artefacts: dict[str, str]) -> None:
+    def mark_done(self, sample_id: str, fingerprint_seen: str, artefacts: dict[str, str],
+                  trail_head: dict[str, Any] | None = None) -> None:
+        """Done: the fingerprint its run saw, the published artefacts' hashes and the run-finished
+        entry (``trail_head``: seq, hash), the anchor that ``audit verify`` holds the trail to."""
         self._set(sample_id, state=SampleState.DONE, done_fingerprint=fingerprint_seen, artefacts=artefacts,
-                  failed_stage=None, error=None)
+                  failed_stage=None, error=None, trail_head=trail_head)
 
     def mark_failed(self, sample_id: str, stage: str | None, error: str) -> None:
         self._set(sample_id, state=SampleState.FAILED, failed_stage=stage, error=error)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -26,20 +27,13 @@ def _deep_merge(base: dict, override: dict) -> dict:
 
 
 def _simulation_config(args: argparse.Namespace):
-    import yaml
-
+    from data_catalog.yamlfile import read_yaml_mapping
     from schemas.simulation import SimulationConfig
     from simulator.presets import preset_config
 
     base = preset_config(args.preset).model_dump()
     if args.config is not None:
-        try:
-            override = yaml.safe_load(Path(args.config).read_text()) or {}
-        except (OSError, yaml.YAMLError) as exc:
-            raise ValueError(f"{args.config}: cannot read the simulation config ({exc})") from None
-        if not isinstance(override, dict):
-            raise ValueError(f"{args.config}: the simulation config must be a mapping of fields")
-        base = _deep_merge(base, override)
+        base = _deep_merge(base, read_yaml_mapping(args.config, "simulation config"))
     if args.seed is not None:
         base["seed"] = args.seed
     if args.sample_id is not None:
@@ -54,10 +48,13 @@ def _simulation_config(args: argparse.Namespace):
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from simulator.run import simulate
 
+    from data_catalog.atomic import check_can_create
+
     config = _simulation_config(args)
     out = Path(args.out_dir)
     if out.exists():
         raise ValueError(f"{out} already exists; choose a new folder (nothing was written)")
+    check_can_create(out, f"OUT_DIR {out}")
     started = time.perf_counter()
 
     def progress(message: str) -> None:
@@ -155,6 +152,10 @@ def _print_report(report: dict, out: Path) -> None:
              if residual is not None else ""))
     for item in report["outputs"].values():
         print(f"  {item['path']}")
+    head = report.get("trail_head")
+    if head:  # the anchor: keep it outside the run folder; `audit verify --head` checks the trail still holds it
+        print(f"audit trail head: seq {head['seq']} sha256 {head['hash']} "
+              f"(weldrecon audit verify {out} --head {head['hash']})")
     checks = report.get("checks", [])
     flagged = [c for c in checks if c["result"] != "ok"]
     print(f"checks: {len(checks) - len(flagged)} of {len(checks)} ok (report.json, 'checks')")
@@ -168,8 +169,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     from data_catalog.manifests import check_sample_files, load_manifest
     from flows.progress import TrailProgress
-    from flows.reconstruct import (check_dask_scheduler, check_out_dir, load_config, prefect_api_for_workers,
-                                   reconstruct_sample)
+    from flows.reconstruct import (check_dask_scheduler, check_out_dir, check_run_folder, load_config,
+                                   prefect_api_for_workers, reconstruct_sample)
     from flows.stages import STAGES
 
     sample = Path(args.sample_dir)
@@ -184,6 +185,7 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
+    check_run_folder(out, manifest.sample_id)
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
     if dask and not dask.startswith("local:"):
         check_dask_scheduler(dask)
@@ -207,7 +209,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from simulator.presets import preset_config
     from simulator.run import simulate
 
+    from data_catalog.atomic import check_can_create
+
     root = Path(args.out)
+    check_can_create(root, f"--out {root}")
     sample = root / "sample"
     if not sample.exists():
         started = time.perf_counter()
@@ -293,21 +298,35 @@ def _cmd_catalog(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_folder(args: argparse.Namespace) -> Path:
-    """A run folder given directly, or a sample id looked up in the catalog."""
-    target = Path(args.target)
-    if (target / "audit").is_dir() or target.is_dir():
-        return target
+def _run_folder(args: argparse.Namespace) -> tuple[Path, dict[str, str]]:
+    """A run folder given directly, or a sample id looked up in the catalog; and the trail heads
+    kept outside it (the catalog's, for a catalogued run folder; ``--head``) -> where kept."""
     from data_catalog.catalog import CATALOG_NAME, Catalog
 
+    target = Path(args.target)
     workspace = _workspace(args)
-    if not (workspace / CATALOG_NAME).is_file():  # looking must not create a catalog
+    catalog = Catalog(workspace) if (workspace / CATALOG_NAME).is_file() else None  # looking must not create one
+    head = getattr(args, "head", None)
+    if head is not None and not re.fullmatch(r"[0-9a-f]{64}", head):
+        raise ValueError(f"--head {head}: expected an entry's sha256 (64 hex digits), as reconstruct prints it")
+    heads = {head: "--head"} if head else {}
+    if target.is_dir():
+        folder = target
+        records = [r for r in catalog.list() if r.out_dir and Path(r.out_dir).resolve() == folder.resolve()] \
+            if catalog else []
+    elif catalog is None:
         raise FileNotFoundError(f"{args.target}: not a run folder, and no catalog at {workspace / CATALOG_NAME} "
                                 "to look it up in as a sample id (--workspace)")
-    record = Catalog(workspace).get(args.target)
-    if not record.out_dir:
-        raise ValueError(f"sample {args.target} has not been reconstructed yet")
-    return Path(record.out_dir)
+    else:
+        records = [catalog.get(args.target)]
+        if not records[0].out_dir:
+            raise ValueError(f"sample {args.target} has not been reconstructed yet")
+        folder = Path(records[0].out_dir)
+    for record in records:
+        if record.trail_head:
+            heads[record.trail_head["hash"]] = (f"the catalog {catalog.path} (sample {record.sample_id}, its last "
+                                                f"finished run, seq {record.trail_head['seq']})")
+    return folder, heads
 
 
 def _cmd_audit(args: argparse.Namespace) -> int:
@@ -315,9 +334,9 @@ def _cmd_audit(args: argparse.Namespace) -> int:
 
     from data_catalog.audit import read_trail, verify_trail
 
-    folder = _run_folder(args)
+    folder, heads = _run_folder(args)
     if args.action == "verify":
-        problems = verify_trail(folder)
+        problems = verify_trail(folder, heads=heads)
         entries = read_trail(folder)
         if problems:
             print(f"{folder}: audit trail NOT intact ({len(problems)} problem(s)):")
@@ -325,7 +344,10 @@ def _cmd_audit(args: argparse.Namespace) -> int:
                 print(f"  {problem}")
             return 1
         n_artefacts = len({k for e in entries for k in (e.get("artefacts") or {})})
-        print(f"{folder}: audit trail intact: {len(entries)} entries chained, {n_artefacts} artefacts re-hashed")
+        anchored = (f", holds the head{'s' if len(heads) > 1 else ''} kept by " + "; ".join(heads.values())
+                    if heads else ", no head kept outside the folder to compare (catalog, --head)")
+        print(f"{folder}: audit trail intact: {len(entries)} entries chained, {n_artefacts} artefacts re-hashed"
+              + anchored)
         return 0
     for e in read_trail(folder):
         if "_unreadable" in e:
@@ -425,6 +447,9 @@ def _parser() -> argparse.ArgumentParser:
                          ("show", "print the trail readably")):
         a = aud_sub.add_parser(action, parents=[ws], help=text)
         a.add_argument("target", metavar="SAMPLE", help="a sample id in the catalog, or a run folder")
+        if action == "verify":
+            a.add_argument("--head", metavar="SHA256", help="an entry hash kept outside the folder (printed by "
+                           "reconstruct as the audit trail head): the trail must still hold it")
     aud.set_defaults(func=_cmd_audit)
     stages = sub.add_parser("stages", help="print the reconstruction's stages: inputs, settings, outputs")
     stages.set_defaults(func=_cmd_stages)

@@ -17,25 +17,25 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import yaml
 from prefect import flow, get_run_logger, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ThreadPoolTaskRunner
 from pydantic import ValidationError
 
 from data_catalog import audit
-from data_catalog.atomic import atomic_write_text, sweep_leftovers
+from data_catalog.atomic import folder_lock, sweep_leftovers
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
+from data_catalog.yamlfile import read_yaml_mapping
 from flows.stages import STAGES, Stage, StageFailed, StageRef, code_version, run_stage
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
-from flows.stages.report import publish
+from flows.stages.report import RESULTS, publish
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 
-__all__ = ["check_out_dir", "reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
+__all__ = ["check_out_dir", "check_run_folder", "reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
            "wait_for_file"]
 
 
@@ -54,10 +54,7 @@ def load_config(path: str | Path | None) -> ReconstructionConfig:
     """The reconstruction config: defaults, overridden by a YAML file's fields."""
     if path is None:
         return ReconstructionConfig()
-    try:
-        raw = yaml.safe_load(Path(path).read_text()) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: cannot read the reconstruction config ({exc})") from None
+    raw = read_yaml_mapping(path, "reconstruction config")
     try:
         return ReconstructionConfig.model_validate(raw)
     except ValidationError as exc:
@@ -78,6 +75,8 @@ def _io_failure(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's retr
     return False
 
 
+PUBLISH_LOCK = Path("audit") / "publish.lock"
+
 _TASK = dict(cache_policy=NO_CACHE, retries=2, retry_delay_seconds=[1, 4], retry_condition_fn=_io_failure)
 
 
@@ -89,14 +88,9 @@ def _stage_task(stage: Stage):
         return run_stage(stage, store=store, sample_dir=sample_dir, manifest=manifest, config=config, inputs=inputs,
                          entry=entry)
 
-    def run_and_publish(store, sample_dir, manifest, config, inputs, entry=None) -> tuple[StageRef, dict]:
-        ref = run(store, sample_dir, manifest, config, inputs, entry)
-        return ref, publish(store.root, manifest.sample_id, ref, inputs["export"])
-
     run_name = f"{stage.name} {{entry.pass_id}}" if stage.per_pass else stage.name
-    fn = run_and_publish if stage.name == "report" else run
-    fn.__name__ = fn.__qualname__ = f"stage_{stage.name}"
-    return task(name=stage.name, task_run_name=run_name, description=stage.summary, **_TASK)(fn)
+    run.__name__ = run.__qualname__ = f"stage_{stage.name}"
+    return task(name=stage.name, task_run_name=run_name, description=stage.summary, **_TASK)(run)
 
 
 STAGE_TASKS = {s.name: _stage_task(s) for s in STAGES}
@@ -309,9 +303,26 @@ def check_out_dir(sample: Path, out: Path) -> None:
                             if existing != out else ""))
 
 
+def check_run_folder(out: Path, sample_id: str) -> None:
+    """Refuse a run folder that holds another sample's runs (its audit trail's run-started entries
+    name another sample id): a renamed sample, or a reused ``--out``, would replace that sample's
+    published results and mix two samples in one trail. ValueError naming both."""
+    try:
+        entries = audit.read_trail(out)
+    except FileNotFoundError:
+        return
+    others = sorted({str(e["sample_id"]) for e in entries if e.get("kind") == "run-started" and e.get("sample_id")}
+                    - {sample_id})
+    if others:
+        raise ValueError(f"--out {out}: holds the runs of sample {', '.join(others)} (its audit trail), not of "
+                         f"{sample_id}; a run folder belongs to one sample (was the sample renamed, or its folder "
+                         "reused?): give another --out")
+
+
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
-                       dask: str | None = None, follow_timeout_s: float | None = None) -> dict[str, Any]:
+                       dask: str | None = None, follow_timeout_s: float | None = None,
+                       sample_id: str | None = None) -> dict[str, Any]:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
@@ -319,11 +330,19 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     not given, ``$WELDRECON_DASK`` read at run time): run the stages on a Dask cluster (see
     ``task_runner``). ``follow_timeout_s``: follow a scan in progress: the manifest (the scan
     plan) may still be coming, and each pass's stages start as soon as its store is complete on
-    disk, waiting at most this long for each (the whole-sample stages follow the last pass)."""
+    disk, waiting at most this long for each (the whole-sample stages follow the last pass).
+    ``sample_id``: the sample the caller means (the catalog's); a folder whose manifest names
+    another is refused, and so is a run folder that holds another sample's runs.
+
+    The deliverables, the report and the settings they were made with are published into
+    ``out_dir/results/`` as one unit, and the run-finished entry that records them is appended
+    under the same lock: a concurrent run of the folder publishes before or after, never
+    between. The returned report carries ``trail_head`` (that entry's seq and hash), an anchor
+    to keep outside the folder (the catalog keeps it) against which a shortened trail fails."""
     dask = dask or os.environ.get("WELDRECON_DASK") or None
     if dask and not _on_dask():
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
-            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s)
+            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id)
     log = get_run_logger()
     for stage in STAGES:  # hash the code now, as imported: an edit during a long run is not credited to it
         code_version(stage)
@@ -333,11 +352,14 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         wait_for_file(sample / MANIFEST_NAME, timeout_s=follow_timeout_s, what=f"sample {sample}")
     check_out_dir(sample, out)
     manifest = load_manifest(sample)
+    if sample_id is not None and manifest.sample_id != sample_id:
+        raise ValueError(f"sample folder {sample}: its manifest names sample {manifest.sample_id}, not {sample_id} "
+                         "(renamed, or the folder reused for another sample)")
     check_sample_files(sample, manifest)
     config = load_config(config_path)
+    check_run_folder(out, manifest.sample_id)
     store = StageStore(out)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "config.json", config.model_dump_json(indent=2) + "\n")
     audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
     swept = sweep_leftovers(out)  # what runs of this folder that died (kill -9, power cut) left half written
@@ -371,18 +393,22 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                 pending[stage.name] = run.submit(store, sample, manifest, config, inputs)
         for name in list(pending):
             outputs_of(name)
+        cached = {n: all(r.cached for r in each(v)) for n, v in refs.items()}
+        with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
+            published = publish(out, manifest.sample_id, refs["report"], refs["export"],
+                                config.model_dump_json(indent=2) + "\n")
+            finished = audit.append(out, "run-finished", sample_id=manifest.sample_id,
+                                    artefacts={f"{RESULTS}/{name}": item["sha256"] for name, item in published.items()},
+                                    cached=cached)
     except BaseException as exc:
         audit.append(out, "run-failed", sample_id=manifest.sample_id, stage=getattr(exc, "stage", None),
                      error=f"{type(exc).__name__}: {exc}")
         raise
-    report_ref, published = refs.pop("report")
     result = dict(json.loads(Path(published[REPORT.name]["path"]).read_text()))
     result["outputs"] = published
-    result["refs"] = dict(refs, report=report_ref)
+    result["refs"] = refs
     result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}
-    result["cached"] = {n: all(r.cached for r in each(v)) for n, v in result["refs"].items()}
+    result["cached"] = cached
     result["seconds"] = {n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()}
-    audit.append(out, "run-finished", sample_id=manifest.sample_id,
-                 artefacts={f"results/{name}": item["sha256"] for name, item in published.items()},
-                 cached=result["cached"])
+    result["trail_head"] = {"seq": finished["seq"], "hash": finished["hash"]}
     return result

@@ -46,15 +46,17 @@ def ci_run(ci_sample, tmp_path_factory):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _stop_prefects_temporary_server():
-    """Flows run in this process start Prefect's temporary API server; stop it while pytest's
-    output is still open (at interpreter exit its goodbye line met a closed stream)."""
-    yield
-    import contextlib
+def _one_prefect_api_that_dies_with_pytest():
+    """One temporary Prefect API server for the whole session, started before any flow runs, as
+    the command line starts its own (flows.reconstruct.prefect_api_for_workers): the kernel stops it
+    when pytest dies, however it dies (Prefect's own in-process server outlived a kill -9), and
+    every flow of the session, its Dask workers and the command lines it starts (which inherit
+    PREFECT_API_URL) report to it instead of each starting a server of its own. Stopped while
+    pytest's output is still open. A PREFECT_API_URL set by the caller is used as it is."""
+    import os
 
-    from prefect.logging.handlers import APILogHandler
-    from prefect.server.api.server import SubprocessASGIServer
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    from flows.reconstruct import prefect_api_for_workers
 
-    with contextlib.suppress(Exception):  # the last log lines while the server still listens
-        APILogHandler().flush()
-    SubprocessASGIServer().stop()  # the one instance Prefect started (a fresh one stops nothing)
+    with prefect_api_for_workers() as url:
+        yield url

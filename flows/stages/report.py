@@ -7,17 +7,19 @@ cache flags: those are in the audit trail), so the same inputs give the same byt
 from __future__ import annotations
 
 import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
-from data_catalog.atomic import owner_tag
+from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
 from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
 from data_catalog.hashing import sha256_file
 
-__all__ = ["report", "report_view", "publish", "checks", "RESULTS"]
+__all__ = ["report", "report_view", "publish", "checks", "RESULTS", "CONFIG_NAME"]
 
 RESULTS = "results"
+CONFIG_NAME = "config.json"  # the settings the published results were made with
 
 
 def report_view(manifest, entry) -> dict[str, Any]:
@@ -86,21 +88,32 @@ def report(ctx) -> dict[str, Any]:
     return {"deliverables": len(body["deliverables"])}
 
 
-def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: StageRef) -> dict[str, dict[str, str]]:
-    """Copy the deliverables and the report into ``out_dir/results/`` (each atomically: a temporary
-    name, then a rename); returns file name -> {path, sha256}, checked against the stage records."""
-    results = Path(out_dir) / RESULTS
-    results.mkdir(exist_ok=True)
+def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: StageRef,
+            config_json: str) -> dict[str, dict[str, str]]:
+    """Publish the deliverables, the report and the settings they were made with (``config.json``)
+    into ``out_dir/results/`` as one unit: the folder is built complete beside it, each copy checked
+    against its stage record, flushed to disk, then swapped in whole
+    (``data_catalog.atomic.replace_directory``). Readers see the previous results whole or these
+    whole, never a mix, even after a kill; files of an earlier publication that this one does not
+    have (another sample id's) go with it. Returns file name -> {path, sha256}."""
+    out_dir = Path(out_dir)
+    results = out_dir / RESULTS
     sources = {name: (export_ref, source) for name, source in _deliverables(sample_id).items()}
     sources[REPORT.name] = (report_ref, REPORT.name)
-    published = {}
-    for name, (ref, source) in sources.items():
-        tmp = results / f".{name}.{owner_tag()}.partial"
-        shutil.copyfile(ref.file(source), tmp)
-        digest = sha256_file(tmp)
-        if digest != ref.outputs[source]:
-            tmp.unlink()
-            raise OSError(f"{ref.file(source)} changed while it was published (sha256 differs from its record)")
-        tmp.replace(results / name)
-        published[name] = {"path": str(results / name), "sha256": digest}
-    return published
+    staging = Path(tempfile.mkdtemp(prefix=f".{RESULTS}.{owner_tag()}.", suffix=".partial", dir=out_dir))
+    try:
+        digests = {}
+        for name, (ref, source) in sources.items():
+            shutil.copyfile(ref.file(source), staging / name)
+            digests[name] = sha256_file(staging / name)
+            if digests[name] != ref.outputs[source]:
+                raise OSError(f"{ref.file(source)} changed while it was published (sha256 differs from its record)")
+        (staging / CONFIG_NAME).write_text(config_json, encoding="utf-8")
+        digests[CONFIG_NAME] = sha256_file(staging / CONFIG_NAME)
+        default_mode(staging)
+        fsync_tree(staging)
+        replace_directory(staging, results)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return {name: {"path": str(results / name), "sha256": digest} for name, digest in digests.items()}

@@ -126,3 +126,8 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
             "within 0.2 mm (refine.neighbour_mm)") in done.stderr
     assert "Traceback" not in done.stderr
     assert {p.name: p.read_bytes() for p in (out / "results").iterdir()} == published
+    # the settings published with the results are still those they were made with (the failed
+    # run's are in its run-started entry), and nothing outside results/ claims otherwise
+    settings = json.loads(published["config.json"])
+    assert settings == json.loads(published["report.json"])["config"] and settings["refine"]["neighbour_mm"] != 0.2
+    assert not (out / "config.json").exists()

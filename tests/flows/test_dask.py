@@ -16,13 +16,45 @@ CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 
-def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path):
+def _servers_marked(marker: str) -> set[int]:
+    """Prefect API servers (uvicorn) of this machine whose environment holds ``marker``."""
+    found = set()
+    for proc in Path("/proc").iterdir():
+        try:
+            if (proc.name.isdigit() and b"prefect.server.api.server:create_app" in (proc / "cmdline").read_bytes()
+                    and marker.encode() in (proc / "environ").read_bytes()):
+                found.add(int(proc.name))
+        except OSError:
+            continue
+    return found
+
+
+def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path, monkeypatch):
+    import threading
+    import uuid
+
     from flows.reconstruct import prefect_api_for_workers, reconstruct_sample
 
     _, threaded = ci_run
     out = tmp_path / "dask-run"
-    with prefect_api_for_workers():
-        report = reconstruct_sample(str(ci_sample), str(out), CI_CONFIG, started_by="pytest dask", dask="local:2")
+    marker = f"dask-test-{uuid.uuid4()}"
+    monkeypatch.setenv("WELDRECON_TEST_MARKER", marker)  # inherited by the workers and anything they start
+    seen: set[int] = set()
+    running = threading.Event()
+
+    def watch() -> None:  # a worker that started a server of its own would show here while it runs
+        while not running.wait(0.5):
+            seen.update(_servers_marked(marker))
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    try:
+        with prefect_api_for_workers():
+            report = reconstruct_sample(str(ci_sample), str(out), CI_CONFIG, started_by="pytest dask", dask="local:2")
+    finally:
+        running.set()
+        watcher.join()
+    assert seen == set() and _servers_marked(marker) == set()  # the workers used the run's API server
     stages = [e for e in read_trail(out) if e["kind"] == "stage"]
     per_pass = {e["pid"] for e in stages if e.get("item") is not None}
     assert os.getpid() not in per_pass and len(per_pass) == 2  # two worker processes did the per-pass work

@@ -56,7 +56,8 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     saved = json.loads((out / "results" / "report.json").read_text())
     assert saved["sample_id"] == "sim-ci-0011"
     assert set(saved["stages"]) == {s.name for s in STAGES} - {"report"}  # every stage before the report
-    assert (out / "config.json").is_file()
+    assert json.loads((out / "results" / "config.json").read_text()) == saved["config"]  # published with them
+    assert not (out / "config.json").exists()
 
 
 def test_every_consistency_check_is_stated_and_passes_on_a_clean_sample(run):

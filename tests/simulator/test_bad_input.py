@@ -93,3 +93,39 @@ def test_a_bad_pace_is_refused_before_anything_is_written(tmp_path, capsys, pace
     err = capsys.readouterr().err
     assert f"--pace {pace!r}: expected realtime or xN with N > 0" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("a: [\n", "the simulation config is not valid YAML (line 2, column 1: expected the node content"),
+    ("- robot\n- scanner\n", "the simulation config must be a mapping of fields (section: field: value), not a list"),
+    ("robot: !!python/object/apply:os.system ['touch pwned']\n", "the simulation config is not valid YAML (line 1"),
+    (b"robot:\n  speed_mm_s: \xff\n", "cannot read the simulation config (not UTF-8 text: byte 21)"),
+    (None, "is a folder, not a simulation config file"),
+])
+def test_an_unreadable_config_is_named_in_one_line(tmp_path, capsys, text, expected):
+    config = tmp_path / "bad.yaml"
+    if text is None:
+        config.mkdir()
+    elif isinstance(text, bytes):
+        config.write_bytes(text)
+    else:
+        config.write_text(text)
+    code, err, out = _run(tmp_path, capsys, "--preset", "ci", "--config", str(config))
+    assert code == 2 and not out.exists() and not (tmp_path / "pwned").exists()
+    assert err.strip().splitlines() == [f"weldrecon simulate: error: {config}: " + err.split(f"{config}: ", 1)[1].strip()]
+    assert expected in err
+
+
+def test_an_output_folder_that_cannot_be_made_is_refused_before_simulating(tmp_path, capsys):
+    a_file = tmp_path / "a-file"
+    a_file.write_text("earlier work")
+    assert main(["simulate", "--preset", "ci", str(a_file / "sample")]) == 2
+    assert capsys.readouterr().err.strip() == (f"weldrecon simulate: error: OUT_DIR {a_file / 'sample'}: {a_file} is "
+                                               "a file, not a folder")
+    assert main(["simulate", "--preset", "ci", "/proc/weldrecon-sample"]) == 2  # root may "write" there, but not create
+    err = capsys.readouterr().err
+    assert "cannot create anything in /proc" in err and "simulating" not in err  # before any work
+    assert main(["demo", "--out", str(a_file)]) == 2
+    assert capsys.readouterr().err.strip() == (f"weldrecon demo: error: --out {a_file}: {a_file} is a file, not a "
+                                               "folder")
+    assert a_file.read_text() == "earlier work"
