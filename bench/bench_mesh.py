@@ -49,7 +49,7 @@ def main() -> int:
     from tasks.mesh import mesh_report, screened_poisson
 
     run = args.uniform_run
-    used = load_config(run / "config.json")
+    used = load_config(run / "results" / "config.json")
     if used.merge.coarse_factor != 1:
         raise SystemExit(f"{run}: merged with coarse_factor {used.merge.coarse_factor}; the peer needs the uniform "
                          "cloud (coarse_factor: 1)")

@@ -60,7 +60,8 @@ def main() -> int:
     from tasks.merge import CellSums, cell_sums, combine_cell_sums
     from tasks.normals import grid_normals, normal_window
 
-    config = load_config(args.run / "config.json") if (args.run / "config.json").is_file() else load_config(None)
+    settings = args.run / "results" / "config.json"  # published with the results they made
+    config = load_config(settings) if settings.is_file() else load_config(None)
     manifest = load_manifest(args.sample)
     dc = config.denoise
     T_all = load_arrays(latest_stage(args.run, "refine") / "refined.zarr", "T_common_pass")["T_common_pass"]

@@ -8,6 +8,7 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from data_catalog.atomic import atomic_write_text
+from data_catalog.textfiles import read_text_file
 from schemas.manifest import SampleManifest
 
 __all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files", "check_pass_file",
@@ -35,16 +36,7 @@ def load_manifest(path: Path) -> SampleManifest:
     path = Path(path)
     if path.is_dir():
         path = path / MANIFEST_NAME
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ManifestError(f"{path}: no manifest file there") from None
-    except IsADirectoryError:
-        raise ManifestError(f"{path}: is a folder, expected the sample's manifest file (JSON)") from None
-    except UnicodeDecodeError as exc:
-        raise ManifestError(f"{path}: not UTF-8 text at byte {exc.start}, expected a JSON manifest") from None
-    except OSError as exc:
-        raise ManifestError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    text = read_text_file(path, "the sample's manifest file (JSON)", ManifestError, missing="no manifest file there")
     try:
         raw = json.loads(text)
     except json.JSONDecodeError as exc:

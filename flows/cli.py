@@ -27,7 +27,7 @@ def _deep_merge(base: dict, override: dict) -> dict:
 
 
 def _simulation_config(args: argparse.Namespace):
-    from data_catalog.yamlfile import read_yaml_mapping
+    from data_catalog.textfiles import read_yaml_mapping
     from schemas.simulation import SimulationConfig
     from simulator.presets import preset_config
 

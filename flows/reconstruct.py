@@ -27,7 +27,7 @@ from data_catalog.atomic import folder_lock, sweep_leftovers
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
-from data_catalog.yamlfile import read_yaml_mapping
+from data_catalog.textfiles import read_yaml_mapping
 from flows.stages import STAGES, Stage, StageFailed, StageRef, code_version, run_stage
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT

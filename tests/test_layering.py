@@ -15,7 +15,7 @@ PROJECT = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 # package -> (allowed project packages, forbidden third-party top-level names; None: only these)
 RULES = {
     "schemas": ({"schemas"}, {"pydantic", "typing_extensions"}),
-    "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba"}),
+    "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba", "threadpoolctl"}),
     "data_catalog": ({"data_catalog", "schemas"}, {"numpy", "zarr", "numcodecs", "yaml", "pydantic"}),
     "simulator": ({"simulator", "schemas", "data_catalog", "tasks"}, {"numpy", "scipy", "open3d", "cv2", "pydantic",
                                                                      "yaml", "zarr"}),

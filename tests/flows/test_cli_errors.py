@@ -74,7 +74,7 @@ def test_register_names_what_is_not_a_sample_and_registers_the_rest(ci_sample, t
     assert lines == [
         f"not registered: {a_file}: is a file, neither a sample folder (with manifest.json) nor a folder of "
         "sample folders",
-        f"not registered: {broken}: {broken / 'manifest.json'}: not UTF-8 text at byte 0, expected a JSON manifest",
+        f"not registered: {broken}: {broken / 'manifest.json'}: not UTF-8 text at byte 0, expected the sample's manifest file (JSON)",
         f"not registered: {folder_manifest}: {folder_manifest / 'manifest.json'}: is a folder, expected the "
         "sample's manifest file (JSON)",
         f"not registered: {empty}: no sample folder (one holding manifest.json) in it or under it",

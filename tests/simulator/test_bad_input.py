@@ -99,8 +99,8 @@ def test_a_bad_pace_is_refused_before_anything_is_written(tmp_path, capsys, pace
     ("a: [\n", "the simulation config is not valid YAML (line 2, column 1: expected the node content"),
     ("- robot\n- scanner\n", "the simulation config must be a mapping of fields (section: field: value), not a list"),
     ("robot: !!python/object/apply:os.system ['touch pwned']\n", "the simulation config is not valid YAML (line 1"),
-    (b"robot:\n  speed_mm_s: \xff\n", "cannot read the simulation config (not UTF-8 text: byte 21)"),
-    (None, "is a folder, not a simulation config file"),
+    (b"robot:\n  speed_mm_s: \xff\n", "not UTF-8 text at byte 21, expected a simulation config file (YAML)"),
+    (None, "is a folder, expected a simulation config file (YAML)"),
 ])
 def test_an_unreadable_config_is_named_in_one_line(tmp_path, capsys, text, expected):
     config = tmp_path / "bad.yaml"

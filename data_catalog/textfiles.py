@@ -1,0 +1,47 @@
+"""Text files a person writes or edits (manifests, settings), read with every failure named in
+one line: the file, what is wrong with it and what was expected."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["read_text_file", "read_yaml_mapping"]
+
+
+def read_text_file(path: str | Path, expected: str, error: type[Exception] = ValueError,
+                   missing: str | None = None) -> str:
+    """The UTF-8 text of ``path``; ``error`` naming the file and ``expected`` (what it should be)
+    when it is missing (``missing``: the words for that), a folder, not UTF-8 or unreadable."""
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: {missing or f'no such file, expected {expected}'}") from None
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder, expected {expected}") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text at byte {exc.start}, expected {expected}") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
+
+
+def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
+    """The mapping of fields in the YAML file ``path`` (empty file: no fields), read safely (no
+    tags that build objects). ValueError in one line naming the file, ``what`` it should hold and,
+    for bad YAML, the line and column."""
+    text = read_text_file(path, f"a {what} file (YAML)")
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ValueError(f"{path}: the {what} is not valid YAML ({where}{problem})") from None
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise ValueError(f"{path}: the {what} must be a mapping of fields (section: field: value), "
+                         f"not a {type(raw).__name__}")
+    return raw
