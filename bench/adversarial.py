@@ -646,14 +646,6 @@ def _hash(sample: Path, how: str) -> None:
         no_hash(sample)
 
 
-def both(*edits: Callable[[Path], None]) -> Callable[[Path], None]:
-    def edit(sample: Path) -> None:
-        for e in edits:
-            e(sample)
-
-    return edit
-
-
 def write_yaml(trial: Trial, name: str, text: str | bytes) -> Path:
     path = trial.dir / name
     path.write_bytes(text if isinstance(text, bytes) else text.encode("utf-8"))
