@@ -31,9 +31,10 @@ from typing import Any
 
 from data_catalog.hashing import sha256_tree
 
-__all__ = ["TRAIL", "append", "read_trail", "recorded", "AuditProblem", "TrailError", "verify_trail", "GENESIS"]
+__all__ = ["TRAIL", "PROBLEMS_FOUND", "append", "read_trail", "recorded", "AuditProblem", "TrailError", "verify_trail", "GENESIS"]
 
 TRAIL = Path("audit") / "trail.jsonl"
+PROBLEMS_FOUND = "trail-problems-found"  # a run found the trail not intact before it appended
 GENESIS = "0" * 64
 
 
@@ -261,6 +262,9 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True, heads: dict[str, str]
             problems.append(AuditProblem(where, "does not chain to the entry before it (an entry before it "
                                                 "was edited, removed or reordered)"))
         prev = entry.get("hash")
+        if entry.get("kind") == PROBLEMS_FOUND:  # never made whole again by later entries
+            problems += [AuditProblem(where, f"a run found the trail not intact before it: {found}")
+                         for found in entry.get("problems") or ["(no detail)"]]
         for rel, digest in _artefacts(entry).items():
             expected[rel] = (digest, number)
     runs = [(n, e.get("kind")) for n, e in enumerate(entries, start=1)

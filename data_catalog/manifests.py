@@ -37,8 +37,16 @@ def load_manifest(path: Path) -> SampleManifest:
     if path.is_dir():
         path = path / MANIFEST_NAME
     text = read_text_file(path, "the sample's manifest file (JSON)", ManifestError, missing="no manifest file there")
+    def each_key_once(pairs: list[tuple[str, object]]) -> dict:
+        keys = [k for k, _ in pairs]
+        twice = sorted({k for k in keys if keys.count(k) > 1})
+        if twice:  # json.loads would keep the last silently
+            raise ManifestError(f"{path}: field {', '.join(map(repr, twice))} given twice in one object; expected "
+                                "each field once")
+        return dict(pairs)
+
     try:
-        raw = json.loads(text)
+        raw = json.loads(text, object_pairs_hook=each_key_once)
     except json.JSONDecodeError as exc:
         raise ManifestError(f"{path}: not valid JSON ({exc})") from None
     try:

@@ -153,6 +153,8 @@ class PassReader:
         if not (isinstance(n, int) and isinstance(m, int) and n >= 1 and m >= 1):
             raise PassFormatError(f"{self.what}: {self.path} has n_profiles {n!r} and n_columns {m!r}, "
                                   "expected positive integers")
+        if attrs.get("units") != "mm":
+            raise PassFormatError(f"{self.what}: {self.path} has units {attrs.get('units')!r}, expected 'mm'")
         if pass_id is not None and attrs.get("pass_id") != pass_id:
             raise PassFormatError(f"{self.what}: {self.path} holds pass {attrs.get('pass_id')!r}, not {pass_id!r}")
         expected = {"x_mm": (n, m), "z_mm": (n, m), "intensity": (n, m), "timestamp_s": (n,)}
@@ -178,6 +180,10 @@ class PassReader:
     @property
     def has_poses(self) -> bool:
         return "T_world_flange" in self._arrays
+
+    def read_array(self, name: str, profiles: list[int]) -> np.ndarray:
+        """The rows ``profiles`` of one array (a few profiles, without reading a block)."""
+        return np.asarray(self._arrays[name].get_orthogonal_selection((profiles,)))
 
     def read(self, start: int = 0, stop: int | None = None) -> PassData:
         """Profiles ``start`` to ``stop`` (exclusive; None: to the end)."""

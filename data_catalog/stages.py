@@ -173,6 +173,10 @@ class StageStore:
         outputs = {name: sha256_tree(build / name) for name in record.outputs}
         record = record.model_copy(update={"outputs": outputs})
         atomic_write_text(build / RECORD_NAME, record.model_dump_json(indent=1) + "\n")
+        if final.exists() and not (final / RECORD_NAME).is_file():
+            # a folder without its record was never committed whole (its record deleted, or the
+            # folder put there): kept aside for inspection, never used
+            self.set_aside(record.stage, record.cache_key, why="incomplete")
         if final.exists():  # an identical run finished first (same key): keep the one there
             shutil.rmtree(build, ignore_errors=True)
         else:

@@ -27,13 +27,28 @@ def read_text_file(path: str | Path, expected: str, error: type[Exception] = Val
         raise error(f"{path}: cannot be read ({exc.strerror or exc})") from None
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (a second ``merge:``
+    section would silently replace the first)."""
+
+    def construct_mapping(self, node, deep=False):  # noqa: ANN001, ANN201 - PyYAML's signature
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"{key!r} given twice in one mapping",
+                                                        key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
     """The mapping of fields in the YAML file ``path`` (empty file: no fields), read safely (no
     tags that build objects). ValueError in one line naming the file, ``what`` it should hold and,
     for bad YAML, the line and column."""
     text = read_text_file(path, f"a {what} file (YAML)")
     try:
-        raw = yaml.safe_load(text)
+        raw = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""

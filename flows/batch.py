@@ -57,7 +57,8 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
     catalog.mark_running(record.sample_id, out_dir, str(flow_run.id) if flow_run.id else None)
     try:
         report = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by,
-                                    sample_id=record.sample_id)
+                                    sample_id=record.sample_id,
+                                    trail_head=record.trail_head["hash"] if record.trail_head else None)
     except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
         stage = getattr(exc, "stage", None) or _failed_stage(out_dir)
         message = f"{type(exc).__name__}: {exc}"

@@ -60,7 +60,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     def progress(message: str) -> None:
         print(f"[{time.perf_counter() - started:7.1f} s] {message}", file=sys.stderr, flush=True)
 
-    pace = _pace(args.pace) if args.pace else None
+    pace = _pace(args.pace) if args.pace is not None else None
     progress(f"simulating preset {config.preset!r} (seed {config.seed}) into {out}")
     summary = simulate(config, out, progress=progress, previews=not args.no_preview, pace=pace)
     print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_points:,} points "
@@ -177,6 +177,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
     check_out_dir(sample, out)
     follow = args.follow_timeout if getattr(args, "follow", False) else None
+    if follow is not None and not follow > 0:
+        raise ValueError(f"--follow-timeout {follow:g}: expected a number of seconds > 0")
     if follow is not None:  # a scan in progress: its manifest (the plan) may still be coming
         from flows.reconstruct import wait_for_file
 

@@ -286,6 +286,9 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
     return pending
 
 
+_RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
+
+
 def check_out_dir(sample: Path, out: Path) -> None:
     """Refuse a run folder that would write into the run's own inputs: the sample folder itself,
     or anything inside its pass stores, ground truth or manifest. ValueError naming both."""
@@ -297,10 +300,29 @@ def check_out_dir(sample: Path, out: Path) -> None:
     existing = next((p for p in [out, *out.parents] if p.exists()), None)
     if existing is not None and not existing.is_dir():
         raise ValueError(f"--out {out}: {existing} is a file, not a folder")
+    if existing == out and not (out / audit.TRAIL).is_file():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in _RUN_FOLDER_ENTRIES and not p.name.startswith("."))
+        if foreign:
+            raise ValueError(f"--out {out}: holds {len(foreign)} thing(s) that are not a weldrecon run's "
+                             f"({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}) and no audit trail; "
+                             "give a new or empty folder, or an earlier run's folder")
     if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
         raise ValueError(f"--out {out}: {existing} is not writable by this user"
                          + (" (the default run folder is beside the sample): give --out a folder you can write"
                             if existing != out else ""))
+
+
+def _trail_problems(out: Path, trail_head: str | None) -> list[str]:
+    """What is wrong with the folder's trail before a run appends to it (chain, stage folders and
+    results no entry records, the head kept outside it), short of re-hashing the artefacts: a run
+    appending to a trail that was cut or edited must not make it verify again. A killed run's
+    missing end and a damaged tail (set aside and recorded by the next write) are left out."""
+    if not (out / audit.TRAIL).is_file():
+        return [f"the trail holds no entry with hash {trail_head[:12]}…, which the catalog recorded (the trail "
+                "is gone)"] if trail_head else []
+    heads = {trail_head: "the catalog"} if trail_head else None
+    return [str(p) for p in audit.verify_trail(out, artefacts=False, heads=heads)
+            if not p.what.startswith(("unreadable", "the last run has no run-finished"))]
 
 
 def check_run_folder(out: Path, sample_id: str) -> None:
@@ -322,7 +344,7 @@ def check_run_folder(out: Path, sample_id: str) -> None:
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
                        dask: str | None = None, follow_timeout_s: float | None = None,
-                       sample_id: str | None = None) -> dict[str, Any]:
+                       sample_id: str | None = None, trail_head: str | None = None) -> dict[str, Any]:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
@@ -332,7 +354,10 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     plan) may still be coming, and each pass's stages start as soon as its store is complete on
     disk, waiting at most this long for each (the whole-sample stages follow the last pass).
     ``sample_id``: the sample the caller means (the catalog's); a folder whose manifest names
-    another is refused, and so is a run folder that holds another sample's runs.
+    another is refused, and so is a run folder that holds another sample's runs. ``trail_head``:
+    the hash of the run-finished entry the caller kept (the catalog's); a trail that no longer holds
+    it, or is otherwise not intact, is recorded as such (``trail-problems-found``) before this run
+    appends to it, and ``audit verify`` names that entry from then on.
 
     The deliverables, the report and the settings they were made with are published into
     ``out_dir/results/`` as one unit, and the run-finished entry that records them is appended
@@ -342,7 +367,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     dask = dask or os.environ.get("WELDRECON_DASK") or None
     if dask and not _on_dask():
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
-            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id)
+            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id, trail_head)
     log = get_run_logger()
     for stage in STAGES:  # hash the code now, as imported: an edit during a long run is not credited to it
         code_version(stage)
@@ -360,8 +385,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     check_run_folder(out, manifest.sample_id)
     store = StageStore(out)
     out.mkdir(parents=True, exist_ok=True)
+    found = _trail_problems(out, trail_head)
     audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
+    if found:  # recorded before this run's entries can make a cut or edited trail look whole again
+        audit.append(out, audit.PROBLEMS_FOUND, problems=found)
     swept = sweep_leftovers(out)  # what runs of this folder that died (kill -9, power cut) left half written
     if swept:
         audit.append(out, "leftovers-swept", paths=[p.relative_to(out).as_posix() for p in swept])

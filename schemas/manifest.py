@@ -136,7 +136,7 @@ class Setup(StrictModel):
 
 class SampleManifest(StrictModel):
     schema_version: Literal["1.0"] = MANIFEST_SCHEMA_VERSION
-    units: Literal["mm"] = "mm"
+    units: Literal["mm"]
     sample_id: str = Field(pattern=_ID_PATTERN)
     created: datetime
     material: str = "S355"
@@ -162,9 +162,12 @@ class SampleManifest(StrictModel):
         dupes = sorted({i for i in ids if ids.count(i) > 1})
         if dupes:
             raise ValueError(f"pass ids must be unique across setups, repeated: {dupes}")
-        files = [p.file for s in self.setups for p in s.passes]
-        if len(set(files)) != len(files):
-            raise ValueError("two passes refer to the same file")
+        files = [(p.file, p.pass_id) for s in self.setups for p in s.passes]
+        shared = {f: [i for g, i in files if g == f] for f, _ in files}
+        shared = {f: ids for f, ids in shared.items() if len(ids) > 1}
+        if shared:
+            raise ValueError("each pass needs a file of its own; " + "; ".join(
+                f"passes {', '.join(ids)} all refer to {f}" for f, ids in sorted(shared.items())))
         return self
 
     def passes(self) -> list[tuple[str, PassEntry]]:

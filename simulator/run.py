@@ -149,7 +149,7 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
                             T_world_specimen_nominal=nominal.tolist(),
                             placement_tolerance_mm=round(placement_tolerance_mm(config.placement, sp.grip_width_mm / 2), 3)))
     return SampleManifest(
-        sample_id=config.sample_id, created=SCAN_DATE, material="S355",
+        units="mm", sample_id=config.sample_id, created=SCAN_DATE, material="S355",
         specimen=SpecimenGeometry(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
                                   gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
                                   transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm),

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from data_catalog.passes import PassData, PassReader, open_pass
+from data_catalog.passes import PassData, PassFormatError, PassReader, open_pass
 from flows.stages.contracts import BLOCK_POINTS, block_rows
 from schemas.manifest import PassEntry, SampleManifest
 from tasks.ingest import profile_points, sensor_poses
@@ -45,7 +45,22 @@ class PassBlock:
 
 
 def open_entry(sample_dir: Path, entry: PassEntry) -> PassReader:
-    return open_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+    """The pass store of ``entry``, checked against what the manifest says of it: logged flange
+    poses present exactly when ``has_profile_poses`` says so (missing ones would silently fall back
+    to the nominal sweep), and profile times spanning the pass's ``duration_s`` (times in ms, or
+    another pass's, are not the robot's)."""
+    reader = open_pass(Path(sample_dir) / entry.file, pass_id=entry.pass_id)
+    where = f"pass {entry.pass_id} ({reader.path})"
+    if reader.has_poses != entry.has_profile_poses:
+        raise PassFormatError(f"{where}: the manifest says has_profile_poses {str(entry.has_profile_poses).lower()}, "
+                              f"but the store {'holds' if reader.has_poses else 'has no'} T_world_flange; expected "
+                              "both to agree")
+    times = reader.read_array("timestamp_s", [0, reader.n_profiles - 1])
+    span = float(times[-1] - times[0])
+    if np.all(np.isfinite(times)) and abs(span - entry.duration_s) > 0.1 * entry.duration_s + 0.5:
+        raise PassFormatError(f"{where}: timestamp_s spans {span:g} s, but the manifest's duration_s is "
+                              f"{entry.duration_s:g} s; expected seconds since the pass started")
+    return reader
 
 
 def _block(reader: PassReader, manifest: SampleManifest, entry: PassEntry, start: int, stop: int,

@@ -300,3 +300,25 @@ def test_a_run_killed_alone_leaves_no_server_behind(ci_sample, tmp_path):
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, ci_sample):
+    """The trail's last line (the run-finished entry) deleted, then the folder run again: the rerun
+    records what it found (the results no entry records, the head the catalog kept is gone)
+    before appending, and ``audit verify`` names that from then on."""
+    from flows.reconstruct import reconstruct_sample
+
+    run, report = run_copy
+    lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
+    (run / TRAIL).write_bytes(b"".join(lines[:-1]))
+    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest",
+                               trail_head=report["trail_head"]["hash"])
+    assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
+    found = [e for e in read_trail(run) if e["kind"] == "trail-problems-found"]
+    assert len(found) == 1
+    assert any("no run-finished entry records this result" in p for p in found[0]["problems"])
+    assert any(f"holds no entry with hash {report['trail_head']['hash'][:12]}" in p for p in found[0]["problems"])
+    problems = [str(p) for p in verify_trail(run)]
+    assert problems and all("a run found the trail not intact before it" in p for p in problems)
+    done = run_cli("audit", "verify", str(run))
+    assert done.returncode == 1 and "a run found the trail not intact before it" in done.stdout
