@@ -58,6 +58,15 @@ class SpecimenGeometry(StrictModel):
     transition_radius_mm: float = Field(gt=0, le=5000)
     thickness_mm: float = Field(gt=0, le=500)
 
+    @model_validator(mode="after")
+    def _in_millimetres(self) -> "SpecimenGeometry":
+        small = {k: v for k, v in (("length_mm", self.length_mm), ("grip_width_mm", self.grip_width_mm),
+                                   ("thickness_mm", self.thickness_mm)) if v < 1.0}
+        if small:
+            raise ValueError(f"{', '.join(f'{k} {v:g}' for k, v in small.items())}: under 1 mm, not a part a "
+                             "scanning cell measures; were the dimensions given in metres? expected millimetres")
+        return self
+
 
 class WeldDescription(StrictModel):
     process: str = "GMAW"

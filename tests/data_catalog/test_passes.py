@@ -102,3 +102,32 @@ def test_a_pass_is_complete_only_once_its_writer_closed_it(tmp_path):
     assert pass_is_complete(path)
     (path / "zarr.json").write_text("{not json")
     assert not pass_is_complete(path)  # unreadable: not complete, no error
+
+
+def test_a_store_in_other_units_is_refused(tmp_path):
+    _write(tmp_path / "p1.zarr")
+    group = zarr.open_group(str(tmp_path / "p1.zarr"), mode="r+")
+    group.attrs["units"] = "inch"
+    with pytest.raises(PassFormatError, match="has units 'inch', expected 'mm'"):
+        read_pass(tmp_path / "p1.zarr")
+
+
+def test_a_stage_folder_without_its_record_is_set_aside_when_the_stage_commits(tmp_path):
+    """A committed stage folder whose record.json went (deleted by hand) must not be kept as if an
+    identical run had finished first: the rerun's commit sets it aside and puts its own in place."""
+    from data_catalog.stages import RECORD_NAME, StageRecord, StageStore
+
+    store = StageStore(tmp_path)
+    final = store.path("merge", "a" * 64)
+    final.mkdir(parents=True)
+    (final / "merged.zarr").write_text("left without a record")
+    build = store.build_dir("merge")
+    (build / "merged.zarr").write_text("fresh")
+    record = StageRecord(sample_id="s", stage="merge", item=None, cache_key="a" * 64, inputs={},
+                         outputs={"merged.zarr": ""}, parameters={}, code_version="c", host="h",
+                         started="2026-11-23T00:00:00Z", finished="2026-11-23T00:00:01Z", metrics={})
+    store.commit(build, record)
+    assert (final / RECORD_NAME).is_file() and (final / "merged.zarr").read_text() == "fresh"
+    assert store.lookup("merge", "a" * 64) is not None
+    aside = list(final.parent.glob(".incomplete-*"))
+    assert len(aside) == 1 and (aside[0] / "merged.zarr").read_text() == "left without a record"

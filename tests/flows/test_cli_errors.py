@@ -213,3 +213,40 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
         assert not list(run.rglob("*.partial")) and not list(run.rglob(".build-*"))
     finally:
         subprocess.run(["umount", str(disk)], check=False)
+
+
+@pytest.mark.parametrize("edit, message", [
+    ("poses-gone", r"pass top-L02 \(.*top-L02\.zarr\): the manifest says has_profile_poses true, but the store has no "
+                   r"T_world_flange; expected both to agree"),
+    ("times-in-ms", r"pass top-L02 \(.*top-L02\.zarr\): timestamp_s spans 20010\.7 s, but the manifest's duration_s "
+                    r"is 20 s; expected seconds since the pass started"),
+])
+def test_a_pass_that_contradicts_its_manifest_entry_is_named(ci_sample, tmp_path, edit, message):
+    """Logged poses that went missing (the nominal sweep would silently stand in for them) and
+    profile times in the wrong unit are refused with the pass named, not run."""
+    import re
+
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
+    group = zarr.open_group(str(sample / "passes" / "top-L02.zarr"), mode="r+")
+    if edit == "poses-gone":
+        del group["T_world_flange"]
+    else:
+        group["timestamp_s"][...] = group["timestamp_s"][...] * 1000
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
+
+
+def test_an_out_folder_of_other_files_and_a_bad_follow_timeout_are_refused_before_any_work(ci_sample, tmp_path):
+    foreign = tmp_path / "thesis"
+    foreign.mkdir()
+    (foreign / "chapter1.tex").write_text("work of months")
+    done = run_cli("reconstruct", str(ci_sample), "--out", str(foreign))
+    assert done.returncode == 2 and _problems(done.stderr) == [
+        f"weldrecon reconstruct: error: --out {foreign}: holds 1 thing(s) that are not a weldrecon run's (chapter1.tex) "
+        "and no audit trail; give a new or empty folder, or an earlier run's folder"]
+    assert sorted(p.name for p in foreign.iterdir()) == ["chapter1.tex"]
+    done = run_cli("reconstruct", str(ci_sample), "--out", str(tmp_path / "run"), "--follow", "--follow-timeout", "-5")
+    assert done.returncode == 2 and _problems(done.stderr) == [
+        "weldrecon reconstruct: error: --follow-timeout -5: expected a number of seconds > 0"]
+    assert not (tmp_path / "run").exists()

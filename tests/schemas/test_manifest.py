@@ -68,3 +68,28 @@ def test_not_json_and_missing(tmp_path):
         _load(tmp_path, "{nope")
     with pytest.raises(ManifestError, match="no manifest file there"):
         load_manifest(tmp_path / "empty")
+
+
+def test_a_field_given_twice_a_missing_unit_and_a_shared_file_are_named(tmp_path, good):
+    text = json.dumps(good)
+    with pytest.raises(ManifestError, match="field 'sample_id' given twice in one object; expected each field once"):
+        _load(tmp_path, text.replace('"sample_id": ', '"sample_id": "other", "sample_id": ', 1))
+    del good["units"]
+    with pytest.raises(ManifestError) as info:
+        _load(tmp_path, good)
+    assert "  units: Field required" in str(info.value)
+    good["units"] = "mm"
+    first, second = good["setups"][0]["passes"][:2]
+    second["file"] = first["file"]
+    with pytest.raises(ManifestError, match=f"passes {first['pass_id']}, {second['pass_id']} all refer to "
+                                            f"{first['file']}"):
+        _load(tmp_path, good)
+
+
+def test_a_specimen_in_metres_is_named(tmp_path, good):
+    good["specimen"].update(length_mm=0.24, grip_width_mm=0.06, gauge_width_mm=0.04, gauge_length_mm=0.07,
+                            transition_radius_mm=0.1, thickness_mm=0.02)
+    with pytest.raises(ManifestError) as info:
+        _load(tmp_path, good)
+    assert ("specimen: Value error, length_mm 0.24, grip_width_mm 0.06, thickness_mm 0.02: under 1 mm, not a part a "
+            "scanning cell measures; were the dimensions given in metres? expected millimetres") in str(info.value)

@@ -86,7 +86,7 @@ def test_presets_are_valid_and_distinct():
     assert SimulationConfig.model_validate(preset_config("paper").model_dump()) == preset_config("paper")
 
 
-@pytest.mark.parametrize("pace", ["fast", "x0", "x-2", "xnan"])
+@pytest.mark.parametrize("pace", ["fast", "x0", "x-2", "xnan", ""])  # "": an unset shell variable
 def test_a_bad_pace_is_refused_before_anything_is_written(tmp_path, capsys, pace):
     out = tmp_path / "sample"
     assert main(["simulate", "--preset", "ci", "--pace", pace, str(out)]) == 2
@@ -129,3 +129,11 @@ def test_an_output_folder_that_cannot_be_made_is_refused_before_simulating(tmp_p
     assert capsys.readouterr().err.strip() == (f"weldrecon demo: error: --out {a_file}: {a_file} is a file, not a "
                                                "folder")
     assert a_file.read_text() == "earlier work"
+
+
+def test_a_key_given_twice_in_a_config_is_named(tmp_path, capsys):
+    config = tmp_path / "twice.yaml"
+    config.write_text("robot:\n  speed_mm_s: 15\nrobot:\n  speed_mm_s: 30\n")
+    code, err, out = _run(tmp_path, capsys, "--preset", "ci", "--config", str(config))
+    assert code == 2 and not out.exists()
+    assert f"{config}: the simulation config is not valid YAML (line 3, column 1: 'robot' given twice" in err
