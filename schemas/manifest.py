@@ -144,7 +144,7 @@ class Setup(StrictModel):
 
 
 class SampleManifest(StrictModel):
-    schema_version: Literal["1.0"] = MANIFEST_SCHEMA_VERSION
+    schema_version: Literal["1.0"]  # required: a file of another version is told apart, never guessed
     units: Literal["mm"]
     sample_id: str = Field(pattern=_ID_PATTERN)
     created: datetime

@@ -29,7 +29,7 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
 from data_catalog.truth import TRUTH_DIR, TruthPassWriter, write_truth
-from schemas.manifest import (NominalMotion, PassEntry, SampleManifest, ScannerSettings, Setup,
+from schemas.manifest import (MANIFEST_SCHEMA_VERSION, NominalMotion, PassEntry, SampleManifest, ScannerSettings, Setup,
                               SpecimenGeometry, WeldDescription)
 from schemas.simulation import SimulationConfig
 from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection
@@ -149,7 +149,7 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
                             T_world_specimen_nominal=nominal.tolist(),
                             placement_tolerance_mm=round(placement_tolerance_mm(config.placement, sp.grip_width_mm / 2), 3)))
     return SampleManifest(
-        units="mm", sample_id=config.sample_id, created=SCAN_DATE, material="S355",
+        schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=config.sample_id, created=SCAN_DATE, material="S355",
         specimen=SpecimenGeometry(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
                                   gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
                                   transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm),

@@ -29,6 +29,7 @@ POSE_TOLERANCE = 1e-6  # largest entry of R^T R - I, as for the manifest's poses
 STEP_FACTOR = 2.0
 STEP_SLACK_MM = 0.05
 MAX_TURN_RAD = 0.01
+MIN_TRAVEL_SHARE = 0.5  # the logged flange must travel at least this share of the nominal sweep
 CHUNK_JUMP_FACTOR = 10.0  # a boundary step this many times the largest step around it
 CHUNK_JUMP_FLOOR_MM = 0.05  # and at least this large (the sensor's noise is ~0.01 mm)
 CHUNK_JUMP_CONTEXT = 8  # profile steps looked at on each side of a boundary
@@ -50,6 +51,8 @@ class MotionCheck:
     _worst_rotation: float = 0.0
     _largest_step_ratio: float = 0.0
     _largest_turn_rad: float = 0.0
+    _path_mm: float = 0.0  # the logged flange's travel, summed over the profiles
+    _first_t: float | None = None
     _intervals: list[float] = field(default_factory=lambda: [np.inf, 0.0])
 
     def _fail(self, profile: int, what: str) -> None:
@@ -75,6 +78,8 @@ class MotionCheck:
         if T_world_flange is not None:
             self._poses = True
             self._check_poses(start, times, first, np.asarray(T_world_flange, dtype=np.float64))
+        if self._first_t is None and len(t):
+            self._first_t = float(t[0])
         self._last_t = float(t[-1]) if len(t) else self._last_t
         self._profiles += len(t)
 
@@ -113,10 +118,21 @@ class MotionCheck:
                 self._fail(first + j + 1, f"the logged flange pose turns {turn[j]:.4f} rad from the profile before "
                                           f"(at most {MAX_TURN_RAD:g} rad): the pose log is damaged")
             self._largest_step_ratio = max(self._largest_step_ratio, float(ratio[i]))
+            self._path_mm += float(step.sum())
             self._largest_turn_rad = max(self._largest_turn_rad, float(turn[j]))
         self._last_T = T[-1].copy() if len(T) else self._last_T
 
     def summary(self) -> dict:
+        """What was checked, after the last block; also refuses a pose log that does not move: the
+        logged flange travels less than half the nominal sweep over the pass's time (poses stuck
+        at one value, a log of another robot axis), which the per-profile limits cannot see."""
+        if self._poses and self._profiles > 1:
+            nominal = self.speed_mm_s * (self._last_t - self._first_t)
+            if self._path_mm < MIN_TRAVEL_SHARE * nominal:
+                raise ValueError(f"pass {self.pass_id}: the logged flange poses travel {self._path_mm:.3f} mm over the "
+                                 f"pass, the nominal sweep {nominal:.1f} mm ({self.speed_mm_s:g} mm/s for "
+                                 f"{self._last_t - self._first_t:.2f} s); expected the robot's motion (is the pose log "
+                                 "stuck?)")
         out = {"profiles": self._profiles, "times": "finite, strictly increasing",
                "profile_interval_s": [round(v, 9) for v in self._intervals] if self._profiles > 1 else None,
                "logged_poses": self._poses}

@@ -33,7 +33,7 @@ def _manifest(sample_id: str, n_profiles: int) -> SampleManifest:
                                 "speed_mm_s": SPEED_MM_S, "profile_rate_hz": RATE_HZ,
                                 "length_mm": duration * SPEED_MM_S}}
     return SampleManifest.model_validate({
-        "units": "mm", "sample_id": sample_id, "created": datetime(2026, 11, 23, tzinfo=UTC),
+        "schema_version": "1.0", "units": "mm", "sample_id": sample_id, "created": datetime(2026, 11, 23, tzinfo=UTC),
         "specimen": {"length_mm": 570, "grip_width_mm": 100, "gauge_width_mm": 70, "gauge_length_mm": 150,
                      "transition_radius_mm": 100, "thickness_mm": 20},
         "weld": {}, "sticker_diameter_mm": STICKER_DIAMETER_MM,

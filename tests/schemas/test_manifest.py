@@ -37,6 +37,7 @@ def test_good_manifest_loads(tmp_path, good):
     ("edit", "where", "message"),
     [
         (lambda m: m.update(units="inch"), "units", "Input should be 'mm'"),
+        (lambda m: m.pop("schema_version"), "schema_version", "Field required"),
         (lambda m: m.update(colour="red"), "colour", "Extra inputs are not permitted"),
         (lambda m: m["setups"][0]["passes"][0].update(file="../../etc/passwd"), "setups.0.passes.0.file",
          "must not leave the sample folder"),

@@ -144,3 +144,15 @@ def test_a_pass_with_residuals_far_above_the_others_is_flagged():
     quiet = {f"p{i}": 0.002 for i in range(8)} | {"p3": 0.015}
     assert residual_outliers(quiet, floor_mm=0.02) == []
     assert residual_outliers({"a": 0.01, "b": 1.0}, floor_mm=0.02) == []  # too few passes to judge
+
+
+def test_a_pose_log_that_does_not_move_is_refused():
+    """Every profile logged at the sweep's first pose (a stuck log): each step is within the
+    limits, but the flange travels nothing while the pass's nominal sweep is 63.7 mm."""
+    t, T = _sweep(200)
+    T[:] = T[0]
+    check = MotionCheck("top-L03", SPEED)
+    _feed_in_blocks(check, t, T)
+    with pytest.raises(ValueError, match=r"pass top-L03: the logged flange poses travel 0\.000 mm over the pass, the "
+                                         r"nominal sweep 63\.7 mm \(10 mm/s for 6\.37 s\); expected the robot's motion"):
+        check.summary()
