@@ -247,6 +247,16 @@ def _workspace(args: argparse.Namespace) -> Path:
     return Path(args.workspace or os.environ.get("WELDRECON_WORKSPACE", "workspace"))
 
 
+def _say_displaced(catalog, records) -> None:
+    """One line per catalogued sample whose folder a just-registered sample now occupies (renamed,
+    or the folder reused): it is not rebuilt from the new data, and the user should know."""
+    folders = {r.sample_dir: r.sample_id for r in records}
+    for other in catalog.list():
+        if other.sample_dir in folders and other.sample_id != folders[other.sample_dir]:
+            print(f"weldrecon catalog: warning: sample {other.sample_id}: failed at register: {other.error}",
+                  file=sys.stderr)
+
+
 def _cmd_catalog(args: argparse.Namespace) -> int:
     from data_catalog.catalog import Catalog, CatalogError
 
@@ -260,8 +270,10 @@ def _cmd_catalog(args: argparse.Namespace) -> int:
                     record = catalog.register(folder)
                     print(f"{record.sample_id}: {record.state}"
                           f"{' (changed)' if record.due and record.state == 'done' else ''}")
+                    _say_displaced(catalog, [record])
                     continue
                 records, refused = catalog.scan(folder)
+                _say_displaced(catalog, records)
             except CatalogError:
                 raise
             except (ValueError, OSError) as exc:

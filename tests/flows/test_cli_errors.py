@@ -227,11 +227,15 @@ def test_a_pass_that_contradicts_its_manifest_entry_is_named(ci_sample, tmp_path
     import re
 
     sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
-    group = zarr.open_group(str(sample / "passes" / "top-L02.zarr"), mode="r+")
+    store = sample / "passes" / "top-L02.zarr"
+    group = zarr.open_group(str(store), mode="r+")
     if edit == "poses-gone":
         del group["T_world_flange"]
     else:
         group["timestamp_s"][...] = group["timestamp_s"][...] * 1000
+    manifest = json.loads((sample / "manifest.json").read_text())  # the exporter's hash, as it would write it
+    manifest["setups"][0]["passes"][1]["content_sha256"] = sha256_tree(store)
+    (sample / "manifest.json").write_text(json.dumps(manifest))
     done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr

@@ -62,7 +62,11 @@ def test_the_catalog_never_rebuilds_a_sample_from_a_folder_that_now_holds_anothe
     assert (record.state, record.failed_stage) == ("failed", "register")
     assert record.artefacts == {"ident-a.stl": "0" * 64} and record.trail_head == {"seq": 3, "hash": "f" * 64}
 
-    catalog.register(sample_a)  # registering the folder again: the new sample, the old one told apart
+    done = run_cli("catalog", "register", str(sample_a), "--workspace", str(tmp_path / "ws"))  # the folder again
+    assert done.returncode == 0 and done.stdout.splitlines() == ["ident-b: new"]
+    assert done.stderr.strip().startswith(f"weldrecon catalog: warning: sample ident-a: failed at register: cannot "
+                                          f"read the sample folder {sample_a.resolve()}: the folder now holds sample "
+                                          "ident-b"), done.stderr
     assert catalog.get("ident-b").state == "new"
     assert "ident-a's run folder and results are kept" in catalog.get("ident-a").error
     assert [r.sample_id for r in catalog.due()] == ["ident-b"]
