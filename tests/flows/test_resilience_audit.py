@@ -303,14 +303,16 @@ def test_a_run_killed_alone_leaves_no_server_behind(ci_sample, tmp_path):
 
 
 def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, ci_sample):
-    """The trail's last line (the run-finished entry) deleted, then the folder run again: the rerun
-    records what it found (the results no entry records, the head the catalog kept is gone)
-    before appending, and ``audit verify`` names that from then on."""
+    """The trail cut back to just before the first run's run-finished entry (later tests may have
+    run the shared folder again), then the folder run again: the rerun records what it found (the
+    results no entry records, the head the catalog kept is gone) before appending, and ``audit
+    verify`` names that from then on."""
     from flows.reconstruct import reconstruct_sample
 
     run, report = run_copy
     lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
-    (run / TRAIL).write_bytes(b"".join(lines[:-1]))
+    assert json.loads(lines[report["trail_head"]["seq"]])["hash"] == report["trail_head"]["hash"]
+    (run / TRAIL).write_bytes(b"".join(lines[:report["trail_head"]["seq"]]))
     again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest",
                                trail_head=report["trail_head"]["hash"])
     assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
@@ -318,7 +320,8 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, ci_sample):
     assert len(found) == 1
     assert any("no run-finished entry records this result" in p for p in found[0]["problems"])
     assert any(f"holds no entry with hash {report['trail_head']['hash'][:12]}" in p for p in found[0]["problems"])
-    problems = [str(p) for p in verify_trail(run)]
-    assert problems and all("a run found the trail not intact before it" in p for p in problems)
+    problems = [str(p) for p in verify_trail(run)]  # (stage folders of later runs with other settings: unrecorded too)
+    assert any("a run found the trail not intact before it" in p and "no run-finished entry records" in p
+               for p in problems), problems
     done = run_cli("audit", "verify", str(run))
     assert done.returncode == 1 and "a run found the trail not intact before it" in done.stdout
