@@ -203,11 +203,11 @@ def folder_lock(path: Path) -> Iterator[None]:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
-def check_can_create(path: Path, what: str) -> None:
+def check_can_create(path: Path, what: str, *, hint: str = "give a folder you can write") -> None:
     """That ``path`` (a folder to be made or written into) can be: its nearest existing ancestor
     is a folder this process can create things in (tried, not only asked: root's ``access`` says
     yes on a read-only or virtual filesystem). ValueError naming ``what`` (``--out X``) and why,
-    before any work is done."""
+    before any work is done; ``hint`` says what to do instead."""
     path = Path(path).absolute()
     existing = next((p for p in [path, *path.parents] if p.exists()), None)
     if existing is None:  # pragma: no cover - "/" always exists
@@ -217,7 +217,6 @@ def check_can_create(path: Path, what: str) -> None:
     try:
         fd, probe = tempfile.mkstemp(prefix=f".probe.{owner_tag()}.", suffix=".partial", dir=existing)
     except OSError as exc:
-        raise ValueError(f"{what}: cannot create anything in {existing} ({exc.strerror or exc}); give a folder "
-                         "you can write") from None
+        raise ValueError(f"{what}: cannot create anything in {existing} ({exc.strerror or exc}); {hint}") from None
     os.close(fd)
     os.unlink(probe)

@@ -168,11 +168,9 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     import getpass
 
     from data_catalog.manifests import check_sample_files, load_manifest
-    from flows.progress import TrailProgress
-    from flows.reconstruct import (check_dask_scheduler, check_out_dir, check_run_folder, load_config,
-                                   prefect_api_for_workers, reconstruct_sample)
-    from flows.stages import STAGES
+    from flows.preflight import check_dask_scheduler, check_out_dir, check_run_folder, load_config, wait_for_file
 
+    # everything a run needs is checked first, before Prefect and the compute stack are imported
     sample = Path(args.sample_dir)
     out = Path(args.out) if args.out else sample.parent / f"{sample.name}-reconstruction"
     check_out_dir(sample, out)
@@ -180,8 +178,6 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     if follow is not None and not follow > 0:
         raise ValueError(f"--follow-timeout {follow:g}: expected a number of seconds > 0")
     if follow is not None:  # a scan in progress: its manifest (the plan) may still be coming
-        from flows.reconstruct import wait_for_file
-
         print(f"following {sample}: each pass is reconstructed as it lands", file=sys.stderr, flush=True)
         wait_for_file(sample / "manifest.json", timeout_s=follow, what=f"sample {sample}")
     manifest = load_manifest(sample)
@@ -191,6 +187,10 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
     if dask and not dask.startswith("local:"):
         check_dask_scheduler(dask)
+    from flows.progress import TrailProgress
+    from flows.reconstruct import prefect_api_for_workers, reconstruct_sample
+    from flows.stages import STAGES
+
     _log_to_file(out / "logs", "reconstruct")
     n_passes = len(manifest.passes())
     expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
@@ -390,14 +390,15 @@ def _cmd_audit(args: argparse.Namespace) -> int:
 def _cmd_batch(args: argparse.Namespace) -> int:
     _quiet_prefect()
     from data_catalog.catalog import Catalog
-    from flows.batch import reconstruct_batch
 
     workspace = _workspace(args)
     Catalog(workspace)  # a damaged catalog is named before any flow runs
     if args.config is not None:
-        from flows.reconstruct import load_config
+        from flows.preflight import load_config
 
         load_config(args.config)
+    from flows.batch import reconstruct_batch
+
     log = _log_to_file(workspace / "logs", "batch")
     print(f"batch log: {log}", file=sys.stderr)
     summary = reconstruct_batch(str(workspace), args.samples, args.config, args.max_concurrent,

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -20,14 +19,14 @@ from typing import Any
 from prefect import flow, get_run_logger, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.task_runners import ThreadPoolTaskRunner
-from pydantic import ValidationError
 
 from data_catalog import audit
 from data_catalog.atomic import folder_lock, sweep_leftovers
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
-from data_catalog.textfiles import read_yaml_mapping
+from flows.preflight import (check_dask_scheduler, check_out_dir, check_run_folder, load_config, trail_problems,
+                             wait_for_file)
 from flows.stages import STAGES, Stage, StageFailed, StageRef, code_version, run_stage
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
@@ -48,18 +47,6 @@ class ReconstructionFailed(RuntimeError):
 
     def __reduce__(self):
         return (ReconstructionFailed, (self.stage, str(self)))
-
-
-def load_config(path: str | Path | None) -> ReconstructionConfig:
-    """The reconstruction config: defaults, overridden by a YAML file's fields."""
-    if path is None:
-        return ReconstructionConfig()
-    raw = read_yaml_mapping(path, "reconstruction config")
-    try:
-        return ReconstructionConfig.model_validate(raw)
-    except ValidationError as exc:
-        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
-        raise ValueError(f"{path}: invalid reconstruction config:\n{lines}") from None
 
 
 def _io_failure(task, task_run, state) -> bool:  # noqa: ANN001 - Prefect's retry hook signature
@@ -168,26 +155,6 @@ def task_runner(dask: str | None):
     return DaskTaskRunner(address=dask)
 
 
-def check_dask_scheduler(address: str, timeout_s: float = 5.0) -> None:
-    """A Dask scheduler address (``tcp://host:port`` or ``host:port``) that answers; ValueError
-    naming it and why not (before any work, instead of a client's traceback after a long wait)."""
-    import socket
-    from urllib.parse import urlsplit
-
-    parts = urlsplit(address if "://" in address else f"tcp://{address}")
-    try:
-        host, port = parts.hostname, parts.port or 8786
-    except ValueError as exc:  # a port that is not a number
-        raise ValueError(f"dask {address!r}: not a scheduler address ({exc}); expected tcp://host:port or local:N") from None
-    if parts.scheme != "tcp" or not host:
-        raise ValueError(f"dask {address!r}: not a scheduler address; expected tcp://host:port or local:N")
-    try:
-        socket.create_connection((host, port), timeout=timeout_s).close()
-    except OSError as exc:
-        raise ValueError(f"dask {address!r}: no Dask scheduler answers at {host}:{port} ({exc.strerror or exc}); "
-                         "start one (dask scheduler) or give local:N for worker processes here") from None
-
-
 def _server_that_dies_with_us():
     """Prefect's temporary API server (uvicorn in a child process), told by the kernel to stop
     when this process dies, however it dies (``prctl(PR_SET_PDEATHSIG)``): a run killed by the
@@ -259,16 +226,6 @@ def _on_dask() -> bool:
     return context is not None and type(context.task_runner).__name__ == "DaskTaskRunner"
 
 
-def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s: float = 0.5) -> None:
-    """Wait until ``path`` exists (and ``ready(path)`` holds, when given); TimeoutError naming
-    ``what`` after ``timeout_s`` seconds."""
-    deadline = time.monotonic() + timeout_s
-    while not (path.exists() and (ready is None or ready(path))):
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"{what}: {path} did not appear (complete) within {timeout_s:g} s")
-        time.sleep(poll_s)
-
-
 def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageStore, config: ReconstructionConfig,
                            timeout_s: float, log) -> dict[str, list]:
     """Follow a scan in progress: each pass's per-pass stages are submitted as soon as its store is
@@ -284,61 +241,6 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
                 pending.setdefault(stage.name, []).append(
                     STAGE_TASKS[stage.name].submit(store, sample, manifest, config, {}, entry))
     return pending
-
-
-_RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
-
-
-def check_out_dir(sample: Path, out: Path) -> None:
-    """Refuse a run folder that would write into the run's own inputs: the sample folder itself,
-    or anything inside its pass stores, ground truth or manifest. ValueError naming both."""
-    sample, out = Path(sample).resolve(), Path(out).resolve()
-    inputs = [sample / "passes", sample / "truth", sample / MANIFEST_NAME]
-    if out == sample or any(out == p or p in out.parents for p in inputs):
-        raise ValueError(f"--out {out}: inside the sample {sample}'s own inputs (its passes, truth or "
-                         "manifest); a run must not write into what it reads: give a folder outside them")
-    existing = next((p for p in [out, *out.parents] if p.exists()), None)
-    if existing is not None and not existing.is_dir():
-        raise ValueError(f"--out {out}: {existing} is a file, not a folder")
-    if existing == out and not (out / audit.TRAIL).is_file():
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in _RUN_FOLDER_ENTRIES and not p.name.startswith("."))
-        if foreign:
-            raise ValueError(f"--out {out}: holds {len(foreign)} thing(s) that are not a weldrecon run's "
-                             f"({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}) and no audit trail; "
-                             "give a new or empty folder, or an earlier run's folder")
-    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"--out {out}: {existing} is not writable by this user"
-                         + (" (the default run folder is beside the sample): give --out a folder you can write"
-                            if existing != out else ""))
-
-
-def _trail_problems(out: Path, trail_head: str | None) -> list[str]:
-    """What is wrong with the folder's trail before a run appends to it (chain, stage folders and
-    results no entry records, the head kept outside it), short of re-hashing the artefacts: a run
-    appending to a trail that was cut or edited must not make it verify again. A killed run's
-    missing end and a damaged tail (set aside and recorded by the next write) are left out."""
-    if not (out / audit.TRAIL).is_file():
-        return [f"the trail holds no entry with hash {trail_head[:12]}…, which the catalog recorded (the trail "
-                "is gone)"] if trail_head else []
-    heads = {trail_head: "the catalog"} if trail_head else None
-    return [str(p) for p in audit.verify_trail(out, artefacts=False, heads=heads)
-            if not p.what.startswith(("unreadable", "the last run has no run-finished"))]
-
-
-def check_run_folder(out: Path, sample_id: str) -> None:
-    """Refuse a run folder that holds another sample's runs (its audit trail's run-started entries
-    name another sample id): a renamed sample, or a reused ``--out``, would replace that sample's
-    published results and mix two samples in one trail. ValueError naming both."""
-    try:
-        entries = audit.read_trail(out)
-    except FileNotFoundError:
-        return
-    others = sorted({str(e["sample_id"]) for e in entries if e.get("kind") == "run-started" and e.get("sample_id")}
-                    - {sample_id})
-    if others:
-        raise ValueError(f"--out {out}: holds the runs of sample {', '.join(others)} (its audit trail), not of "
-                         f"{sample_id}; a run folder belongs to one sample (was the sample renamed, or its folder "
-                         "reused?): give another --out")
 
 
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
@@ -385,7 +287,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     check_run_folder(out, manifest.sample_id)
     store = StageStore(out)
     out.mkdir(parents=True, exist_ok=True)
-    found = _trail_problems(out, trail_head)
+    found = trail_problems(out, trail_head)
     audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
     if found:  # recorded before this run's entries can make a cut or edited trail look whole again

@@ -45,6 +45,29 @@ def ci_run(ci_sample, tmp_path_factory):
     return out, report
 
 
+# a subset of the ci sample that reconstructs on its own (both setups, 3 passes each; its mesh is
+# open at the ends the subset leaves unscanned): for tests of the plumbing around a run, at ~half
+# the cost of the whole ci sample
+SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
+
+
+@pytest.fixture(scope="session")
+def six_sample(ci_sample, tmp_path_factory) -> Path:
+    from tests.flows.samples import copy_sample
+
+    return copy_sample(ci_sample, tmp_path_factory.mktemp("six") / "sample", SIX)
+
+
+@pytest.fixture(scope="session")
+def six_run(six_sample, tmp_path_factory):
+    """The six-pass subset reconstructed once (real Prefect engine, ci settings): (run folder, report)."""
+    from flows.reconstruct import reconstruct_sample
+
+    out = tmp_path_factory.mktemp("recon-six") / "run"
+    report = reconstruct_sample(str(six_sample), str(out), str(CI_CONFIG), started_by="pytest")
+    return out, report
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _one_prefect_api_that_dies_with_pytest():
     """One temporary Prefect API server for the whole session, started before any flow runs, as

@@ -25,7 +25,7 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_server_worker_and_deployments_on_loopback(ci_sample, tmp_path):
+def test_server_worker_and_deployments_on_loopback(six_sample, tmp_path):
     if not PREFECT.exists():
         pytest.fail(f"{PREFECT} is missing: run `make setup` first")
     port = _free_port()
@@ -46,12 +46,12 @@ def test_server_worker_and_deployments_on_loopback(ci_sample, tmp_path):
         assert nightly.returncode == 0 and "0 2 * * *" in nightly.stdout, nightly.stdout + nightly.stderr
         out = tmp_path / "ws" / "runs" / "ci"
         run = subprocess.run([str(PREFECT), "deployment", "run", "reconstruct-sample/on-demand",
-                              "--param", f"sample_dir={ci_sample}", "--param", f"out_dir={out}",
+                              "--param", f"sample_dir={six_sample}", "--param", f"out_dir={out}",
                               "--param", f"config_path={REPO / 'deploy' / 'configs' / 'ci.yaml'}", "--watch",
                               "--watch-timeout", "400"], env=env, capture_output=True, text=True, timeout=480)
         assert run.returncode == 0 and "Completed" in run.stdout, run.stdout[-3000:] + run.stderr[-3000:]
         report = json.loads((out / "results" / "report.json").read_text())
-        assert report["mesh"]["watertight"]
+        assert report["mesh"]["triangles"] > 10_000 and report["stage_keys"].keys() >= {"mesh", "export"}
         started = read_trail(out)[0]
         assert started["started_by"] == "deployment" and started["deployment_name"] == "on-demand"
         assert verify_trail(out) == []

@@ -13,6 +13,7 @@ import pytest
 from data_catalog.audit import read_trail
 from data_catalog.catalog import Catalog
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
+from tests.conftest import SIX
 from tests.flows.cli import run_cli
 from tests.flows.samples import copy_sample
 
@@ -23,7 +24,6 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 # a subset of the ci sample that reconstructs on its own (both setups, 3 passes each): the batch's
 # behaviour, not the reconstruction's accuracy, is what these tests look at
-SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
 
 
 def _copy_sample(ci_sample: Path, dst: Path, sample_id: str, keep: list[str] | None = None) -> Path:

@@ -15,13 +15,12 @@ import zarr
 
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
+from tests.conftest import SIX
 from tests.flows.cli import run_cli
 from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
-# a subset of the ci sample that reconstructs on its own: both setups, 3 passes each
-SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
 
 
 def _problems(stderr: str) -> list[str]:
@@ -156,8 +155,9 @@ def test_a_read_only_place_for_the_default_run_folder_is_named(ci_sample, tmp_pa
         done = run_cli("reconstruct", str(sample))
         assert done.returncode == 2
         assert _problems(done.stderr) == [
-            f"weldrecon reconstruct: error: --out {disk / 's-reconstruction'}: {disk} is not writable by this user "
-            "(the default run folder is beside the sample): give --out a folder you can write"]
+            f"weldrecon reconstruct: error: --out {disk / 's-reconstruction'}: cannot create anything in {disk} "
+            "(Read-only file system); give --out a folder you can write (without --out, the run folder is made beside "
+            "the sample)"]
     finally:
         subprocess.run(["umount", str(disk)], check=False)
 
@@ -254,3 +254,21 @@ def test_an_out_folder_of_other_files_and_a_bad_follow_timeout_are_refused_befor
     assert done.returncode == 2 and _problems(done.stderr) == [
         "weldrecon reconstruct: error: --follow-timeout -5: expected a number of seconds > 0"]
     assert not (tmp_path / "run").exists()
+
+
+def test_a_refusal_comes_before_prefect_and_the_compute_stack_are_loaded(ci_sample, tmp_path):
+    """What a run checks before any work (flows.preflight) needs neither Prefect nor the stages'
+    numerics: a user's mistake is named at once, not after the ~4 s those imports take."""
+    import subprocess
+    import sys
+
+    foreign = tmp_path / "thesis"
+    foreign.mkdir()
+    (foreign / "chapter1.tex").write_text("work of months")
+    script = ("import sys\nfrom flows.cli import main\ncode = main(['reconstruct', sys.argv[1], '--out', sys.argv[2]])\n"
+              "heavy = sorted(m for m in ('prefect', 'open3d', 'pymeshlab', 'numba', 'flows.stages') if m in sys.modules)\n"
+              "print(code, heavy)\n")
+    done = subprocess.run([sys.executable, "-c", script, str(ci_sample), str(foreign)], capture_output=True, text=True,
+                          cwd=REPO, timeout=120)
+    assert done.stdout.strip() == "2 []", done.stdout + done.stderr
+    assert "holds 1 thing(s) that are not a weldrecon run's" in done.stderr

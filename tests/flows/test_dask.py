@@ -29,13 +29,13 @@ def _servers_marked(marker: str) -> set[int]:
     return found
 
 
-def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path, monkeypatch):
+def test_a_sample_on_a_local_dask_cluster(six_run, six_sample, tmp_path, monkeypatch):
     import threading
     import uuid
 
     from flows.reconstruct import prefect_api_for_workers, reconstruct_sample
 
-    _, threaded = ci_run
+    _, threaded = six_run
     out = tmp_path / "dask-run"
     marker = f"dask-test-{uuid.uuid4()}"
     monkeypatch.setenv("WELDRECON_TEST_MARKER", marker)  # inherited by the workers and anything they start
@@ -50,7 +50,7 @@ def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path, monk
     watcher.start()
     try:
         with prefect_api_for_workers():
-            report = reconstruct_sample(str(ci_sample), str(out), CI_CONFIG, started_by="pytest dask", dask="local:2")
+            report = reconstruct_sample(str(six_sample), str(out), CI_CONFIG, started_by="pytest dask", dask="local:2")
     finally:
         running.set()
         watcher.join()
@@ -61,7 +61,7 @@ def test_the_ci_sample_on_a_local_dask_cluster(ci_run, ci_sample, tmp_path, monk
     # same inputs, settings and code: the same keys and the same bytes, to the STL
     assert report["stage_keys"] == threaded["stage_keys"]
     outputs = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in stages}
-    threaded_trail = read_trail(ci_run[0])  # its first run (later tests rerun that folder with other settings)
+    threaded_trail = read_trail(six_run[0])  # its first run (later tests rerun that folder with other settings)
     end = next(i for i, e in enumerate(threaded_trail) if e["kind"] == "run-finished")
     first = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in threaded_trail[:end] if e["kind"] == "stage"}
     assert {s for s, _ in outputs} == set(STAGE_NAMES)

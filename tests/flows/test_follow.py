@@ -49,12 +49,12 @@ def _denoised(out: Path) -> list[str]:
 
 
 @pytest.mark.slow
-def test_follow_works_on_passes_while_the_last_is_still_being_scanned(ci_sample, ci_run, tmp_path):
-    _, finished = ci_run
+def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample, six_run, tmp_path):
+    _, finished = six_run
     sample, out = tmp_path / "live", tmp_path / "run"
     (sample / "passes").mkdir(parents=True)
-    shutil.copy2(ci_sample / MANIFEST_NAME, sample / MANIFEST_NAME)
-    stores = sorted((ci_sample / "passes").iterdir())
+    shutil.copy2(six_sample / MANIFEST_NAME, sample / MANIFEST_NAME)
+    stores = sorted((six_sample / "passes").iterdir())
     with open(tmp_path / "follow.err", "w") as err:
         follow = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(sample), "--out", str(out),
                                    "--follow", "--follow-timeout", "600", "--config", str(CI_CONFIG)],

@@ -33,9 +33,9 @@ def _flip_byte(path: Path, offset: int = 40) -> None:
 
 
 @pytest.fixture()
-def run_copy(ci_run, tmp_path):
-    """A private copy of the reconstructed ci run folder, free to tamper with."""
-    out, report = ci_run
+def run_copy(six_run, tmp_path):
+    """A private copy of a reconstructed run folder (the ci subset), free to tamper with."""
+    out, report = six_run
     copy = tmp_path / "run"
     shutil.copytree(out, copy)
     return copy, report
@@ -115,12 +115,12 @@ def test_an_edited_provenance_record_breaks_the_chain_where_it_was_edited(run_co
     assert done.returncode == 1 and f"trail line {k + 1}" in done.stdout
 
 
-def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample):
+def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, six_sample):
     from flows.reconstruct import reconstruct_sample
 
     run, report = run_copy
     _flip_byte(_merged_chunk(run, report))
-    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
+    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest")
     assert again["cached"]["merge"] is False  # recomputed
     assert again["cached"]["registration"] is True and again["cached"]["refine"] is True
     assert again["stage_keys"]["merge"] == report["stage_keys"]["merge"]  # same inputs, same key
@@ -133,13 +133,13 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, ci_sample)
     assert verify_trail(run) == []  # the recomputed outputs match what the trail recorded
 
 
-def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_sample, tmp_path):
+def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sample, tmp_path):
     from flows.reconstruct import reconstruct_sample
 
-    _, report = ci_run
+    _, report = six_run
     run = tmp_path / "killed"
     env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(ci_sample), "--config", CI_CONFIG,
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", CI_CONFIG,
                              "--out", str(run)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 300
@@ -156,7 +156,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     assert not (run / "results").exists()
     left = list((run / "stages" / "mesh").glob(".build-*"))
     assert left  # the killed run's half-built mesh
-    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest")
+    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest")
     stl = f"{report['sample_id']}.stl"
     assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
     assert again["stage_keys"] == report["stage_keys"]
@@ -165,7 +165,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     swept = [e for e in read_trail(run) if e["kind"] == "leftovers-swept"]
     assert len(swept) == 1 and all(p.startswith("stages/") for p in swept[0]["paths"])
     # every stage's outputs, those of the killed run and those rerun, are the uninterrupted run's bytes
-    reference = read_trail(ci_run[0])
+    reference = read_trail(six_run[0])
     reference = reference[:next(i for i, e in enumerate(reference) if e["kind"] == "run-finished")]
     expected = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in reference if e["kind"] == "stage"}
     produced = {(e["stage"], e.get("item")): e["record"]["outputs"] for e in read_trail(run) if e["kind"] == "stage"}
@@ -179,7 +179,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(ci_run, ci_samp
     assert sha256_file(run / "results" / stl) == report["outputs"][stl]["sha256"]
 
 
-def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(run_copy, ci_sample):
+def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(run_copy, six_sample):
     """A write cut short (a crash, a full disk) left half a line at the trail's end: the next run
     of the folder sets it aside with a record of it and finishes; the trail verifies."""
     run, report = run_copy
@@ -188,7 +188,7 @@ def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(ru
         f.write(half)
     done = run_cli("audit", "verify", str(run))
     assert done.returncode != 0 and "no line end (the write was cut short)" in done.stdout + done.stderr
-    again = run_cli("reconstruct", str(ci_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = run_cli("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     aside = [e for e in entries if e["kind"] == "trail-damage-set-aside"]
@@ -224,7 +224,7 @@ def test_audit_on_a_wrong_path_says_so_and_creates_nothing(tmp_path):
 
 
 @pytest.mark.parametrize("how", ["metrics", "output"])
-def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_launder_it(run_copy, ci_sample, how):
+def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_launder_it(run_copy, six_sample, how):
     """A cached stage edited by hand together with the hashes in its record (its metrics, or an
     output replaced and its recorded hash refreshed) is self-consistent: ``audit verify`` names it
     against the trail, and the next run recomputes it instead of publishing it."""
@@ -245,7 +245,7 @@ def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_l
     (folder / RECORD_NAME).write_text(json.dumps(record))
     before = [str(p) for p in verify_trail(run)]
     assert any(p.startswith(f"stages/registration/{folder.name}/") and "content changed" in p for p in before)
-    again = run_cli("reconstruct", str(ci_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = run_cli("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     redone = [e for e in entries if e["kind"] == "stage-recomputed" and e["stage"] == "registration"]
@@ -273,13 +273,13 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
-def test_a_run_killed_alone_leaves_no_server_behind(ci_sample, tmp_path):
+def test_a_run_killed_alone_leaves_no_server_behind(six_sample, tmp_path):
     """The out-of-memory killer kills one process, not its group: the run's temporary Prefect API
     server (uvicorn, a child) must go with it."""
     run = tmp_path / "killed"
     env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
     env.pop("PREFECT_API_URL", None)
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(ci_sample), "--config", CI_CONFIG,
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", CI_CONFIG,
                              "--out", str(run)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 300
@@ -302,7 +302,7 @@ def test_a_run_killed_alone_leaves_no_server_behind(ci_sample, tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
 
 
-def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, ci_sample):
+def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
     """The trail cut back to just before the first run's run-finished entry (later tests may have
     run the shared folder again), then the folder run again: the rerun records what it found (the
     results no entry records, the head the catalog kept is gone) before appending, and ``audit
@@ -313,7 +313,7 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, ci_sample):
     lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
     assert json.loads(lines[report["trail_head"]["seq"]])["hash"] == report["trail_head"]["hash"]
     (run / TRAIL).write_bytes(b"".join(lines[:report["trail_head"]["seq"]]))
-    again = reconstruct_sample(str(ci_sample), str(run), CI_CONFIG, started_by="pytest",
+    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest",
                                trail_head=report["trail_head"]["hash"])
     assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
     found = [e for e in read_trail(run) if e["kind"] == "trail-problems-found"]

@@ -70,13 +70,13 @@ def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp
     assert {name for name in base if base[name] != edited[name]} == changed
 
 
-def test_an_edited_helper_recomputes_its_stage_and_downstream_only(ci_run, ci_sample, tmp_path):
-    out, first = ci_run
+def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_sample, tmp_path):
+    out, first = six_run
     run = tmp_path / "run"
     shutil.copytree(out, run)
     code = _code_copy(tmp_path / "code", HELPER_EDIT)
     script = (f"import json; from flows.reconstruct import reconstruct_sample; "
-              f"r = reconstruct_sample({str(ci_sample)!r}, {str(run)!r}, {CI_CONFIG!r}, started_by='pytest edited'); "
+              f"r = reconstruct_sample({str(six_sample)!r}, {str(run)!r}, {CI_CONFIG!r}, started_by='pytest edited'); "
               f"print(json.dumps({{'cached': r['cached'], 'keys': r['stage_keys']}}))")
     again = json.loads(_run_python(code, script))
     entries = read_trail(run)

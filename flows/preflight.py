@@ -1,0 +1,112 @@
+"""What a reconstruction checks before any work, light enough to import before Prefect and the
+compute stack: a bad ``--out``, settings file, sample or Dask address is refused in well under
+a second instead of after the ~4 s those imports take. ``flows.reconstruct`` runs the same checks
+again inside the flow (for callers that start it directly)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from data_catalog import audit
+from data_catalog.atomic import check_can_create
+from data_catalog.manifests import MANIFEST_NAME
+from data_catalog.textfiles import read_yaml_mapping
+from schemas.reconstruction import ReconstructionConfig
+
+__all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
+           "wait_for_file", "trail_problems"]
+
+RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
+
+
+def load_config(path: str | Path | None) -> ReconstructionConfig:
+    """The reconstruction config: defaults, overridden by a YAML file's fields."""
+    if path is None:
+        return ReconstructionConfig()
+    raw = read_yaml_mapping(path, "reconstruction config")
+    try:
+        return ReconstructionConfig.model_validate(raw)
+    except ValidationError as exc:
+        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"{path}: invalid reconstruction config:\n{lines}") from None
+
+
+def check_out_dir(sample: Path, out: Path) -> None:
+    """Refuse a run folder that would write into the run's own inputs (the sample folder itself,
+    or anything inside its pass stores, ground truth or manifest), one that is a file or cannot
+    be written, and an existing folder of someone else's files. ValueError naming the folder."""
+    sample, out = Path(sample).resolve(), Path(out).resolve()
+    inputs = [sample / "passes", sample / "truth", sample / MANIFEST_NAME]
+    if out == sample or any(out == p or p in out.parents for p in inputs):
+        raise ValueError(f"--out {out}: inside the sample {sample}'s own inputs (its passes, truth or "
+                         "manifest); a run must not write into what it reads: give a folder outside them")
+    if out.is_dir() and not (out / audit.TRAIL).is_file():
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in RUN_FOLDER_ENTRIES and not p.name.startswith("."))
+        if foreign:
+            raise ValueError(f"--out {out}: holds {len(foreign)} thing(s) that are not a weldrecon run's "
+                             f"({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''}) and no audit trail; "
+                             "give a new or empty folder, or an earlier run's folder")
+    check_can_create(out, f"--out {out}", hint="give --out a folder you can write (without --out, the run folder is "
+                                               "made beside the sample)")
+
+
+def trail_problems(out: Path, trail_head: str | None) -> list[str]:
+    """What is wrong with the folder's trail before a run appends to it (chain, stage folders and
+    results no entry records, the head kept outside it), short of re-hashing the artefacts: a run
+    appending to a trail that was cut or edited must not make it verify again. A killed run's
+    missing end and a damaged tail (set aside and recorded by the next write) are left out."""
+    if not (out / audit.TRAIL).is_file():
+        return [f"the trail holds no entry with hash {trail_head[:12]}…, which the catalog recorded (the trail "
+                "is gone)"] if trail_head else []
+    heads = {trail_head: "the catalog"} if trail_head else None
+    return [str(p) for p in audit.verify_trail(out, artefacts=False, heads=heads)
+            if not p.what.startswith(("unreadable", "the last run has no run-finished"))]
+
+
+def check_run_folder(out: Path, sample_id: str) -> None:
+    """Refuse a run folder that holds another sample's runs (its audit trail's run-started entries
+    name another sample id): a renamed sample, or a reused ``--out``, would replace that sample's
+    published results and mix two samples in one trail. ValueError naming both."""
+    try:
+        entries = audit.read_trail(out)
+    except FileNotFoundError:
+        return
+    others = sorted({str(e["sample_id"]) for e in entries if e.get("kind") == "run-started" and e.get("sample_id")}
+                    - {sample_id})
+    if others:
+        raise ValueError(f"--out {out}: holds the runs of sample {', '.join(others)} (its audit trail), not of "
+                         f"{sample_id}; a run folder belongs to one sample (was the sample renamed, or its folder "
+                         "reused?): give another --out")
+
+
+def check_dask_scheduler(address: str, timeout_s: float = 5.0) -> None:
+    """A Dask scheduler address (``tcp://host:port`` or ``host:port``) that answers; ValueError
+    naming it and why not (before any work, instead of a client's traceback after a long wait)."""
+    import socket
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(address if "://" in address else f"tcp://{address}")
+    try:
+        host, port = parts.hostname, parts.port or 8786
+    except ValueError as exc:  # a port that is not a number
+        raise ValueError(f"dask {address!r}: not a scheduler address ({exc}); expected tcp://host:port or local:N") from None
+    if parts.scheme != "tcp" or not host:
+        raise ValueError(f"dask {address!r}: not a scheduler address; expected tcp://host:port or local:N")
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"dask {address!r}: no Dask scheduler answers at {host}:{port} ({exc.strerror or exc}); "
+                         "start one (dask scheduler) or give local:N for worker processes here") from None
+
+
+def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s: float = 0.5) -> None:
+    """Wait until ``path`` exists (and ``ready(path)`` holds, when given); TimeoutError naming
+    ``what`` after ``timeout_s`` seconds."""
+    deadline = time.monotonic() + timeout_s
+    while not (path.exists() and (ready is None or ready(path))):
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: {path} did not appear (complete) within {timeout_s:g} s")
+        time.sleep(poll_s)
