@@ -186,8 +186,16 @@ def read_trail(run_dir: Path) -> list[dict[str, Any]]:
 
 @dataclass(frozen=True)
 class AuditProblem:
-    where: str  # "trail line 7 (seq 6)" or an artefact path
+    """One thing wrong with a run folder's trail or artefacts: ``where`` ("trail line 7 (seq 6)" or
+    an artefact path), ``what`` (for people), ``kind`` (for programs): "unreadable" (a damaged
+    line), "sequence", "edited", "chain", "found-earlier" (recorded by a run in a
+    trail-problems-found entry), "unfinished-run" (the last run has no end: running, killed or
+    cut), "unrecorded" (a stage output or result no entry records), "head-missing" (an anchor
+    kept outside is not in the trail), "artefact-missing", "artefact-changed"."""
+
+    where: str
     what: str
+    kind: str
 
     def __str__(self) -> str:
         return f"{self.where}: {self.what}"
@@ -208,13 +216,13 @@ def _unrecorded(run_dir: Path, expected: dict[str, Any]) -> list[AuditProblem]:
         rel = folder.relative_to(run_dir).as_posix()
         if folder.is_dir() and not folder.name.startswith(".") and rel not in recorded_folders:
             problems.append(AuditProblem(rel, "no trail entry records this stage output (the trail was cut "
-                                              "short, or the folder was put there)"))
+                                              "short, or the folder was put there)", "unrecorded"))
     results = run_dir / "results"
     for path in sorted(results.iterdir()) if results.is_dir() else []:
         rel = path.relative_to(run_dir).as_posix()
         if not path.name.startswith(".") and rel not in expected:
             problems.append(AuditProblem(rel, "no run-finished entry records this result (the trail was cut "
-                                              "short, or the file was put there)"))
+                                              "short, or the file was put there)", "unrecorded"))
     return problems
 
 
@@ -249,21 +257,21 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True, heads: dict[str, str]
     for number, entry in enumerate(entries, start=1):
         where = f"trail line {number}"
         if "_unreadable" in entry:
-            problems.append(AuditProblem(where, f"unreadable ({entry['_unreadable']})"))
+            problems.append(AuditProblem(where, f"unreadable ({entry['_unreadable']})", "unreadable"))
             prev = None
             continue
         where = f"trail line {number} (seq {entry.get('seq')}, {entry.get('kind')})"
         if entry.get("seq") != number - 1:
             problems.append(AuditProblem(where, f"sequence number {entry.get('seq')}, expected {number - 1} "
-                                                "(a line was removed, inserted or moved)"))
+                                                "(a line was removed, inserted or moved)", "sequence"))
         if _digest(entry) != entry.get("hash"):
-            problems.append(AuditProblem(where, "its content does not match its hash (the entry was edited)"))
+            problems.append(AuditProblem(where, "its content does not match its hash (the entry was edited)", "edited"))
         if prev is not None and entry.get("prev") != prev:
             problems.append(AuditProblem(where, "does not chain to the entry before it (an entry before it "
-                                                "was edited, removed or reordered)"))
+                                                "was edited, removed or reordered)", "chain"))
         prev = entry.get("hash")
         if entry.get("kind") == PROBLEMS_FOUND:  # never made whole again by later entries
-            problems += [AuditProblem(where, f"a run found the trail not intact before it: {found}")
+            problems += [AuditProblem(where, f"a run found the trail not intact before it: {found}", "found-earlier")
                          for found in entry.get("problems") or ["(no detail)"]]
         for rel, digest in _artefacts(entry).items():
             expected[rel] = (digest, number)
@@ -271,22 +279,24 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True, heads: dict[str, str]
             if e.get("kind") in ("run-started", "run-finished", "run-failed")]
     if runs and runs[-1][1] == "run-started":
         problems.append(AuditProblem(f"trail line {runs[-1][0]} (run-started)", "the last run has no run-finished or "
-                                     "run-failed entry (it is still running, it was killed, or the trail was cut)"))
+                                     "run-failed entry (it is still running, it was killed, or the trail was cut)",
+                                     "unfinished-run"))
     problems += _unrecorded(run_dir, expected)
     held = {e.get("hash"): n for n, e in enumerate(entries, start=1)}
     for digest, source in (heads or {}).items():
         if digest not in held:
             problems.append(AuditProblem("trail", f"holds no entry with hash {digest[:12]}…, which {source} recorded "
-                                                  "(the trail was cut short, or rewritten and chained anew)"))
+                                                  "(the trail was cut short, or rewritten and chained anew)",
+                                         "head-missing"))
     if artefacts:
         for rel, (digest, number) in sorted(expected.items()):
             path = run_dir / rel
             try:
                 actual = sha256_tree(path)
             except FileNotFoundError:
-                problems.append(AuditProblem(rel, f"missing (recorded at trail line {number})"))
+                problems.append(AuditProblem(rel, f"missing (recorded at trail line {number})", "artefact-missing"))
                 continue
             if actual != digest:
                 problems.append(AuditProblem(rel, f"content changed: sha256 {actual[:12]}…, the trail (line {number}) "
-                                                  f"recorded {digest[:12]}…"))
+                                                  f"recorded {digest[:12]}…", "artefact-changed"))
     return problems

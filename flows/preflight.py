@@ -63,7 +63,7 @@ def trail_problems(out: Path, trail_head: str | None) -> list[str]:
                 "is gone)"] if trail_head else []
     heads = {trail_head: "the catalog"} if trail_head else None
     return [str(p) for p in audit.verify_trail(out, artefacts=False, heads=heads)
-            if not p.what.startswith(("unreadable", "the last run has no run-finished"))]
+            if p.kind not in ("unreadable", "unfinished-run")]
 
 
 def check_run_folder(out: Path, sample_id: str) -> None:

@@ -100,3 +100,19 @@ def test_entries_are_whole_lines_of_json(tmp_path):
     raw = (run / TRAIL).read_bytes()
     assert raw.endswith(b"\n") and all(json.loads(line)["hash"] for line in raw.splitlines())
     assert os.stat(run / TRAIL).st_size == len(raw)
+
+
+def test_each_problem_carries_a_kind_that_programs_can_rely_on(tmp_path):
+    """Programs (a rerun deciding what to record) read a problem's kind, never its wording."""
+    run = _trail(tmp_path, 4)
+    audit.append(run, "run-started", sample_id="s")
+    path = run / TRAIL
+    lines = path.read_bytes().splitlines(keepends=True)
+    edited = json.loads(lines[1])
+    edited["item"] = "p9"  # an edited entry (its hash no longer matches)
+    lines[1] = (json.dumps(edited) + "\n").encode()
+    del lines[2]  # a removed entry (sequence and chain broken)
+    path.write_bytes(b"".join(lines))
+    (run / "stages" / "mesh" / "abc").mkdir(parents=True)  # a stage folder no entry records
+    kinds = sorted({p.kind for p in verify_trail(run, heads={"0" * 64: "the catalog"})})
+    assert kinds == ["chain", "edited", "head-missing", "sequence", "unfinished-run", "unrecorded"]
