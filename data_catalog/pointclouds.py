@@ -28,7 +28,7 @@ import pypcd4
 from pye57.utils import convert_spherical_to_cartesian
 
 __all__ = ["UNITS_TO_MM", "POINT_CLOUD_SUFFIXES", "PointCloudFormatError", "ScanCloud", "read_point_clouds",
-           "read_point_cloud"]
+           "read_point_cloud", "read_conf_poses"]
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 _ASCII = (".xyz", ".csv", ".txt")
@@ -396,3 +396,50 @@ def _line_problem(tokens: list[str], columns: int | None) -> tuple[str | None, i
     except ValueError:
         return "expected numbers", len(tokens)
     return None, len(tokens)
+
+
+def read_conf_poses(path: str | Path, *, units: str) -> dict[str, np.ndarray]:
+    """The scan poses of a Stanford/scanalyze ``.conf`` file: each ``bmesh FILE tx ty tz qx qy qz qw``
+    line -> ``{FILE: T_world_scan}`` ((4, 4) float64, mm); ``camera`` and other lines are ignored.
+
+    The rotation is the *transpose* of the unit quaternion's matrix (scalar last), the translation
+    added after it: ``p_world = R(q)^T p_scan + t``. Checked against the bunny's data (the median
+    distance of each scan's points to the lab's ``bun_zipper.ply``, bun000 the identity): 0.05-0.07
+    mm for all ten scans read this way; 16-129 mm for nine of them with ``R(q) p + t`` (bun180,
+    turned ~180 deg about y, fits either way); 16-220 mm with ``R(q)^T (p - t)`` or ``R(q) (p + t)``;
+    over 20 mm for all but bun000 with the scalar first (scanalyze keeps the matrix for OpenGL,
+    column-major: read row-major it is the transpose). ``units``: of the translations, as for
+    read_point_cloud. PointCloudFormatError naming the line for a malformed one."""
+    path = Path(path)
+    if units not in UNITS_TO_MM:
+        raise ValueError(f"{path}: units must be one of {sorted(UNITS_TO_MM)}, got {units!r}")
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise PointCloudFormatError(f"{path}: not a text .conf file: {_library_text(exc)}") from exc
+    poses: dict[str, np.ndarray] = {}
+    for number, line in enumerate(lines, start=1):
+        fields = line.split()
+        if not fields or fields[0] != "bmesh":
+            continue
+        try:
+            values = np.array(fields[2:9], dtype=np.float64)
+        except ValueError:
+            values = np.zeros(0)
+        norm = float(np.linalg.norm(values[3:])) if len(values) == 7 else 0.0
+        if len(fields) != 9 or not np.isfinite(values).all() or abs(norm - 1.0) > 1e-3:
+            raise PointCloudFormatError(f"{path}: line {number}: expected 'bmesh FILE tx ty tz qx qy qz qw' with a "
+                                        f"unit quaternion, got {line.strip()[:100]!r}")
+        if fields[1] in poses:
+            raise PointCloudFormatError(f"{path}: line {number}: {fields[1]} has a pose already, expected one each")
+        x, y, z, w = values[3:] / norm
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                      [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+        T = np.eye(4)
+        T[:3, :3] = R.T
+        T[:3, 3] = values[:3] * UNITS_TO_MM[units]
+        poses[fields[1]] = T
+    if not poses:
+        raise PointCloudFormatError(f"{path}: no 'bmesh FILE tx ty tz qx qy qz qw' line, expected one per scan")
+    return poses

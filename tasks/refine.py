@@ -33,7 +33,12 @@ from scipy.spatial.transform import Rotation
 
 from tasks.checks import check_points
 
-__all__ = ["SurfaceSample", "RefineResult", "surface_sample", "refine_poses"]
+__all__ = ["NothingToRefine", "SurfaceSample", "RefineResult", "surface_sample", "refine_poses"]
+
+
+class NothingToRefine(ValueError):
+    """An iteration of ``refine_poses`` found no residual at all: no target pairs, and no two
+    passes with 50 or more surface correspondences within the gate."""
 
 
 @dataclass(frozen=True)
@@ -41,12 +46,16 @@ class SurfaceSample:
     """One pass's surface in the pass's own (coarse) frame: ``points_mm`` (m, 3), a thinned set
     with unit ``normals`` (m, 3), matched against the other passes; ``dense_mm`` (k, 3) all its
     points, which the other passes are matched against; ``tree`` a k-d tree of ``dense_mm``
-    (built here when not given)."""
+    (built here when not given); ``view_direction`` (3,) toward the sensor, or None. Normals are
+    turned toward a pass's view direction, and where both passes of a pair have one, a match
+    needs ``n_a . n_b >= min_normal_cos``: the front and back of a thin part (an ear, a sheet)
+    never match, which unoriented normals (``|n_a . n_b|``, None) allow within the gate."""
 
     points_mm: np.ndarray
     normals: np.ndarray
     dense_mm: np.ndarray
     tree: cKDTree | None = None
+    view_direction: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.tree is None and len(self.dense_mm):
@@ -68,17 +77,22 @@ class RefineResult:
 
 
 def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: float,
-                   neighbours: int, max_plane_rms_mm: float) -> SurfaceSample:
+                   neighbours: int, max_plane_rms_mm: float, view_direction: np.ndarray | None = None) -> SurfaceSample:
     """Thin a pass's points ((..., 3); NaN rows where nothing was measured) to the first point in
     each ``spacing_mm`` cube, with a normal from the plane through its ``neighbours`` nearest
     points of the whole pass (PCA); points whose neighbours reach beyond ``normal_radius_mm``
     (edges, stray points) are dropped, and so are points whose neighbours stray from their plane
     by more than ``max_plane_rms_mm`` (RMS): on a curved patch (a weld toe) a point-to-plane
-    distance is biased by the curvature, and that bias would steer the poses."""
+    distance is biased by the curvature, and that bias would steer the poses. ``view_direction``
+    (3,), toward the sensor in the pass's frame: the normals are oriented (see SurfaceSample)."""
+    if view_direction is not None:
+        view_direction = np.asarray(view_direction, dtype=np.float64)
+        if view_direction.shape != (3,) or not np.isfinite(view_direction).all() or not np.any(view_direction):
+            raise ValueError(f"view_direction must be a finite non-zero (3,) vector, got {view_direction!r}")
     pts = np.asarray(grid_mm, dtype=np.float64).reshape(-1, 3)
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) < neighbours:
-        return SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), pts)
+        return SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), pts, view_direction=view_direction)
     cells = np.floor(pts / spacing_mm).astype(np.int64)
     _, first = np.unique(cells, axis=0, return_index=True)
     first = np.sort(first)
@@ -86,7 +100,10 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     planes = _planes_at(pts, tree, first, neighbours)
     # a full neighbourhood close by (not an edge or a lone point), and a flat one
     keep = (planes[:, 6] <= normal_radius_mm) & (planes[:, 7] <= max_plane_rms_mm)
-    return SurfaceSample(pts[first[keep]], planes[keep, 3:6], pts, tree)
+    normals = planes[keep, 3:6]
+    if view_direction is not None:
+        normals = normals * np.where(normals @ view_direction < 0, -1.0, 1.0)[:, None]
+    return SurfaceSample(pts[first[keep]], normals, pts, tree, view_direction)
 
 
 def _planes_at(dense: np.ndarray, tree: cKDTree, idx: np.ndarray, k: int) -> np.ndarray:
@@ -164,6 +181,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     ``neighbour_mm`` and within ``max_plane_rms_mm`` of their plane, with a normal within
     ``acos(min_normal_cos)`` of the source point's; each pair contributes at most
     ``max_points_per_pair`` per direction. Returns the refined poses; pass ``fixed`` does not move.
+    Raises ``NothingToRefine`` (a ValueError) when an iteration finds no residual at all.
     """
     n = len(samples)
     T = np.array(T_common_pass, dtype=np.float64)
@@ -191,6 +209,8 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
         todo = np.unique(idx[np.isnan(cache[k][idx, 0])])
         if len(todo):
             cache[k][todo] = _planes_at(samples[k].dense_mm, trees[k], todo, normal_neighbours)
+            if samples[k].view_direction is not None:  # oriented toward the pass's sensor
+                cache[k][todo, 3:6] *= np.where(cache[k][todo, 3:6] @ samples[k].view_direction < 0, -1.0, 1.0)[:, None]
         return cache[k][idx]
 
     steps: list[float] = []
@@ -219,7 +239,10 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             plane = planes(b, idx[src_idx])
             n_b, reach, plane_rms = plane[:, 3:6], plane[:, 6], plane[:, 7]
             n_a_in_b = sa.normals[src_idx] @ T_b_a[:3, :3].T
-            ok = ((np.abs(np.einsum("ij,ij->i", n_a_in_b, n_b)) >= min_normal_cos) & (reach <= neighbour_mm)
+            cos = np.einsum("ij,ij->i", n_a_in_b, n_b)
+            if sa.view_direction is None or samples[b].view_direction is None:
+                cos = np.abs(cos)  # unoriented normals
+            ok = ((cos >= min_normal_cos) & (reach <= neighbour_mm)
                   & (plane_rms <= max_plane_rms_mm))
             src_idx, n_b, q_b = src_idx[ok], n_b[ok], plane[ok, :3]
             P = _apply(T[a], sa.points_mm[src_idx]) - centre
@@ -248,6 +271,9 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             rows_j.append(J.reshape(-1, 12))
             rows_r.append(r.reshape(-1))
             blocks_ab.append(np.repeat(edge_passes, 3, axis=0))
+        if not rows_j:
+            raise NothingToRefine(f"nothing to refine: no target pairs, and no two passes with 50 or more surface "
+                                  f"correspondences within {gate:.3g} mm")
         J = np.concatenate(rows_j)
         res = np.concatenate(rows_r)
         ab = np.concatenate(blocks_ab)

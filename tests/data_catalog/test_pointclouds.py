@@ -21,7 +21,8 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.spatial.transform import Rotation
 
-from data_catalog.pointclouds import PointCloudFormatError, ScanCloud, read_point_cloud, read_point_clouds
+from data_catalog.pointclouds import (PointCloudFormatError, ScanCloud, read_conf_poses, read_point_cloud,
+                                      read_point_clouds)
 
 BUNNY = Path(__file__).resolve().parents[3] / "shared" / "data" / "stanford-bunny" / "bun000.ply"
 FLOAT32_MM = 1e-4  # float32 at 200 mm
@@ -347,3 +348,46 @@ def test_bad_range_grids(tmp_path):
     _refused(_write_range_grid(tmp_path / "info.ply", [[0], [1], [2], [3], [], []], obj_info=("num_cols 3",)),
              "needs 'obj_info num_rows N'", "found num_rows ''")
     _refused(_write_range_grid(tmp_path / "twice.ply", [[0], [0], [1], [2], [3], []]), "more than one cell")
+
+
+def test_conf_poses_follow_scanalyzes_convention(tmp_path):
+    """``bmesh FILE t q``: p_world = R(q)^T p + t (the transpose: scanalyze keeps OpenGL's column-major
+    matrix), quaternion scalar last, translations in the unit given; the bunny's own file reads."""
+    q = Rotation.from_euler("xyz", [10.0, -20.0, 30.0], degrees=True)
+    x, y, z, w = q.as_quat()
+    conf = tmp_path / "scans.conf"
+    conf.write_text(f"camera 0 0 0 0 0 0 1\nbmesh a.ply 0.1 -0.2 0.3 {x} {y} {z} {w}\n\nbmesh b.ply 0 0 0 0 0 0 1\n")
+    poses = read_conf_poses(conf, units="m")
+    assert list(poses) == ["a.ply", "b.ply"]
+    assert_allclose(poses["a.ply"][:3, :3], q.as_matrix().T, atol=1e-12)
+    assert_allclose(poses["a.ply"][:3, 3], [100.0, -200.0, 300.0], atol=1e-9)
+    assert_array_equal(poses["b.ply"], np.eye(4))
+    if BUNNY.is_file():
+        bunny = read_conf_poses(BUNNY.with_name("bun.conf"), units="m")
+        assert len(bunny) == 10
+        assert_array_equal(bunny["bun000.ply"], np.eye(4))
+
+
+@pytest.mark.parametrize("line, problem", [
+    ("bmesh a.ply 0 0 0 0 0 0", "expected 'bmesh FILE tx ty tz qx qy qz qw'"),
+    ("bmesh a.ply 0 0 zero 0 0 0 1", "expected 'bmesh FILE tx ty tz qx qy qz qw'"),
+    ("bmesh a.ply 0 0 0 0 0 0 2", "with a unit quaternion"),
+    ("bmesh a.ply 0 0 0 0 0 0 nan", "with a unit quaternion"),
+])
+def test_a_malformed_conf_line_is_named(tmp_path, line, problem):
+    conf = tmp_path / "scans.conf"
+    conf.write_text(f"camera 0 0 0 0 0 0 1\n{line}\n")
+    with pytest.raises(PointCloudFormatError, match=f"{conf}: line 2: .*{problem}"):
+        read_conf_poses(conf, units="m")
+
+
+def test_a_conf_without_poses_or_with_a_scan_twice_is_refused(tmp_path):
+    conf = tmp_path / "scans.conf"
+    conf.write_text("camera 0 0 0 0 0 0 1\n")
+    with pytest.raises(PointCloudFormatError, match="no 'bmesh FILE tx ty tz qx qy qz qw' line"):
+        read_conf_poses(conf, units="m")
+    conf.write_text("bmesh a.ply 0 0 0 0 0 0 1\nbmesh a.ply 0 0 0 0 0 0 1\n")
+    with pytest.raises(PointCloudFormatError, match="line 2: a.ply has a pose already"):
+        read_conf_poses(conf, units="m")
+    with pytest.raises(ValueError, match="units must be one of"):
+        read_conf_poses(conf, units="furlong")
