@@ -37,6 +37,9 @@ class RegistrationConfig(StrictModel):
     min_common_targets: int = Field(default=3, ge=3)
     max_offset_mm: float = Field(default=3.0, gt=0, le=100, description="coarse alignment error bound")
     tolerance_mm: float = Field(default=0.3, gt=0, le=5)
+    min_setup_targets: int = Field(default=4, ge=3, le=100, description=(
+        "targets a turned setup's match to the first must bring together: any 3 stickers whose "
+        "distances agree fit some rigid motion, so 3 is no evidence"))
 
 
 class RefineConfig(StrictModel):

@@ -40,6 +40,9 @@ class PassRegistration:
     track_positions_mm: np.ndarray
     specimen_track: np.ndarray  # (tracks,) bool
     T_first_setup: dict[str, np.ndarray] = field(default_factory=dict)
+    # per later setup, the evidence of its match to the first: (targets brought together, the most
+    # a clearly different transform brought together)
+    setup_evidence: dict[str, tuple[int, int]] = field(default_factory=dict)
 
 
 class _UnionFind:
@@ -82,18 +85,22 @@ def _edges(targets, idx_pairs):
 
 
 def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
-                    min_common: int, max_offset_mm: float, tolerance_mm: float) -> PassRegistration:
+                    min_common: int, max_offset_mm: float, tolerance_mm: float,
+                    min_setup_targets: int = 4) -> PassRegistration:
     """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
     setups: per pass its setup name. The first pass is held fixed. A RegistrationError carries
-    the pass pairs that matched fewer than ``min_common`` targets."""
+    the pass pairs that matched fewer than ``min_common`` targets; a ValueError names a setup whose
+    match to the first is not decided by ``min_setup_targets`` or more targets, or is ambiguous
+    (tasks.matching.match_rotation_invariant)."""
     weak: list[PairReport] = []
     try:
-        return _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak)
+        return _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak, min_setup_targets)
     except RegistrationError as exc:
         raise RegistrationError(str(exc), exc.unregistered, weak) from None
 
 
-def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak) -> PassRegistration:
+def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak,
+              min_setup_targets=4) -> PassRegistration:
     n = len(targets)
     if len(setups) != n:
         raise ValueError("targets and setups must have one entry per pass")
@@ -134,16 +141,19 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
     track_setup = [setups[tr[0][0]] for tr in tracks]
     cross = []
     T_first_setup = {setup_names[0]: np.eye(4)}
+    evidence: dict[str, tuple[int, int]] = {}
     for s in setup_names[1:]:
         ta = [k for k, ts in enumerate(track_setup) if ts == setup_names[0]]
         tb = [k for k, ts in enumerate(track_setup) if ts == s]
         try:
             rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5),
-                                          min_shared=2)
+                                          min_shared=2, min_inliers=min_setup_targets)
         except ValueError as exc:
             raise ValueError(f"setups {setup_names[0]} and {s} ({len(ta)} and {len(tb)} targets): {exc}; the specimen "
-                             "must show 3 or more stickers, not on one line, to passes of both setups") from None
+                             f"must show {min_setup_targets} or more stickers, not on one line, to passes of both "
+                             "setups (registration.min_setup_targets)") from None
         T_first_setup[s] = rm.T_a_b
+        evidence[s] = (len(rm.pairs), rm.runner_up)
         for k in range(n):
             if setups[k] == s:
                 T_initial[k] = rm.T_a_b @ T_initial[k]
@@ -171,4 +181,4 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
                                for p, t in tr], axis=0) for tr in tracks]).reshape(-1, 3)
     return PassRegistration(T_common_pass=result.T_common_initial, result=result, graph=graph, pairs=reports,
                             weak_pairs=weak, tracks=tracks, track_positions_mm=final, specimen_track=specimen,
-                            T_first_setup=T_first_setup)
+                            T_first_setup=T_first_setup, setup_evidence=evidence)

@@ -5,7 +5,11 @@ paper's two steps apply: (a) a target whose list of distances to the pass's othe
 no counterpart in the other pass is omitted; (b) the remaining candidates are paired by the
 translation that most candidate pairs agree on. Between setups (turned by hand, no pose
 relation) the same distance lists, being rotation invariant, propose correspondences, and the
-rigid transform that the most of them agree on (RANSAC over triples, Kabsch) decides.
+rigid transform that the most of them agree on (RANSAC over triples, Kabsch) decides, on
+evidence: three stickers whose distances agree fit *some* rigid motion whatever they are, so a
+match needs ``min_inliers`` (4) targets brought together, and a clearly different transform that
+brings nearly as many together makes the match ambiguous: refused, with both figures named,
+never guessed (a part whose shared stickers lie nearly on a line, a decoy triangle elsewhere).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PairMatch", "match_by_translation", "RigidMatch", "match_rotation_invariant", "kabsch"]
+__all__ = ["PairMatch", "match_by_translation", "RigidMatch", "AmbiguousMatch", "match_rotation_invariant", "kabsch"]
 
 
 @dataclass(frozen=True)
@@ -95,22 +99,43 @@ def match_by_translation(a_mm: np.ndarray, b_mm: np.ndarray, *, max_offset_mm: f
 
 @dataclass(frozen=True)
 class RigidMatch:
-    """Index pairs (k, 2) into A and B and the transform T_a_b (4, 4) mapping B onto A."""
+    """Index pairs (k, 2) into A and B and the transform T_a_b (4, 4) mapping B onto A;
+    ``runner_up``: how many targets the best clearly different transform brought together (0: none
+    was found), the evidence that this one is not a chance agreement."""
 
     pairs: np.ndarray
     T_a_b: np.ndarray
     rms_mm: float
+    runner_up: int = 0
+
+
+class AmbiguousMatch(ValueError):
+    """The target sets do not decide one rigid transform: too few targets agree with the best, or a
+    clearly different transform is nearly as well supported; the message gives the figures."""
+
+
+def _differ(T1: np.ndarray, T2: np.ndarray, at: np.ndarray, *, deg: float, mm: float) -> bool:
+    """Whether two transforms differ by more than ``deg`` or move the points ``at`` (k, 3) more than ``mm``."""
+    cos = (np.trace(T1[:3, :3].T @ T2[:3, :3]) - 1.0) / 2.0
+    moved = np.linalg.norm(at @ (T1[:3, :3] - T2[:3, :3]).T + (T1[:3, 3] - T2[:3, 3]), axis=1)
+    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > deg or moved.max(initial=0.0) > mm)
 
 
 def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm: float = 0.2,
                              min_shared: int = 2, neighbourhood_mm: float = 120.0, per_target: int = 3,
-                             iterations: int = 4000, seed: int = 0) -> RigidMatch:
+                             iterations: int = 4000, seed: int = 0, min_inliers: int = 4,
+                             max_runner_up_ratio: float = 0.75, distinct_deg: float = 2.0,
+                             distinct_mm: float = 2.0) -> RigidMatch:
     """Match two target sets (n, 3), (m, 3) with no pose relation between them.
 
     Each target's distances to its neighbours (up to ``neighbourhood_mm``) are compared; every
     target keeps its ``per_target`` best-scoring partners as candidates; triples of candidates
     whose mutual distances agree in both sets propose rigid transforms (Kabsch), at most
-    ``iterations`` of them, and the one most targets agree with wins.
+    ``iterations`` of them, and the one most targets agree with wins, on two conditions, else
+    AmbiguousMatch with the figures: it brings ``min_inliers`` or more targets together (any
+    three with agreeing distances fit some rigid motion), and no transform differing from it by
+    more than ``distinct_deg`` or ``distinct_mm`` (at the matched targets) brings together
+    ``max_runner_up_ratio`` of its count or more (``RigidMatch.runner_up`` keeps that count).
     """
     a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
     sig_a, sig_b = _distance_signatures(a, neighbourhood_mm), _distance_signatures(b, neighbourhood_mm)
@@ -131,6 +156,7 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     ca, cb = a[cand[:, 0]], b[cand[:, 1]]
     tree_a = cKDTree(a)
     best_pairs = np.zeros((0, 2), int)
+    hypotheses: list[tuple[int, np.ndarray]] = []  # (targets brought together, T) of every transform tried
     tries = 0
     for s1 in range(min(len(cand), 150)):
         d1 = np.abs(np.linalg.norm(ca - ca[s1], axis=1) - np.linalg.norm(cb - cb[s1], axis=1))
@@ -152,6 +178,7 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                 T = kabsch(src, dst)
                 dist, idx = tree_a.query(b @ T[:3, :3].T + T[:3, 3], distance_upper_bound=tolerance_mm)
                 inl = np.flatnonzero(np.isfinite(dist))
+                hypotheses.append((len(inl), T))
                 if len(inl) > len(best_pairs):
                     best_pairs = np.column_stack([idx[inl], inl])
                 if tries >= iterations:
@@ -161,8 +188,19 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
         if tries >= iterations:
             break
     if len(best_pairs) < 3:
-        raise ValueError("no rigid transform brings 3 targets of the two sets together")
+        raise AmbiguousMatch("no rigid transform brings 3 targets of the two sets together")
+    if len(best_pairs) < min_inliers:
+        raise AmbiguousMatch(f"the best rigid transform brings only {len(best_pairs)} targets together, expected "
+                             f"{min_inliers} or more (any 3 stickers whose distances agree fit some rigid motion: "
+                             "no evidence)")
     T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])
-    moved = b[best_pairs[:, 1]] @ T[:3, :3].T + T[:3, 3]
+    at = b[best_pairs[:, 1]]
+    runner_up = max((count for count, other in hypotheses
+                     if _differ(T, other, at, deg=distinct_deg, mm=distinct_mm)), default=0)
+    if runner_up >= max_runner_up_ratio * len(best_pairs):
+        raise AmbiguousMatch(f"ambiguous: the best rigid transform brings {len(best_pairs)} targets together, a "
+                             f"clearly different one {runner_up} (more than {distinct_deg:g} deg or {distinct_mm:g} mm "
+                             f"apart; expected at most {max_runner_up_ratio:g} of the best's)")
+    moved = at @ T[:3, :3].T + T[:3, 3]
     rms = float(np.sqrt(np.mean(np.sum((moved - a[best_pairs[:, 0]]) ** 2, axis=1))))
-    return RigidMatch(pairs=best_pairs[np.argsort(best_pairs[:, 0])], T_a_b=T, rms_mm=rms)
+    return RigidMatch(pairs=best_pairs[np.argsort(best_pairs[:, 0])], T_a_b=T, rms_mm=rms, runner_up=runner_up)

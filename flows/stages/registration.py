@@ -27,7 +27,8 @@ def register(ctx) -> dict[str, Any]:
     targets = [TARGETS.open(r).centres for r in ctx.inputs["targets"]]
     try:
         reg = register_passes(targets, setups, names=names, min_common=rc.min_common_targets,
-                              max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm)
+                              max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm,
+                              min_setup_targets=rc.min_setup_targets)
     except RegistrationError as exc:
         weak = [f"{names[p.pass_a]}|{names[p.pass_b]} ({p.n_common})" for p in exc.weak_pairs]
         raise RegistrationError(f"{exc}; overlapping pass pairs with fewer than {rc.min_common_targets} common "
@@ -44,6 +45,10 @@ def register(ctx) -> dict[str, Any]:
         "pairs_below_min_common": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common}
                                    for p in reg.weak_pairs],
         "pass_rms_mm": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
+        # why each turned setup's match is not a chance agreement: the targets it brought together
+        # against the most a clearly different transform did (the fixture's, staying put, or none)
+        "between_setups": [{"a": setups[0], "b": s, "targets": n, "runner_up": r}
+                           for s, (n, r) in reg.setup_evidence.items()],
     })
     res = reg.result.residual_mm[reg.result.inlier]
     return {"target_pairs": int(reg.result.inlier.sum()), "outlier_pairs": int((~reg.result.inlier).sum()),

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from schemas.reconstruction import RegistrationConfig
 from tasks.graph import register_passes
-from tasks.matching import kabsch, match_by_translation, match_rotation_invariant
+from tasks.matching import AmbiguousMatch, kabsch, match_by_translation, match_rotation_invariant
 from tasks.registration import RegistrationError, RegistrationGraph, solve_pass_poses
 
 _CFG = RegistrationConfig()  # the pipeline's defaults
@@ -100,3 +100,54 @@ def test_graph_checks_its_shapes():
     g = RegistrationGraph(2, np.zeros((0, 2), int), np.zeros((0, 3)), np.zeros((0, 3)), np.repeat(np.eye(4)[None], 2, 0))
     with pytest.raises(ValueError, match="out of range"):
         solve_pass_poses(g, fixed=5)
+
+
+def _wall_and_decoy(rng, wall_height_mm: float):
+    """Two setups of a part turned over by hand: setup A sees 20 stickers on its top, setup B 20 on
+    its underside, and both see five on a side wall 12 mm high (nearly on a line when their height
+    spread is small). Elsewhere three unrelated stickers, one in each set, form the same triangle: a
+    decoy that a rigid motion fits exactly. Returns (a, b, T_a_b)."""
+    T = _pose([180, 0, 4], [3, -5, 25])
+    top = _stickers(rng, 20) + [0, 0, 6]
+    bottom = _stickers(rng, 20) + [0, 0, -6]
+    x = np.array([-120.0, -60.0, -5.0, 50.0, 110.0])
+    wall = np.column_stack([x, np.full(5, 41.0), rng.uniform(-wall_height_mm / 2, wall_height_mm / 2, 5)])
+    triangle = np.array([[0.0, 0.0, 0.0], [23.0, 0.0, 0.0], [7.0, 17.0, 0.0]])
+    # far from the other stickers (a fixture's corner, say), so their distances are theirs alone
+    decoy_a = _apply(_pose([0, 0, 30], [330, -30, 6]), triangle)
+    decoy_b = _apply(_pose([0, 0, -70], [-330, 30, -6]), triangle)  # in B's own frame: no relation to A's
+    noise = lambda n: rng.normal(0, 0.02, (n, 3))  # noqa: E731
+    a = np.concatenate([top, wall, decoy_a]) + noise(28)
+    b = np.concatenate([_apply(np.linalg.inv(T), np.concatenate([bottom, wall])), decoy_b]) + noise(28)
+    return a, b, T
+
+
+def test_stickers_nearly_on_a_line_and_a_decoy_triangle_are_refused_not_matched():
+    """Issue 11, item 5: the only stickers both setups see lie nearly on a line, so no triple of
+    them fixes the turn about it; the decoy triangle is the only exact fit. Before, the matcher
+    returned the decoy (3 targets) and the run went on with the setups 180 deg apart; now the
+    evidence is named."""
+    a, b, _ = _wall_and_decoy(np.random.default_rng(7), wall_height_mm=0.5)
+    with pytest.raises(AmbiguousMatch, match=r"brings only 3 targets together, expected 4 or more .*no evidence"):
+        match_rotation_invariant(a, b, tolerance_mm=0.5)
+
+
+def test_the_wall_stickers_are_matched_past_the_decoy_when_they_fix_the_turn():
+    a, b, T = _wall_and_decoy(np.random.default_rng(7), wall_height_mm=10.0)
+    m = match_rotation_invariant(a, b, tolerance_mm=0.5)
+    assert {(i, j) for i, j in m.pairs} == {(20 + k, 20 + k) for k in range(5)}  # the wall, not the decoy
+    assert_allclose(_apply(m.T_a_b, b[20:25]), a[20:25], atol=0.05)  # five stickers 10 mm high fix it there
+    assert m.runner_up <= 3  # the decoy
+
+
+def test_two_transforms_with_the_same_support_are_refused_as_ambiguous():
+    """Shared stickers symmetric under a half turn (a rectangle and its centre): the turned part and
+    the part turned once more fit equally well; which setup is which cannot be told from them."""
+    rng = np.random.default_rng(3)
+    shared = np.array([[-60.0, -20, 0], [60, -20, 0], [60, 20, 0], [-60, 20, 0], [0, 0, 0]])
+    T = _pose([180, 0, 0], [2, 3, 20])
+    a = np.concatenate([_stickers(rng, 10) + [0, 0, 50], shared])
+    b = _apply(np.linalg.inv(T), np.concatenate([shared, _stickers(rng, 10) - [0, 0, 50]]))
+    with pytest.raises(AmbiguousMatch, match=r"ambiguous: the best rigid transform brings 5 targets together, a "
+                                             r"clearly different one 5"):
+        match_rotation_invariant(a + rng.normal(0, 0.02, a.shape), b + rng.normal(0, 0.02, b.shape), tolerance_mm=0.5)
