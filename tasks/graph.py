@@ -86,7 +86,7 @@ def _edges(targets, idx_pairs):
 
 def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
                     min_common: int, max_offset_mm: float, tolerance_mm: float,
-                    min_setup_targets: int = 4) -> PassRegistration:
+                    min_setup_targets: int) -> PassRegistration:
     """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
     setups: per pass its setup name. The first pass is held fixed. A RegistrationError carries
     the pass pairs that matched fewer than ``min_common`` targets; a ValueError names a setup whose
@@ -100,7 +100,7 @@ def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list
 
 
 def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak,
-              min_setup_targets=4) -> PassRegistration:
+              min_setup_targets) -> PassRegistration:
     n = len(targets)
     if len(setups) != n:
         raise ValueError("targets and setups must have one entry per pass")

@@ -13,7 +13,8 @@ from tasks.matching import AmbiguousMatch, kabsch, match_by_translation, match_r
 from tasks.registration import RegistrationError, RegistrationGraph, solve_pass_poses
 
 _CFG = RegistrationConfig()  # the pipeline's defaults
-_SETTINGS = dict(min_common=_CFG.min_common_targets, max_offset_mm=_CFG.max_offset_mm, tolerance_mm=_CFG.tolerance_mm)
+_SETTINGS = dict(min_common=_CFG.min_common_targets, max_offset_mm=_CFG.max_offset_mm, tolerance_mm=_CFG.tolerance_mm,
+                 min_setup_targets=_CFG.min_setup_targets)
 
 
 def _pose(rotvec_deg, t):
