@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PairMatch", "match_by_translation", "RigidMatch", "AmbiguousMatch", "match_rotation_invariant", "kabsch"]
+__all__ = ["PairMatch", "match_by_translation", "RigidMatch", "AmbiguousMatch", "match_rotation_invariant", "kabsch",
+           "pose_difference"]
 
 
 @dataclass(frozen=True)
@@ -114,11 +115,12 @@ class AmbiguousMatch(ValueError):
     clearly different transform is nearly as well supported; the message gives the figures."""
 
 
-def _differ(T1: np.ndarray, T2: np.ndarray, at: np.ndarray, *, deg: float, mm: float) -> bool:
-    """Whether two transforms differ by more than ``deg`` or move the points ``at`` (k, 3) more than ``mm``."""
+def pose_difference(T1: np.ndarray, T2: np.ndarray, at: np.ndarray) -> tuple[float, float]:
+    """How far apart two rigid transforms (4, 4) are: the angle of the rotation between them (deg),
+    and the farthest they put any of the points ``at`` ((3,) or (k, 3), mm) apart (mm)."""
     cos = (np.trace(T1[:3, :3].T @ T2[:3, :3]) - 1.0) / 2.0
-    moved = np.linalg.norm(at @ (T1[:3, :3] - T2[:3, :3]).T + (T1[:3, 3] - T2[:3, 3]), axis=1)
-    return bool(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) > deg or moved.max(initial=0.0) > mm)
+    moved = np.linalg.norm(np.reshape(at, (-1, 3)) @ (T1[:3, :3] - T2[:3, :3]).T + (T1[:3, 3] - T2[:3, 3]), axis=1)
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))), float(moved.max(initial=0.0))
 
 
 def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm: float = 0.2,
@@ -195,8 +197,12 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                              "no evidence)")
     T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])
     at = b[best_pairs[:, 1]]
-    runner_up = max((count for count, other in hypotheses
-                     if _differ(T, other, at, deg=distinct_deg, mm=distinct_mm)), default=0)
+
+    def distinct(other: np.ndarray) -> bool:
+        degrees, mm = pose_difference(T, other, at)
+        return degrees > distinct_deg or mm > distinct_mm
+
+    runner_up = max((count for count, other in hypotheses if distinct(other)), default=0)
     if runner_up >= max_runner_up_ratio * len(best_pairs):
         raise AmbiguousMatch(f"ambiguous: the best rigid transform brings {len(best_pairs)} targets together, a "
                              f"clearly different one {runner_up} (more than {distinct_deg:g} deg or {distinct_mm:g} mm "

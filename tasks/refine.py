@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from tasks.checks import check_points
 
-__all__ = ["NothingToRefine", "SurfaceSample", "RefineResult", "surface_sample", "refine_poses"]
+__all__ = ["NothingToRefine", "SurfaceSample", "RefineResult", "orient_toward", "surface_sample", "refine_poses"]
 
 
 class NothingToRefine(ValueError):
@@ -76,6 +76,11 @@ class RefineResult:
     step_mm: list[float]
 
 
+def orient_toward(normals: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Unit normals (k, 3), each turned (sign flipped) to point toward ``direction`` (3,) (the sensor)."""
+    return normals * np.where(normals @ direction < 0, -1.0, 1.0)[:, None]
+
+
 def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: float,
                    neighbours: int, max_plane_rms_mm: float, view_direction: np.ndarray | None = None) -> SurfaceSample:
     """Thin a pass's points ((..., 3); NaN rows where nothing was measured) to the first point in
@@ -102,7 +107,7 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     keep = (planes[:, 6] <= normal_radius_mm) & (planes[:, 7] <= max_plane_rms_mm)
     normals = planes[keep, 3:6]
     if view_direction is not None:
-        normals = normals * np.where(normals @ view_direction < 0, -1.0, 1.0)[:, None]
+        normals = orient_toward(normals, view_direction)
     return SurfaceSample(pts[first[keep]], normals, pts, tree, view_direction)
 
 
@@ -210,7 +215,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
         if len(todo):
             cache[k][todo] = _planes_at(samples[k].dense_mm, trees[k], todo, normal_neighbours)
             if samples[k].view_direction is not None:  # oriented toward the pass's sensor
-                cache[k][todo, 3:6] *= np.where(cache[k][todo, 3:6] @ samples[k].view_direction < 0, -1.0, 1.0)[:, None]
+                cache[k][todo, 3:6] = orient_toward(cache[k][todo, 3:6], samples[k].view_direction)
         return cache[k][idx]
 
     steps: list[float] = []

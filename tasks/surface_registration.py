@@ -48,7 +48,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from tasks.checks import check_points
-from tasks.refine import NothingToRefine, RefineResult, SurfaceSample, refine_poses, surface_sample
+from tasks.matching import pose_difference
+from tasks.refine import NothingToRefine, RefineResult, SurfaceSample, orient_toward, refine_poses, surface_sample
 
 __all__ = ["ScanFeatures", "RefineOptions", "PairOptions", "PairRegistration", "ScanRegistration",
            "scan_features", "refine_scan_poses", "register_pair", "register_scans"]
@@ -200,7 +201,7 @@ def scan_features(points_mm: np.ndarray, *, view_direction: np.ndarray, voxel_mm
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(keys))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=2.0 * voxel_mm, max_nn=30))
     normals = np.asarray(cloud.normals).copy()
-    normals[normals @ view < 0] *= -1.0
+    normals = orient_toward(normals, view)
     cloud.normals = o3d.utility.Vector3dVector(normals)
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(
         cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel_mm, max_nn=100))
@@ -249,14 +250,8 @@ def _kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return T
 
 
-def _pose_difference(T1: np.ndarray, T2: np.ndarray, at: np.ndarray) -> tuple[float, float]:
-    """Rotation angle (deg) between two poses, and how far apart they put point ``at`` (mm)."""
-    angle = Rotation.from_matrix(T1[:3, :3].T @ T2[:3, :3]).magnitude()
-    return float(np.degrees(angle)), float(np.linalg.norm(T1[:3, :3] @ at + T1[:3, 3] - T2[:3, :3] @ at - T2[:3, 3]))
-
-
 def _distinct(T1: np.ndarray, T2: np.ndarray, at: np.ndarray, pair: PairOptions) -> bool:
-    degrees, mm = _pose_difference(T1, T2, at)
+    degrees, mm = pose_difference(T1, T2, at)
     return degrees > pair.distinct_deg or mm > pair.distinct_mm
 
 
@@ -381,7 +376,7 @@ def register_pair(source: ScanFeatures, target: ScanFeatures, *, pair: PairOptio
     runner = next((r for r in refined[1:] if r[1] <= pair.max_rms_mm and _distinct(T, r[2], centroid, pair)),
                   None)
     r_fit, r_rms = (runner[0], runner[1]) if runner else (0.0, np.nan)
-    r_deg, r_mm = _pose_difference(T, runner[2], centroid) if runner else (np.nan, np.nan)
+    r_deg, r_mm = pose_difference(T, runner[2], centroid) if runner else (np.nan, np.nan)
     problems = []
     if fitness < pair.min_fitness:
         problems.append(f"overlap {fitness:.3f} below {pair.min_fitness}")
