@@ -32,17 +32,20 @@ def ci_config():
     return preset_config("ci")
 
 
-@pytest.fixture(scope="session")
-def ci_run(ci_sample, tmp_path_factory):
-    """The ``ci`` sample reconstructed once (real Prefect engine, ci settings): (run folder, report)."""
+def _reconstructed(sample: Path, out: Path):
+    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report)."""
     import os
 
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import reconstruct_sample
 
-    out = tmp_path_factory.mktemp("recon") / "run"
-    report = reconstruct_sample(str(ci_sample), str(out), str(CI_CONFIG), started_by="pytest")
-    return out, report
+    return out, reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest")
+
+
+@pytest.fixture(scope="session")
+def ci_run(ci_sample, tmp_path_factory):
+    """The ``ci`` sample reconstructed once: (run folder, report)."""
+    return _reconstructed(ci_sample, tmp_path_factory.mktemp("recon") / "run")
 
 
 # a subset of the ci sample that reconstructs on its own (both setups, 3 passes each; its mesh is
@@ -60,12 +63,8 @@ def six_sample(ci_sample, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def six_run(six_sample, tmp_path_factory):
-    """The six-pass subset reconstructed once (real Prefect engine, ci settings): (run folder, report)."""
-    from flows.reconstruct import reconstruct_sample
-
-    out = tmp_path_factory.mktemp("recon-six") / "run"
-    report = reconstruct_sample(str(six_sample), str(out), str(CI_CONFIG), started_by="pytest")
-    return out, report
+    """The six-pass subset reconstructed once: (run folder, report)."""
+    return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run")
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -259,9 +260,6 @@ def test_an_out_folder_of_other_files_and_a_bad_follow_timeout_are_refused_befor
 def test_a_refusal_comes_before_prefect_and_the_compute_stack_are_loaded(ci_sample, tmp_path):
     """What a run checks before any work (flows.preflight) needs neither Prefect nor the stages'
     numerics: a user's mistake is named at once, not after the ~4 s those imports take."""
-    import subprocess
-    import sys
-
     foreign = tmp_path / "thesis"
     foreign.mkdir()
     (foreign / "chapter1.tex").write_text("work of months")
