@@ -6,7 +6,14 @@
 2. Each circle is refined in 3-D with the organized points (the pixel -> 3-D "dictionary"): the
    sticker's bright points give its plane; the sticker's edge is located to sub-pixel precision
    where the intensity crosses halfway between sticker and steel on each bright/dark grid edge;
-   a circle of the known radius is fitted to those edge points in the plane (least squares).
+   a circle of the known radius is fitted to the edge points found along the profiles (least
+   squares). Along a profile each point's intensity integrates its camera pixel, as wide as the
+   point spacing, so a rim point reads partly sticker, partly metal and the halfway crossing
+   lands within a fraction of the spacing; across profiles the laser line (about 0.1 mm thick)
+   is narrower than the profile spacing (0.1-0.5 mm), so neighbours read all sticker or all metal
+   and the crossing is only known to within the spacing. Those edges count for the rim's
+   coverage, not the fit (on the demo sample: in-plane centre error median 18.7 -> 5.2 um, RMS
+   20.1 -> 8.4 um; at the paper's resolution median 1.2 -> 0.7 um, RMS 3.1 -> 1.6 um).
 3. A quality figure per target: edge-fit RMS, the share of the rim that was seen, the radius a
    free fit finds. Circles cut by the pass border, shadows or glare fail these checks.
 
@@ -41,10 +48,10 @@ class Target:
     centre_mm: np.ndarray  # (3,)
     normal: np.ndarray  # (3,) unit, toward the sensor side
     pixel: tuple[float, float]  # (profile, column) of the Hough circle
-    rms_mm: float  # edge points' distance to the fitted circle
+    rms_mm: float  # the fitted edge points' (along the profiles) distance to the circle
     rim_coverage: float  # share of the rim's angular bins holding edge points
     free_radius_mm: float  # radius of an unconstrained circle fit
-    n_edge_points: int
+    n_edge_points: int  # edge points fitted
 
 
 @dataclass(frozen=True)
@@ -124,14 +131,17 @@ def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.n
     return 0.5 * (_plateau(local, interior & valid) + _plateau(local, exterior))
 
 
-def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, level: np.ndarray) -> np.ndarray:
+def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray,
+                 level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel edge points (k, 3) where bright and dark grid neighbours meet; the edge is where
-    the intensity crosses ``level`` (per pixel). All (rows, columns) grids of one window."""
+    the intensity crosses ``level`` (per pixel). All (rows, columns) grids of one window. Also
+    (k,) bool: True for an edge between neighbours along a profile (columns), False across
+    profiles (rows)."""
     I = intensity.astype(np.float64) - level
     P = points
     B = bright
     valid = np.isfinite(P).all(axis=-1) & (intensity > 0)
-    out = []
+    out, along = [], []
     for axis in (0, 1):
         a = [slice(None), slice(None)]
         b = [slice(None), slice(None)]
@@ -144,7 +154,10 @@ def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, 
         pa, pb = P[a][pair], P[b][pair]
         f = np.clip(ia / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
         out.append(pa + f[:, None] * (pb - pa))
-    return np.concatenate(out) if out else np.zeros((0, 3))
+        along.append(np.full(len(f), axis == 1))
+    if not out:
+        return np.zeros((0, 3)), np.zeros(0, bool)
+    return np.concatenate(out), np.concatenate(along)
 
 
 def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float, float]:
@@ -209,16 +222,18 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         if normal @ (side - origin) < 0:
             normal = -normal
         on_plane = points if origins is None else _on_plane(points, origins[:, None, :], origin, normal)
-        edges = _edge_points(local, on_plane, bright, level)
+        edges, along_profile = _edge_points(local, on_plane, bright, level)
         if len(edges) < 12:
             break
         e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
         e1 /= np.linalg.norm(e1)
         e2 = np.cross(normal, e1)
         uv = np.column_stack([(edges - origin) @ e1, (edges - origin) @ e2])
-        # keep edge points near the rim of the circle suggested by the bright blob
+        # keep edge points near the rim of the circle suggested by the bright blob; fit those
+        # found along the profiles (the module's notes), count them all for the rim's coverage
         near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
-        uv = uv[near]
+        rim_uv = uv[near]
+        uv = uv[near & along_profile]
         if len(uv) < 12:
             break
         centre_uv, _, rms = _fit_circle(uv, radius)
@@ -234,7 +249,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
     if len(edges) < 12 or len(uv) < 12:
         return TargetRefinement(None, "points")
     _, free_r, _ = _fit_circle(uv, None)
-    angles = np.arctan2(uv[:, 1] - centre_uv[1], uv[:, 0] - centre_uv[0])
+    angles = np.arctan2(rim_uv[:, 1] - centre_uv[1], rim_uv[:, 0] - centre_uv[0])
     coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
     if coverage < min_rim_coverage:
         return TargetRefinement(None, "rim")
