@@ -15,7 +15,7 @@ import numpy as np
 from schemas.simulation import ScannerConfig
 from schemas.truth import Material, PointLabel
 from simulator.scene import NO_STICKER, Scene
-from simulator.transforms import apply
+from simulator.transforms import apply, invert
 
 __all__ = ["Profiles", "LineScanner", "fan_directions"]
 
@@ -99,6 +99,33 @@ class LineScanner:
         material[has_sticker & on_specimen] = Material.STICKER
         material[has_sticker & on_fixture] = Material.FIXTURE_STICKER
         t_surf = np.where(has_sticker, t_top, t_safe)
+        # The paper's edge: a ray that crosses the top plane outside a sticker's rim but would
+        # meet the surface inside it runs into the sticker's wall (the side facing the sensor at
+        # an oblique view, one thickness high) and is reported there, on paper. Seen from the
+        # laser the sticker is wider on that side by thickness * tan(incidence).
+        metal = origin + t_safe[:, None] * d
+        wall = np.zeros(m * n, bool)
+        cos_wall = np.zeros(m * n)
+        for where, stickers, T in ((on_specimen, scene.specimen_stickers, scene.T_specimen_world),
+                                   (on_fixture, scene.fixture_stickers, np.eye(4))):
+            rays = np.flatnonzero(where & ~has_sticker)
+            under = stickers.lookup(apply(T, metal[rays]))
+            rays, ids = rays[under != NO_STICKER], under[under != NO_STICKER]
+            a = stickers.inside_mm(apply(T, top[rays]), ids)  # < 0: the top plane is crossed outside
+            b = stickers.inside_mm(apply(T, metal[rays]), ids)  # >= 0: the surface is met inside
+            t_wall = t_top[rays] + np.clip(-a / np.maximum(b - a, 1e-12), 0.0, 1.0) * (t_safe[rays] - t_top[rays])
+            wall[rays] = True
+            sticker[rays] = ids
+            t_surf[rays] = t_wall
+            index = np.searchsorted(stickers.ids, ids)
+            n_s = stickers.normals[index]
+            radial = apply(T, origin[rays] + t_wall[:, None] * d[rays]) - stickers.centres[index]
+            radial -= np.einsum("ij,ij->i", radial, n_s)[:, None] * n_s
+            outward = (radial / np.maximum(np.linalg.norm(radial, axis=1), 1e-9)[:, None]) @ invert(T)[:3, :3].T
+            cos_wall[rays] = -np.einsum("ij,ij->i", d[rays], outward)
+        has_sticker |= wall
+        material[wall & on_specimen] = Material.STICKER
+        material[wall & on_fixture] = Material.FIXTURE_STICKER
         point = origin + t_surf[:, None] * d
 
         camera = o + self.camera_offset @ R.transpose(0, 2, 1)  # (m, 3)
@@ -154,19 +181,23 @@ class LineScanner:
         scan_dirs = np.repeat(R[:, :, 1], n, axis=0)
         box = cfg.x_spacing_mm * np.maximum(t_surf * fan_z, 1.0) / cfg.reference_distance_mm
         sigma = cfg.line_width_mm / 4
+        # The footprint's share on paper, the top and the wall both: where the ray crosses the top
+        # plane (the far rim) or meets the surface (the near rim, behind the wall), whichever is
+        # further inside.
         share = np.zeros(m * n)
         S = scene.T_specimen_world[:3, :3]
-        share[on_specimen] = scene.specimen_stickers.coverage(
-            apply(scene.T_specimen_world, top[on_specimen]), d[on_specimen] @ S.T, line_dirs[on_specimen] @ S.T,
-            scan_dirs[on_specimen] @ S.T, box[on_specimen], sigma)
-        share[on_fixture] = scene.fixture_stickers.coverage(top[on_fixture], d[on_fixture], line_dirs[on_fixture],
-                                                            scan_dirs[on_fixture], box[on_fixture], sigma)
+        for at in (top, metal):
+            share[on_specimen] = np.maximum(share[on_specimen], scene.specimen_stickers.coverage(
+                apply(scene.T_specimen_world, at[on_specimen]), d[on_specimen] @ S.T, line_dirs[on_specimen] @ S.T,
+                scan_dirs[on_specimen] @ S.T, box[on_specimen], sigma))
+            share[on_fixture] = np.maximum(share[on_fixture], scene.fixture_stickers.coverage(
+                at[on_fixture], d[on_fixture], line_dirs[on_fixture], scan_dirs[on_fixture], box[on_fixture], sigma))
         reflectance = np.zeros(m * n)
         for mat, rho in _REFLECTANCE.items():
             reflectance[base == mat] = rho
         reflectance += share * (_REFLECTANCE[Material.STICKER] - reflectance)
         distance_gain = (cfg.reference_distance_mm / np.maximum(t_surf * fan_z, 1.0)) ** 2
-        level = 900 * reflectance * np.clip(cos_l, 0, 1) ** 0.8 * distance_gain
+        level = 900 * reflectance * np.clip(np.where(wall, cos_wall, cos_l), 0, 1) ** 0.8 * distance_gain
         mirror = d + 2 * cos_l[:, None] * normal
         spec_angle = np.arccos(np.clip(np.einsum("ij,ij->i", mirror, to_cam), -1, 1))
         level += np.where(base == Material.GROUND,

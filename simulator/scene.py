@@ -51,6 +51,17 @@ class StickerSet:
         out[hit] = self.ids[idx[hit]]
         return out
 
+    def inside_mm(self, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Signed distance (n,) in the sticker's plane from each point (n, 3) to the rim of sticker
+        ``ids`` (n,) (ids as ``lookup`` gives them, none NO_STICKER): > 0 inside the rim."""
+        index = np.searchsorted(self.ids, ids)
+        if len(ids) and not np.array_equal(self.ids[np.minimum(index, len(self.ids) - 1)], ids):
+            raise ValueError("inside_mm: unknown sticker ids")
+        d = points - self.centres[index]
+        n = self.normals[index]
+        planar = np.linalg.norm(d - np.einsum("ij,ij->i", d, n)[:, None] * n, axis=1)
+        return self.radius_mm - planar
+
     def coverage(self, points: np.ndarray, rays: np.ndarray, line_dirs: np.ndarray, scan_dirs: np.ndarray,
                  line_box_mm: np.ndarray, scan_sigma_mm: float) -> np.ndarray:
         """Share (n,) of each point's laser footprint that falls on a sticker, 0..1.

@@ -14,6 +14,12 @@
    and the crossing is only known to within the spacing. Those edges count for the rim's
    coverage, not the fit (on the demo sample: in-plane centre error median 18.7 -> 5.2 um, RMS
    20.1 -> 8.4 um; at the paper's resolution median 1.2 -> 0.7 um, RMS 3.1 -> 1.6 um).
+   The paper has an edge (about 0.1 mm high). Seen obliquely, the rays that last meet paper on
+   the far side graze the top's rim, but on the side facing the sensor they run into the edge and
+   the last of them grazes its foot, one edge height below the top: where the rays cross the top's
+   plane, that side of the rim lies farther out by the edge height times the tangent of the view
+   (60 um at 50 deg). The fit takes the edge height as a third unknown, moving the facing side's
+   rim points along their own rays (``_fit_rim``).
 3. A quality figure per target: edge-fit RMS, the share of the rim that was seen, the radius a
    free fit finds. Circles cut by the pass border, shadows or glare fail these checks.
 
@@ -52,6 +58,7 @@ class Target:
     rim_coverage: float  # share of the rim's angular bins holding edge points
     free_radius_mm: float  # radius of an unconstrained circle fit
     n_edge_points: int  # edge points fitted
+    edge_height_mm: float  # the sticker edge's height the fit found (0 without sensor origins)
 
 
 @dataclass(frozen=True)
@@ -132,16 +139,16 @@ def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.n
 
 
 def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray,
-                 level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                 level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel edge points (k, 3) where bright and dark grid neighbours meet; the edge is where
     the intensity crosses ``level`` (per pixel). All (rows, columns) grids of one window. Also
     (k,) bool: True for an edge between neighbours along a profile (columns), False across
-    profiles (rows)."""
+    profiles (rows); and (k,) int, the row (profile) of each edge's first neighbour."""
     I = intensity.astype(np.float64) - level
     P = points
     B = bright
     valid = np.isfinite(P).all(axis=-1) & (intensity > 0)
-    out, along = [], []
+    out, along, rows = [], [], []
     for axis in (0, 1):
         a = [slice(None), slice(None)]
         b = [slice(None), slice(None)]
@@ -155,9 +162,10 @@ def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray,
         f = np.clip(ia / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
         out.append(pa + f[:, None] * (pb - pa))
         along.append(np.full(len(f), axis == 1))
+        rows.append(np.nonzero(pair)[0])
     if not out:
-        return np.zeros((0, 3)), np.zeros(0, bool)
-    return np.concatenate(out), np.concatenate(along)
+        return np.zeros((0, 3)), np.zeros(0, bool), np.zeros(0, np.int64)
+    return np.concatenate(out), np.concatenate(along), np.concatenate(rows)
 
 
 def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float, float]:
@@ -175,6 +183,24 @@ def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float
         centre, r = least_squares(fun, centre0, loss="soft_l1", f_scale=0.05).x, radius
     rms = float(np.sqrt(np.mean((np.linalg.norm(uv - centre, axis=1) - r) ** 2)))
     return centre, r, rms
+
+
+_MAX_EDGE_MM = 0.3  # the highest sticker edge the fit may find (paper ~0.1 mm, vinyl ~0.2 mm)
+
+
+def _fit_rim(uv: np.ndarray, travel: np.ndarray, radius: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """A circle of ``radius`` fitted to rim points ``uv`` (k, 2), found where their rays cross the
+    sticker's top plane, with the sticker edge's height as a third unknown (the module's notes):
+    a point on the side facing the sensor (its ray travels inward) truly lies where its ray, going
+    on, has dropped that height, ``travel`` (k, 2) per mm of drop. Returns the centre (2,), the
+    height (0 .. ``_MAX_EDGE_MM``) and the points moved onto the rim (k, 2)."""
+    centre, _, _ = _fit_circle(uv, radius)
+    facing = np.einsum("ij,ij->i", uv - centre, travel) < 0
+    shift = np.where(facing[:, None], travel, 0.0)
+    fun = lambda q: np.linalg.norm(uv + q[2] * shift - q[:2], axis=1) - radius  # noqa: E731
+    q = least_squares(fun, np.append(centre, 0.5 * _MAX_EDGE_MM), bounds=([-np.inf, -np.inf, 0.0],
+                      [np.inf, np.inf, _MAX_EDGE_MM]), loss="soft_l1", f_scale=0.05).x
+    return q[:2], float(q[2]), uv + q[2] * shift
 
 
 def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_mm: np.ndarray | None, *,
@@ -222,7 +248,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         if normal @ (side - origin) < 0:
             normal = -normal
         on_plane = points if origins is None else _on_plane(points, origins[:, None, :], origin, normal)
-        edges, along_profile = _edge_points(local, on_plane, bright, level)
+        edges, along_profile, edge_rows = _edge_points(local, on_plane, bright, level)
         if len(edges) < 12:
             break
         e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -233,10 +259,19 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         # found along the profiles (the module's notes), count them all for the rim's coverage
         near = np.abs(np.linalg.norm(uv, axis=1) - radius) < 0.35 * radius
         rim_uv = uv[near]
-        uv = uv[near & along_profile]
+        fitted = near & along_profile
+        uv = uv[fitted]
         if len(uv) < 12:
             break
-        centre_uv, _, rms = _fit_circle(uv, radius)
+        if origins is None:
+            centre_uv, _, _ = _fit_circle(uv, radius)
+            edge_mm = 0.0
+        else:
+            ray = edges[fitted] - origins[edge_rows[fitted]]
+            drop = -(ray @ normal)  # the normal faces the sensor: rays go down it
+            travel = np.column_stack([ray @ e1, ray @ e2]) / np.maximum(drop, 1e-9)[:, None]
+            centre_uv, edge_mm, uv = _fit_rim(uv, travel, radius)
+        rms = float(np.sqrt(np.mean((np.linalg.norm(uv - centre_uv, axis=1) - radius) ** 2)))
         if attempt == 0:
             centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
             candidates = points[inside]
@@ -260,7 +295,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
     centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
     return TargetRefinement(Target(centre_mm=centre, normal=normal, pixel=(float(pixel[0]), float(pixel[1])),
                                    rms_mm=rms, rim_coverage=float(coverage), free_radius_mm=float(free_r),
-                                   n_edge_points=len(uv)), None)
+                                   n_edge_points=len(uv), edge_height_mm=edge_mm), None)
 
 
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,

@@ -91,4 +91,5 @@ def targets(ctx) -> dict[str, Any]:
                                        rim_coverage=np.array([x.rim_coverage for x in t]),
                                        pixel=np.array([x.pixel for x in t], dtype=np.float64)))
     return {"targets": len(t), "circles": found.n_circles, "rejected": found.rejected,
-            "median_rms_mm": float(np.median([x.rms_mm for x in t]))}
+            "median_rms_mm": float(np.median([x.rms_mm for x in t])),
+            "median_edge_height_mm": float(np.median([x.edge_height_mm for x in t]))}

@@ -89,14 +89,16 @@ def test_registration_recovers_the_true_pass_poses(run, ci_sample):
     # reconstruction puts each measured point against where that point really is, after the one
     # rigid fit of the whole reconstruction to the specimen.
     m = pass_misalignment(ci_sample, T_common)
-    # measured on the ci sample (0.32 mm points): worst 18 um, pass medians 4-8 um; the paper
+    # measured on the ci sample (0.32 mm points, stickers with their 0.1 mm paper edge): worst
+    # 33 um, median of the pass medians 10.3 um (fitting the sticker centres without the edge's
+    # height: 80 and 42 um; before the simulator modelled the edge: 18 and 4-8 um); the paper
     # saw < 50 um between overlapping scans
-    assert m.max_mm.max() < 0.030, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
-    assert np.median(m.median_mm) < 0.010, dict(zip(m.pass_ids, np.round(1000 * m.median_mm)))
-    # the same with the frame fixed by the targets instead (measured 17 um): no error hides in
-    # where the targets put the whole
+    assert m.max_mm.max() < 0.040, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
+    assert np.median(m.median_mm) < 0.013, dict(zip(m.pass_ids, np.round(1000 * m.median_mm)))
+    # the same with the frame fixed by the targets instead (measured 38 um; 80 um without the
+    # edge's height): no error hides in where the targets put the whole
     by_targets = pass_misalignment(ci_sample, T_common, _gauge(report, ci_sample))
-    assert by_targets.max_mm.max() < 0.030
+    assert by_targets.max_mm.max() < 0.045
 
 
 def test_refinement_beats_targets_alone(run, ci_sample):
