@@ -17,6 +17,8 @@ from tasks.registration import RegistrationError, RegistrationGraph, Registratio
 
 __all__ = ["PairReport", "PassRegistration", "register_passes"]
 
+_FIXTURE_DEG = 5.0  # a setup's match this close to the identity is the fixture's (a turned part moves far more)
+
 
 @dataclass(frozen=True)
 class PairReport:
@@ -146,12 +148,17 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
         ta = [k for k, ts in enumerate(track_setup) if ts == setup_names[0]]
         tb = [k for k, ts in enumerate(track_setup) if ts == s]
         try:
+            # the fixture's stickers stay where they were (the identity, within the coarse poses'
+            # error) while the part is turned: their match is neither the part's nor its rival
             rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5),
-                                          min_shared=2, min_inliers=min_setup_targets)
+                                          min_shared=2, min_inliers=min_setup_targets, exclude=np.eye(4),
+                                          exclude_within=(_FIXTURE_DEG, max_offset_mm))
         except ValueError as exc:
             raise ValueError(f"setups {setup_names[0]} and {s} ({len(ta)} and {len(tb)} targets): {exc}; the specimen "
                              f"must show {min_setup_targets} or more stickers, not on one line, to passes of both "
-                             "setups (registration.min_setup_targets)") from None
+                             "setups (registration.min_setup_targets), and must have been moved between them "
+                             f"(targets that stay within {_FIXTURE_DEG:g} deg and {max_offset_mm:g} mm are the "
+                             "fixture's)") from None
         T_first_setup[s] = rm.T_a_b
         evidence[s] = (len(rm.pairs), rm.runner_up)
         for k in range(n):

@@ -127,7 +127,8 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                              min_shared: int = 2, neighbourhood_mm: float = 120.0, per_target: int = 3,
                              iterations: int = 4000, seed: int = 0, min_inliers: int = 4,
                              max_runner_up_ratio: float = 0.75, distinct_deg: float = 2.0,
-                             distinct_mm: float = 2.0) -> RigidMatch:
+                             distinct_mm: float = 2.0, exclude: np.ndarray | None = None,
+                             exclude_within: tuple[float, float] = (2.0, 2.0)) -> RigidMatch:
     """Match two target sets (n, 3), (m, 3) with no pose relation between them.
 
     Each target's distances to its neighbours (up to ``neighbourhood_mm``) are compared; every
@@ -138,6 +139,9 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     three with agreeing distances fit some rigid motion), and no transform differing from it by
     more than ``distinct_deg`` or ``distinct_mm`` (at the matched targets) brings together
     ``max_runner_up_ratio`` of its count or more (``RigidMatch.runner_up`` keeps that count).
+    ``exclude`` (4, 4): a transform known to be another body's, with every transform within
+    ``exclude_within`` (degrees, mm at its targets) of it neither taken nor a rival: between two
+    setups, the identity (the fixture's stickers stay where they were while the part is turned).
     """
     a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
     sig_a, sig_b = _distance_signatures(a, neighbourhood_mm), _distance_signatures(b, neighbourhood_mm)
@@ -180,6 +184,10 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                 T = kabsch(src, dst)
                 dist, idx = tree_a.query(b @ T[:3, :3].T + T[:3, 3], distance_upper_bound=tolerance_mm)
                 inl = np.flatnonzero(np.isfinite(dist))
+                if exclude is not None:
+                    degrees, mm = pose_difference(T, exclude, b[inl])
+                    if degrees <= exclude_within[0] and mm <= exclude_within[1]:
+                        continue
                 hypotheses.append((len(inl), T))
                 if len(inl) > len(best_pairs):
                     best_pairs = np.column_stack([idx[inl], inl])

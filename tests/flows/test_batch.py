@@ -45,7 +45,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     samples = tmp_path / "samples"
     for name in ("a", "b", "c"):
         _copy_sample(ci_sample, samples / name, f"batch-{name}", SIX)
-    chunk = _largest_chunk(samples / "c" / "passes" / "bottom-L03.zarr")
+    chunk = _largest_chunk(samples / "c" / "passes" / "bottom-L04.zarr")
     original = chunk.read_bytes()
     chunk.write_bytes(original[: len(original) // 2])  # truncated
     workspace = tmp_path / "ws"
@@ -54,7 +54,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     assert sorted(first["done"]) == ["batch-a", "batch-b"]
     assert list(first["failed"]) == ["batch-c"]
     why = first["failed"]["batch-c"]
-    assert why["stage"] == "denoise" and "bottom-L03" in why["error"]
+    assert why["stage"] == "denoise" and "bottom-L04" in why["error"]
     catalog = Catalog(workspace)
     # never more than max_concurrent samples at once (Prefect's global concurrency limit): each
     # run's span, from its run-started entry to its last entry
@@ -76,7 +76,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     listed = run_cli("catalog", "list", "--workspace", str(workspace))
     assert "batch-c" in listed.stdout and "failed at denoise" in listed.stdout
     shown = run_cli("catalog", "show", "batch-c", "--workspace", str(workspace))
-    assert "bottom-L03" in shown.stdout and "state       failed at stage denoise" in shown.stdout
+    assert "bottom-L04" in shown.stdout and "state       failed at stage denoise" in shown.stdout
 
     chunk.write_bytes(original)  # repaired
     second = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")

@@ -152,3 +152,26 @@ def test_two_transforms_with_the_same_support_are_refused_as_ambiguous():
     with pytest.raises(AmbiguousMatch, match=r"ambiguous: the best rigid transform brings 5 targets together, a "
                                              r"clearly different one 5"):
         match_rotation_invariant(a + rng.normal(0, 0.02, a.shape), b + rng.normal(0, 0.02, b.shape), tolerance_mm=0.5)
+
+
+def test_the_fixtures_stickers_staying_put_are_not_a_rival_to_the_turned_part():
+    """Both setups see five stickers on the part's side wall, turned over with the part, and five
+    on the fixture, which stays where it was (the identity between the setups' robot frames, within
+    the coarse poses' error). The fixture's five alone make a transform as well supported as the
+    part's: refused as ambiguous unless that transform is known to be the fixture's (``exclude``,
+    which the pass registration sets to the identity); then the part's is taken and nothing near
+    the identity counts as its rival."""
+    rng = np.random.default_rng(7)
+    T = _pose([180, 0, 4], [3, -5, 25])
+    top, bottom = _stickers(rng, 20) + [0, 0, 6], _stickers(rng, 20) + [0, 0, -6]
+    wall = np.column_stack([[-120.0, -60.0, -5.0, 50.0, 110.0], np.full(5, 41.0), rng.uniform(-5, 5, 5)])
+    fixture = np.array([[-60.0, -70, -30], [-10, -75, -30], [40, -68, -30], [15, -110, -30], [-40, -105, -30]])
+    noise = lambda n: rng.normal(0, 0.02, (n, 3))  # noqa: E731
+    a = np.concatenate([top, wall, fixture]) + noise(30)
+    b = np.concatenate([_apply(np.linalg.inv(T), np.concatenate([bottom, wall])), fixture + [0.4, -0.3, 0.2]]) + noise(30)
+    with pytest.raises(AmbiguousMatch, match=r"brings 5 targets together, a clearly different one 5"):
+        match_rotation_invariant(a, b, tolerance_mm=0.5)
+    m = match_rotation_invariant(a, b, tolerance_mm=0.5, exclude=np.eye(4), exclude_within=(5.0, 3.0))
+    assert {(i, j) for i, j in m.pairs} == {(20 + k, 20 + k) for k in range(5)}  # the wall, not the fixture
+    assert_allclose(_apply(m.T_a_b, b[20:25]), a[20:25], atol=0.05)
+    assert m.runner_up < 5
