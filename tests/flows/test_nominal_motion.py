@@ -27,8 +27,9 @@ def test_a_sample_without_a_pose_log_is_registered_from_its_nominal_sweeps(tmp_p
     simulate(config, sample, previews=False)
     report = reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest")
     m = pass_misalignment(sample, REFINED.open(report["refs"]["refine"]).T_common_pass)
-    # measured: worst 21 um, median of pass medians 7 um (with the pose log: 18 / 5 um); the
-    # nominal sweep misses the 1 % speed ripple (about 12 um along the pass)
-    assert m.max_mm.max() < 0.030, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
-    assert np.median(m.median_mm) < 0.010
+    # measured: worst 31.6 um, median of pass medians 11.1 um (with the pose log: 33 / 10.3 um,
+    # tests/flows/test_reconstruct_ci.py); the nominal sweep misses the 1 % speed ripple (about
+    # 12 um along the pass). Before the simulator modelled the stickers' paper edge: 21 / 7 um.
+    assert m.max_mm.max() < 0.040, dict(zip(m.pass_ids, np.round(1000 * m.max_mm)))
+    assert np.median(m.median_mm) < 0.013
     assert report["mesh"]["watertight"]
