@@ -109,18 +109,17 @@ class LineScanner:
         for where, stickers, T in ((on_specimen, scene.specimen_stickers, scene.T_specimen_world),
                                    (on_fixture, scene.fixture_stickers, np.eye(4))):
             rays = np.flatnonzero(where & ~has_sticker)
-            under = stickers.lookup(apply(T, metal[rays]))
-            rays, ids = rays[under != NO_STICKER], under[under != NO_STICKER]
+            metal_s = apply(T, metal[rays])
+            under = stickers.lookup(metal_s)
+            hit = under != NO_STICKER
+            rays, ids, metal_s = rays[hit], under[hit], metal_s[hit]
             a = stickers.inside_mm(apply(T, top[rays]), ids)  # < 0: the top plane is crossed outside
-            b = stickers.inside_mm(apply(T, metal[rays]), ids)  # >= 0: the surface is met inside
+            b = stickers.inside_mm(metal_s, ids)  # >= 0: the surface is met inside
             t_wall = t_top[rays] + np.clip(-a / np.maximum(b - a, 1e-12), 0.0, 1.0) * (t_safe[rays] - t_top[rays])
             wall[rays] = True
             sticker[rays] = ids
             t_surf[rays] = t_wall
-            index = np.searchsorted(stickers.ids, ids)
-            n_s = stickers.normals[index]
-            radial = apply(T, origin[rays] + t_wall[:, None] * d[rays]) - stickers.centres[index]
-            radial -= np.einsum("ij,ij->i", radial, n_s)[:, None] * n_s
+            radial = stickers.radial_mm(apply(T, origin[rays] + t_wall[:, None] * d[rays]), ids)
             outward = (radial / np.maximum(np.linalg.norm(radial, axis=1), 1e-9)[:, None]) @ invert(T)[:3, :3].T
             cos_wall[rays] = -np.einsum("ij,ij->i", d[rays], outward)
         has_sticker |= wall

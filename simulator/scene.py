@@ -51,16 +51,20 @@ class StickerSet:
         out[hit] = self.ids[idx[hit]]
         return out
 
-    def inside_mm(self, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """Signed distance (n,) in the sticker's plane from each point (n, 3) to the rim of sticker
-        ``ids`` (n,) (ids as ``lookup`` gives them, none NO_STICKER): > 0 inside the rim."""
+    def radial_mm(self, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """From the centre of sticker ``ids`` (n,) (ids as ``lookup`` gives them, none NO_STICKER)
+        to each point (n, 3), in the sticker's plane (n, 3)."""
         index = np.searchsorted(self.ids, ids)
         if len(ids) and not np.array_equal(self.ids[np.minimum(index, len(self.ids) - 1)], ids):
-            raise ValueError("inside_mm: unknown sticker ids")
+            raise ValueError("radial_mm: unknown sticker ids")
         d = points - self.centres[index]
         n = self.normals[index]
-        planar = np.linalg.norm(d - np.einsum("ij,ij->i", d, n)[:, None] * n, axis=1)
-        return self.radius_mm - planar
+        return d - np.einsum("ij,ij->i", d, n)[:, None] * n
+
+    def inside_mm(self, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Signed distance (n,) in the sticker's plane from each point (n, 3) to the rim of sticker
+        ``ids`` (n,): > 0 inside the rim."""
+        return self.radius_mm - np.linalg.norm(self.radial_mm(points, ids), axis=1)
 
     def coverage(self, points: np.ndarray, rays: np.ndarray, line_dirs: np.ndarray, scan_dirs: np.ndarray,
                  line_box_mm: np.ndarray, scan_sigma_mm: float) -> np.ndarray:

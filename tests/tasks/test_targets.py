@@ -140,7 +140,8 @@ def _scan(surface, centres_uv, *, profiles: int, columns: int, rng: np.random.Ge
 
     rows, cols = np.indices((profiles, columns))
     o, d = rays(rows, cols)
-    inside = _on_paper_mm(surface, o, d, centres_uv)
+    top, foot = _inside_mm(surface, o, d, centres_uv), _inside_mm(surface, o, d, centres_uv, 0.0)
+    inside = np.maximum(top, foot)  # as _on_paper_mm
     share = (inside > 0).astype(float)  # of the footprint on a sticker; sampled near the rims only
     rim = np.abs(inside) < 3 * max(PITCH_MM, line_mm) + 0.2
     steps = (np.arange(sub_rays) + 0.5) / sub_rays - 0.5
@@ -148,7 +149,6 @@ def _scan(surface, centres_uv, *, profiles: int, columns: int, rng: np.random.Ge
     share[rim] = seen / sub_rays**2
     # on the top; on the edge (between where the ray crosses the top and where it meets the
     # surface, by the distances to the rim); or on the metal
-    top, foot = _inside_mm(surface, o, d, centres_uv), _inside_mm(surface, o, d, centres_uv, 0.0)
     t_top, t_foot = surface.hit(o, d, THICKNESS_MM), surface.hit(o, d, 0.0)
     t_edge = t_top + np.clip(-top / np.maximum(foot - top, 1e-12), 0.0, 1.0) * (t_foot - t_top)
     t = np.where(top > 0, t_top, np.where(foot > 0, t_edge, t_foot))
