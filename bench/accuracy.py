@@ -7,7 +7,7 @@ distance between where the reconstruction puts its measured specimen points and 
 are, after one rigid fit of the whole; for the target registration alone (the paper's method) and
 after the refinement. Mesh to the true surface: every STL vertex, in the specimen frame (fitted on
 the registered targets against the true stickers), its distance to the true specimen mesh; over
-the scanned length, and within 15 mm of the weld's centre line.
+the scanned length, and within 15 mm of the weld's lines (the manifest's, ``weld_lines()``).
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ def evaluate(sample: Path, run: Path) -> dict:
     accuracy = mesh_to_truth(sample, run, mesh)
     result["mesh to truth, scanned length"] = accuracy["scanned length"]
     result["mesh to truth, within 15 mm of the weld"] = accuracy["within 15 mm of the weld"]
+    result["mesh to truth, measured surface"] = accuracy["measured surface"]
+    result["mesh to truth, measured, within 15 mm of the weld"] = accuracy["measured, within 15 mm of the weld"]
     result["gauge targets"] = accuracy["gauge targets"]
     result["sample"] = read_truth(sample / TRUTH_DIR / "truth.json").sample_id
     return result
@@ -56,17 +58,20 @@ def evaluate(sample: Path, run: Path) -> dict:
 
 def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
     """Distances of mesh ``vertices`` (in ``run``'s common frame) to the true specimen surface:
-    statistics over the scanned length and within 15 mm of the weld's centre line."""
+    statistics over the scanned length (the part's extent along the specimen frame's x, less the
+    never-scanned 2 mm at each end) and within 15 mm of any of the manifest's weld lines."""
     import open3d as o3d
 
     from data_catalog.manifests import load_manifest
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR
     from simulator.evaluate import fit_gauge
+    from tasks.merge import PolylineZone
 
     refined = load_arrays(latest_stage(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
     positions = refined["track_positions_mm"]
-    gauge = fit_gauge(sample, positions[refined["specimen_track"].astype(bool)], positions)
+    on_specimen = refined["specimen_track"].astype(bool)  # seen in two setups; a single setup has none:
+    gauge = fit_gauge(sample, positions[on_specimen] if on_specimen.any() else positions, positions)  # all
     G_inv = np.linalg.inv(gauge.T_recon_specimen)
     v = np.asarray(vertices, np.float64) @ G_inv[:3, :3].T + G_inv[:3, 3]
     true_mesh = o3d.io.read_triangle_mesh(str(sample / TRUTH_DIR / "specimen.ply"))
@@ -74,9 +79,19 @@ def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
     scene.add_triangles(o3d.t.geometry.TriangleMesh.from_legacy(true_mesh))
     dist = scene.compute_distance(o3d.core.Tensor(v.astype(np.float32))).numpy().astype(np.float64)
     manifest = load_manifest(sample)
-    length = manifest.specimen.length_mm
-    scanned = np.abs(v[:, 0]) < length / 2 - 2  # the ends were never scanned: Poisson closes them freely
-    weld = scanned & (np.abs(v[:, 0] - manifest.weld.centre_x_mm) <= 15.0)
+    lo, hi = manifest.specimen.bounds_mm()
+    scanned = (v[:, 0] > lo[0] + 2) & (v[:, 0] < hi[0] - 2)  # the ends were never scanned: Poisson closes them freely
+    near_weld = np.zeros(len(v), bool)
+    for line in manifest.weld_lines():
+        near_weld |= PolylineZone(tuple(line.points_mm), 15.0).contains(v)
+    weld = scanned & near_weld
+    # measured: within 0.5 mm of a point the segment kept (a single setup never sees the part's
+    # underside, which Poisson closes freely; two setups leave only the ends unseen)
+    from scipy.spatial import cKDTree
+    cloud = load_arrays(latest_stage(run, "segment") / "specimen.zarr", "points", "measured")
+    kept = cloud["points"][cloud["measured"].astype(bool)]
+    d_kept, _ = cKDTree(np.asarray(kept, np.float64)).query(np.asarray(vertices, np.float64), distance_upper_bound=0.5)
+    measured = np.isfinite(d_kept)
 
     def stats(d):
         return {"vertices": int(len(d)), "median_um": round(1000 * float(np.median(d)), 1),
@@ -84,6 +99,7 @@ def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
                 "p95_um": round(1000 * float(np.quantile(d, 0.95)), 1)}
 
     return {"scanned length": stats(dist[scanned]), "within 15 mm of the weld": stats(dist[weld]),
+            "measured surface": stats(dist[measured]), "measured, within 15 mm of the weld": stats(dist[measured & weld]),
             "gauge targets": gauge.n_targets}
 
 

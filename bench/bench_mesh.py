@@ -15,7 +15,7 @@ paper's uniform 0.1 mm box grid); its specimen cloud (stage ``segment``) is "the
   bytes on every run).
 
 Both meshes are measured against the true surface (``bench/accuracy.py``): within 15 mm of the
-weld and over the scanned length.
+weld's lines and over the scanned length.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def main() -> int:
     from bench.accuracy import emit, latest_stage, mesh_to_truth
     from data_catalog.manifests import load_manifest
     from flows.reconstruct import load_config
-    from flows.stages.merge import weld_bands
+    from flows.stages.merge import weld_zones
     from data_catalog.stages import load_arrays
     from tasks.merge import MergeResult, coarsen_flat_cells
     from tasks.mesh import mesh_report, screened_poisson
@@ -92,22 +92,22 @@ def main() -> int:
 
     t = time.perf_counter()
     T_all = load_arrays(latest_stage(run, "refine") / "refined.zarr", "T_common_pass")["T_common_pass"]
-    bands = weld_bands(load_manifest(args.sample), T_all, mc.weld_zone_mm)
+    zones = weld_zones(load_manifest(args.sample), T_all, mc.weld_zone_mm)
     adaptive = coarsen_flat_cells(
         MergeResult(points_mm=points, normals=normals, sensor_positions_mm=None, counts=counts, cells=cells,
                     cell_mm=cell),
         factor=mc.coarse_factor, max_normal_deg=mc.flat_normal_deg, max_deviation_mm=mc.flat_deviation_mm,
-        fine_bands=bands)
+        fine_zones=zones)
     coarsen_s = time.perf_counter() - t
     t = time.perf_counter()
     ours = screened_poisson(adaptive.points_mm, adaptive.normals, depth=ms.poisson_depth,
                             samples_per_node=ms.samples_per_node, point_weight=ms.point_weight, scale=ms.poisson_scale)
     ours_s = time.perf_counter() - t
     result["ours"] = {"what": f"coarse factor {mc.coarse_factor} where flat, weld zone {mc.weld_zone_mm} mm "
-                              f"(+ tolerance, {len(bands)} bands) fine; MeshLab one thread",
+                              f"(+ tolerance, {len(zones)} weld-line zones) fine; MeshLab one thread",
                       "seconds": round(coarsen_s + ours_s, 1), "coarsen_s": round(coarsen_s, 1),
                       "poisson_s": round(ours_s, 1), "points": int(len(adaptive.points_mm)),
-                      "fine_points": int(adaptive.fine.sum()), "weld_zone_points": int(adaptive.banded.sum()),
+                      "fine_points": int(adaptive.fine.sum()), "weld_zone_points": int(adaptive.in_zone.sum()),
                       "vertices": int(len(ours.vertices)), "watertight": ours.report.watertight,
                       **mesh_to_truth(args.sample, run, ours.vertices)}
     result["peer_over_ours"] = round(peer_s / (coarsen_s + ours_s), 2)

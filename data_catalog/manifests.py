@@ -8,11 +8,12 @@ from pathlib import Path
 from pydantic import ValidationError
 
 from data_catalog.atomic import atomic_write_text
+from data_catalog.hashing import sha256_file
 from data_catalog.textfiles import read_text_file
-from schemas.manifest import SampleManifest
+from schemas.manifest import DrawingSpecimen, SampleManifest
 
-__all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files", "check_pass_file",
-           "write_manifest", "manifest_json_schema"]
+__all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files",
+           "check_pass_file", "check_drawing_file", "write_manifest", "manifest_json_schema"]
 
 MAX_POINTS_PER_SAMPLE = 4_000_000_000  # 12 times the paper's full-resolution plan
 
@@ -59,8 +60,10 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
     """Refuse, before any work, a sample whose pass files are not its own or not what the
     manifest says: a path through a symbolic link (a sample must hold its own bytes; a link may
     lead anywhere), a pass store whose declared size differs from the manifest's, or a sample
-    too large to be a scan (more than MAX_POINTS_PER_SAMPLE points). Missing pass files are left
-    to the stages, which name every missing pass at once."""
+    too large to be a scan (more than MAX_POINTS_PER_SAMPLE points); and a specimen drawing
+    (``specimen.kind`` drawing) that is missing or not the file the manifest names
+    (``check_drawing_file``). Missing pass files are left to the stages, which name every
+    missing pass at once."""
     root = Path(sample_dir)
     total = sum(entry.n_profiles for _, entry in manifest.passes()) * manifest.scanner.points_per_profile
     if total > MAX_POINTS_PER_SAMPLE:
@@ -68,20 +71,27 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
                             f"points_per_profile), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
     for setup, entry in manifest.passes():
         check_pass_file(root, manifest, setup, entry)
+    if isinstance(manifest.specimen, DrawingSpecimen):
+        check_drawing_file(root, manifest.specimen)
+
+
+def _refuse_links(root: Path, file: str, where: str, what: str) -> None:
+    """ManifestError when a component of ``root / file`` is a symbolic link."""
+    real_root = root.resolve()
+    for part in [root / Path(*Path(file).parts[:k]) for k in range(1, len(Path(file).parts) + 1)]:
+        if part.is_symlink():
+            target = part.resolve()
+            leaves = real_root not in target.parents and target != real_root
+            raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
+                                f"(to {target}); a sample must hold its own {what}")
 
 
 def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entry) -> None:
     """One pass of ``check_sample_files``: no symbolic link on its path, its declared size."""
     root = Path(sample_dir)
-    real_root = root.resolve()
     path = root / entry.file
     where = f"pass {entry.pass_id} (setup {setup})"
-    for part in [root / Path(*Path(entry.file).parts[:k]) for k in range(1, len(Path(entry.file).parts) + 1)]:
-        if part.is_symlink():
-            target = part.resolve()
-            leaves = real_root not in target.parents and target != real_root
-            raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
-                                f"(to {target}); a sample must hold its own pass files")
+    _refuse_links(root, entry.file, where, "pass files")
     meta = path / "x_mm" / "zarr.json"
     if meta.is_file():
         try:
@@ -92,6 +102,22 @@ def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entr
         if shape != expected:
             raise ManifestError(f"{where}: {path} holds {shape[0]:,} x {shape[1]:,} points, the manifest "
                                 f"declares n_profiles {expected[0]:,} x points_per_profile {expected[1]:,}")
+
+
+def check_drawing_file(sample_dir: Path, specimen: DrawingSpecimen) -> None:
+    """The specimen's drawing (``specimen.file``): a regular file in the sample folder, reached
+    through no symbolic link, whose content is the ``specimen.sha256`` the manifest states."""
+    root = Path(sample_dir)
+    path = root / specimen.file
+    where = f"specimen.file {specimen.file}"
+    _refuse_links(root, specimen.file, where, "drawing")
+    if not path.is_file():
+        raise ManifestError(f"{where}: {path} {'is not a file' if path.exists() else 'does not exist'}; expected the "
+                            "part's drawing (STL or PLY) the manifest names, inside the sample folder")
+    digest = sha256_file(path)
+    if digest != specimen.sha256:
+        raise ManifestError(f"{where}: {path} has sha256 {digest}, the manifest states specimen.sha256 "
+                            f"{specimen.sha256}; expected the drawing the manifest was written for")
 
 
 def write_manifest(path: Path, manifest: SampleManifest) -> None:

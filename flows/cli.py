@@ -229,6 +229,48 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return _cmd_reconstruct(args)
 
 
+def _cmd_import(args: argparse.Namespace) -> int:
+    from data_catalog.atomic import check_can_create
+    from data_catalog.cell_logs import import_cell
+
+    out = Path(args.out_sample)
+    if out.exists():
+        raise ValueError(f"{out} already exists; choose a new folder (nothing was written)")
+    check_can_create(out, f"OUT_SAMPLE {out}")
+    summary = import_cell(args.cell_yaml, out)
+    print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_profiles:,} profiles, {summary.n_points:,} points")
+    return 0
+
+
+def _no_return(text: str) -> str | float:
+    """``--no-return``: nan, empty or a number."""
+    if text in ("nan", "empty"):
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--no-return {text!r}: expected nan, empty or a number (such as 0 or -9999)") from None
+
+
+def _cmd_export_cell(args: argparse.Namespace) -> int:
+    from simulator.export_cell import export_cell
+
+    from data_catalog.atomic import check_can_create
+
+    out = Path(args.out_dir)
+    if out.exists():
+        raise ValueError(f"{out} already exists; choose a new folder (nothing was written)")
+    check_can_create(out, f"OUT_DIR {out}")
+    summary = export_cell(args.sample_dir, out, layout=args.layout, delimiter=args.delimiter, compress=args.gzip,
+                          orientation=args.orientation, quaternion_order=args.quaternion_order,
+                          angle_unit=args.angle_unit, units=args.units, time_unit=args.time_unit,
+                          no_return=_no_return(args.no_return), intensity_bits=args.intensity_bits,
+                          pose_every=args.pose_every, time_offset_s=args.time_offset)
+    print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_profiles:,} profiles, {summary.n_poses:,} poses; "
+          f"weldrecon import {summary.out_dir / 'CELL.yaml'} SAMPLE")
+    return 0
+
+
 def _cmd_stages(args: argparse.Namespace) -> int:
     from flows.stages import stage_table
 
@@ -466,6 +508,28 @@ def _parser() -> argparse.ArgumentParser:
             a.add_argument("--head", metavar="SHA256", help="an entry hash kept outside the folder (printed by "
                            "reconstruct as the audit trail head): the trail must still hold it")
     aud.set_defaults(func=_cmd_audit)
+    imp = sub.add_parser("import", help="a real cell's logs (profile files, pose logs, CELL.yaml) into a sample folder")
+    imp.add_argument("cell_yaml", metavar="CELL.yaml", help="the cell description (docs/cell-logs.md)")
+    imp.add_argument("out_sample", metavar="OUT_SAMPLE", help="new folder for the sample (must not exist)")
+    imp.set_defaults(func=_cmd_import)
+    exp = sub.add_parser("export-cell", help="write a sample (with flange poses per profile) as cell logs + CELL.yaml")
+    exp.add_argument("sample_dir", metavar="SAMPLE", help="folder with manifest.json and the passes")
+    exp.add_argument("out_dir", metavar="OUT_DIR", help="new folder for CELL.yaml and the logs (must not exist)")
+    exp.add_argument("--layout", choices=("xzi", "z_grid"), default="xzi", help="profile layout (default xzi)")
+    exp.add_argument("--delimiter", choices=("csv", "whitespace"), default="csv")
+    exp.add_argument("--gzip", action="store_true", help="gzip the profile files")
+    exp.add_argument("--orientation", default="quaternion", help="rotation convention of the pose log: quaternion, "
+                     "rotation-vector, kuka-abc, fanuc-wpr or euler-<AXES>-<intrinsic|extrinsic> (default quaternion)")
+    exp.add_argument("--quaternion-order", choices=("wxyz", "xyzw"), default="wxyz")
+    exp.add_argument("--angle-unit", choices=("deg", "rad"), help="for rotation-vector and euler-*")
+    exp.add_argument("--units", choices=("mm", "m"), default="mm", help="length unit of both files (default mm)")
+    exp.add_argument("--time-unit", choices=("s", "ms"), default="s")
+    exp.add_argument("--no-return", default="nan", metavar="nan|empty|NUMBER", help="marker of a missing return")
+    exp.add_argument("--intensity-bits", type=int, default=10, help="bit depth of the written intensities (default 10)")
+    exp.add_argument("--pose-every", type=int, default=3, metavar="N", help="a pose for every N-th profile (default 3)")
+    exp.add_argument("--time-offset", type=float, default=0.0, metavar="S",
+                     help="the robot's clock minus the scanner's, s (default 0)")
+    exp.set_defaults(func=_cmd_export_cell)
     stages = sub.add_parser("stages", help="print the reconstruction's stages: inputs, settings, outputs")
     stages.set_defaults(func=_cmd_stages)
     schema = sub.add_parser("schema", help="print the sample manifest's JSON schema")

@@ -1,26 +1,45 @@
 """The sample manifest: what a scanning cell (or the simulator) writes next to its pass files.
 
-A sample is one welded specimen scanned in one or more setups (top, then bottom after the
-specimen was turned by hand). Each setup holds passes; a pass is one linear robot sweep of the
-line scanner, stored as a chunked zarr group (format in ``data_catalog.passes``).
+A sample is one welded part (the specimen) scanned in one or more setups (e.g. top, then bottom
+after the part was turned by hand). Each setup holds passes; a pass is one linear robot sweep of
+the line scanner, stored as a chunked zarr group (format in ``data_catalog.passes``).
+
+The specimen is one of a few kinds of part (``specimen.kind``: a dog-bone, a butt-welded plate, a
+T-joint, a cruciform joint, or any part given by its drawing mesh), each with its own specimen
+frame; the weld is given by its weld lines, polylines in that frame (``weld.weld_lines``).
+Schema 1.0 (read, never written) knew the dog-bone alone and gave its weld by one number,
+``weld.centre_x_mm``: ``SampleManifest.weld_lines`` turns it into the same lines.
 """
 
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 from datetime import datetime
 from pathlib import PurePosixPath
-from typing import Literal
+from typing import Any, ClassVar, Literal, Union
 
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import (AfterValidator, Field, ValidationInfo, ValidatorFunctionWrapHandler, WrapValidator,
+                      field_validator, model_validator)
 from typing_extensions import Annotated
 
 from schemas.common import Pose4x4, StrictModel, Vector3
 
 __all__ = [
     "MANIFEST_SCHEMA_VERSION",
+    "WELD_LINE_MARGIN_MM",
+    "JOINTS",
+    "DogBoneSpecimen",
+    "PlateSpecimen",
+    "TJointSpecimen",
+    "CruciformSpecimen",
+    "DrawingSpecimen",
+    "SPECIMEN_KINDS",
     "SpecimenGeometry",
+    "WeldLine",
     "WeldDescription",
+    "CentreLineWeld",
+    "dog_bone_weld_lines",
     "ScannerSettings",
     "NominalMotion",
     "PassEntry",
@@ -28,28 +47,56 @@ __all__ = [
     "SampleManifest",
 ]
 
-MANIFEST_SCHEMA_VERSION = "1.0"
+MANIFEST_SCHEMA_VERSION = "1.1"  # what is written; 1.0 is read too (SampleManifest.schema_version)
+WELD_LINE_MARGIN_MM = 10.0  # how far a weld line may stand outside the part's box (a weld cap, a fillet)
 
 Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
+Joint = Literal["double-sided butt", "single-V butt", "double-V butt", "fillet", "double fillet",
+                "cruciform fillet", "other"]
+JOINTS: tuple[str, ...] = Joint.__args__
+_BUTT_JOINTS = ("double-sided butt", "single-V butt", "double-V butt", "other")
 _ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
 
-
-def _check_relative_file(value: str) -> str:
-    path = PurePosixPath(value)
-    if "\\" in value or path.is_absolute() or value.startswith("~"):
-        raise ValueError(f"pass file {value!r} must be a relative POSIX path inside the sample folder")
-    if any(part == ".." for part in path.parts) or not path.parts:
-        raise ValueError(f"pass file {value!r} must not leave the sample folder ('..' is not allowed)")
-    return value
+Bounds = tuple[tuple[float, float, float], tuple[float, float, float]]
 
 
-RelativeFile = Annotated[str, AfterValidator(_check_relative_file)]
+def _relative_file(what: str):
+    def check(value: str) -> str:
+        path = PurePosixPath(value)
+        if "\\" in value or path.is_absolute() or value.startswith("~"):
+            raise ValueError(f"{what} {value!r} must be a relative POSIX path inside the sample folder")
+        if any(part == ".." for part in path.parts) or not path.parts:
+            raise ValueError(f"{what} {value!r} must not leave the sample folder ('..' is not allowed)")
+        return value
+    return check
 
 
-class SpecimenGeometry(StrictModel):
+RelativeFile = Annotated[str, AfterValidator(_relative_file("pass file"))]
+
+
+def _check_millimetres(dimensions: dict[str, float]) -> None:
+    """Refuse a part whose main ``dimensions`` (name -> mm) are under 1 mm: given in metres."""
+    small = {k: v for k, v in dimensions.items() if v < 1.0}
+    if small:
+        raise ValueError(f"{', '.join(f'{k} {v:g}' for k, v in small.items())}: under 1 mm, not a part a "
+                         "scanning cell measures; were the dimensions given in metres? expected millimetres")
+
+
+class _Part(StrictModel):
+    """What every kind of specimen says: the joints it can carry, its bounding box."""
+
+    joints: ClassVar[tuple[str, ...]]  # the values of ``weld.joint`` that fit the kind
+
+    @abstractmethod
+    def bounds_mm(self) -> Bounds:
+        """The part's axis-aligned bounding box in its specimen frame, mm: (min corner, max corner)."""
+
+
+class DogBoneSpecimen(_Part):
     """Nominal (drawing) geometry of a dog-bone specimen; the specimen frame has its origin at
     the centre, x along the length, y across the width, z through the thickness."""
 
+    joints: ClassVar[tuple[str, ...]] = _BUTT_JOINTS
     kind: Literal["dog-bone"] = "dog-bone"
     length_mm: float = Field(gt=0, le=5000)
     grip_width_mm: float = Field(gt=0, le=2000)
@@ -59,16 +106,203 @@ class SpecimenGeometry(StrictModel):
     thickness_mm: float = Field(gt=0, le=500)
 
     @model_validator(mode="after")
-    def _in_millimetres(self) -> "SpecimenGeometry":
-        small = {k: v for k, v in (("length_mm", self.length_mm), ("grip_width_mm", self.grip_width_mm),
-                                   ("thickness_mm", self.thickness_mm)) if v < 1.0}
-        if small:
-            raise ValueError(f"{', '.join(f'{k} {v:g}' for k, v in small.items())}: under 1 mm, not a part a "
-                             "scanning cell measures; were the dimensions given in metres? expected millimetres")
+    def _in_millimetres(self) -> "DogBoneSpecimen":
+        _check_millimetres({"length_mm": self.length_mm, "grip_width_mm": self.grip_width_mm,
+                            "thickness_mm": self.thickness_mm})
+        return self
+
+    def bounds_mm(self) -> Bounds:
+        x, y, z = self.length_mm / 2, self.grip_width_mm / 2, self.thickness_mm / 2
+        return (-x, -y, -z), (x, y, z)
+
+
+class PlateSpecimen(_Part):
+    """Two plates butt-welded edge to edge into one rectangular plate (the joint's groove, single
+    or double V, in ``weld.joint``). The specimen frame has its origin at the plate's centre, x
+    along ``length_mm`` (across the weld), y along ``width_mm`` (along the weld), z through the
+    thickness; the face at z = +thickness/2 is the top."""
+
+    joints: ClassVar[tuple[str, ...]] = _BUTT_JOINTS
+    kind: Literal["plate"]
+    length_mm: float = Field(gt=0, le=5000)
+    width_mm: float = Field(gt=0, le=5000)
+    thickness_mm: float = Field(gt=0, le=500)
+
+    @model_validator(mode="after")
+    def _in_millimetres(self) -> "PlateSpecimen":
+        _check_millimetres({"length_mm": self.length_mm, "width_mm": self.width_mm,
+                            "thickness_mm": self.thickness_mm})
+        return self
+
+    def bounds_mm(self) -> Bounds:
+        x, y, z = self.length_mm / 2, self.width_mm / 2, self.thickness_mm / 2
+        return (-x, -y, -z), (x, y, z)
+
+
+class _StemmedPart(_Part):
+    """A base plate with a stem plate welded upright across its whole width (T-joint, cruciform)."""
+
+    base_length_mm: float = Field(gt=0, le=5000)
+    base_width_mm: float = Field(gt=0, le=5000)
+    base_thickness_mm: float = Field(gt=0, le=500)
+    stem_height_mm: float = Field(gt=0, le=5000, description="from the base plate's face to the stem's end")
+    stem_thickness_mm: float = Field(gt=0, le=500)
+    stem_x_mm: float = Field(default=0.0, description="x of the stem's mid-plane, specimen frame")
+
+    @model_validator(mode="after")
+    def _plausible(self) -> "_StemmedPart":
+        _check_millimetres({"base_length_mm": self.base_length_mm, "base_width_mm": self.base_width_mm,
+                            "base_thickness_mm": self.base_thickness_mm})
+        if abs(self.stem_x_mm) + self.stem_thickness_mm / 2 > self.base_length_mm / 2:
+            raise ValueError(f"the stem (stem_x_mm {self.stem_x_mm:g}, stem_thickness_mm {self.stem_thickness_mm:g}) "
+                             f"overhangs the base plate (base_length_mm {self.base_length_mm:g}); expected "
+                             "|stem_x_mm| + stem_thickness_mm/2 <= base_length_mm/2")
         return self
 
 
+class TJointSpecimen(_StemmedPart):
+    """A T-joint: a stem plate welded upright on one face of a base plate, across its whole width.
+    The specimen frame has its origin at the centre of the base plate (mid-thickness), x along the
+    base plate's length (across the stem), y along its width (along the stem and its welds), z
+    through its thickness toward the stem. The stem's mid-plane is x = ``stem_x_mm``; it stands
+    from the base plate's face (z = base_thickness/2) to z = base_thickness/2 + stem_height_mm."""
+
+    joints: ClassVar[tuple[str, ...]] = ("fillet", "double fillet", "other")
+    kind: Literal["t-joint"]
+
+    def bounds_mm(self) -> Bounds:
+        x, y, z = self.base_length_mm / 2, self.base_width_mm / 2, self.base_thickness_mm / 2
+        return (-x, -y, -z), (x, y, z + self.stem_height_mm)
+
+
+class CruciformSpecimen(_StemmedPart):
+    """A cruciform joint: stem plates welded upright on both faces of a base plate, in one plane,
+    across its whole width. The specimen frame is the T-joint's: origin at the centre of the base
+    plate (mid-thickness), x along the base plate's length (across the stems), y along its width
+    (along the stems and their welds), z through its thickness. The stems' mid-plane is
+    x = ``stem_x_mm``; each stands ``stem_height_mm`` from its face (z = +-base_thickness/2)."""
+
+    joints: ClassVar[tuple[str, ...]] = ("cruciform fillet", "other")
+    kind: Literal["cruciform"]
+
+    def bounds_mm(self) -> Bounds:
+        x, y, z = self.base_length_mm / 2, self.base_width_mm / 2, self.base_thickness_mm / 2
+        return (-x, -y, -z - self.stem_height_mm), (x, y, z + self.stem_height_mm)
+
+
+def _check_drawing_suffix(value: str) -> str:
+    if PurePosixPath(value).suffix.lower() not in (".stl", ".ply"):
+        raise ValueError(f"drawing file {value!r}: expected a mesh file, .stl or .ply")
+    return value
+
+
+class DrawingSpecimen(_Part):
+    """Any other part, given by its drawing: a triangle mesh (STL or PLY) inside the sample folder.
+    The specimen frame is the drawing's own coordinate frame, its coordinates in ``units`` scaled
+    to millimetres. ``bounds_mm``: the drawing's axis-aligned bounding box in that frame, mm (min
+    corner, max corner), for plausibility checks without reading the mesh; ``sha256``: the file's
+    content hash (checked, with the file, before a reconstruction)."""
+
+    joints: ClassVar[tuple[str, ...]] = JOINTS
+    kind: Literal["drawing"]
+    file: Annotated[str, AfterValidator(_relative_file("drawing file")), AfterValidator(_check_drawing_suffix)]
+    units: Literal["mm", "cm", "m", "in"]
+    sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
+    bounds: tuple[Vector3, Vector3] = Field(description="min corner, max corner; specimen frame, mm")
+
+    @model_validator(mode="after")
+    def _a_box(self) -> "DrawingSpecimen":
+        lo, hi = self.bounds
+        if any(b <= a for a, b in zip(lo, hi)):
+            raise ValueError(f"bounds {list(lo)} .. {list(hi)}: expected the min corner below the max corner "
+                             "on every axis")
+        _check_millimetres({"bounds (largest extent)": max(b - a for a, b in zip(lo, hi))})
+        return self
+
+    def bounds_mm(self) -> Bounds:
+        return self.bounds
+
+
+SPECIMEN_KINDS: dict[str, type[_Part]] = {"dog-bone": DogBoneSpecimen, "plate": PlateSpecimen,
+                                          "t-joint": TJointSpecimen, "cruciform": CruciformSpecimen,
+                                          "drawing": DrawingSpecimen}
+
+
+def _specimen_of_its_kind(value: Any, handler: ValidatorFunctionWrapHandler) -> _Part:
+    """Validate ``value`` as the kind it names (``kind``, default dog-bone as in schema 1.0), so
+    that an error names the kind's own fields (``specimen.length_mm``) and an unknown kind the
+    known ones."""
+    if isinstance(value, tuple(SPECIMEN_KINDS.values())):
+        return value
+    if not isinstance(value, dict):
+        return handler(value)
+    kind = value.get("kind", "dog-bone")
+    if not isinstance(kind, str) or kind not in SPECIMEN_KINDS:
+        raise ValueError(f"kind {kind!r} is not a specimen kind weldrecon knows; expected one of "
+                         f"{', '.join(SPECIMEN_KINDS)}")
+    return SPECIMEN_KINDS[kind].model_validate(value)
+
+
+SpecimenGeometry = Annotated[
+    Union[DogBoneSpecimen, PlateSpecimen, TJointSpecimen, CruciformSpecimen, DrawingSpecimen],
+    Field(discriminator="kind"), WrapValidator(_specimen_of_its_kind)]
+"""The specimen, any kind (``specimen.kind``: dog-bone, plate, t-joint, cruciform, drawing)."""
+
+
+class WeldLine(StrictModel):
+    """One line of the weld: a polyline in the specimen frame, mm (a weld's centre line on one
+    face, a toe, a fillet's root); the reconstruction keeps its full resolution around it."""
+
+    name: str = Field(pattern=_ID_PATTERN)
+    points_mm: list[Vector3] = Field(min_length=2, max_length=1000, description="(k, 3), specimen frame, mm")
+    label: str | None = Field(default=None, min_length=1, max_length=64,
+                              description="where the line lies, e.g. 'top toe A'")
+
+    @field_validator("points_mm")
+    @classmethod
+    def _no_repeated_point(cls, value: list[Vector3]) -> list[Vector3]:
+        for k in range(1, len(value)):
+            if value[k] == value[k - 1]:
+                raise ValueError(f"points {k - 1} and {k} are the same point {list(value[k])}; expected each "
+                                 "point of the polyline once")
+        return value
+
+
+def dog_bone_weld_lines(specimen: DogBoneSpecimen, centre_x_mm: float) -> list[WeldLine]:
+    """The weld lines of a dog-bone's double-sided butt weld across it at x = ``centre_x_mm``
+    (specimen frame, mm): on the top face (z = +thickness/2) and on the bottom face
+    (z = -thickness/2), each across the full grip width. What a schema 1.0 manifest's
+    ``weld.centre_x_mm`` means; the simulator writes these lines."""
+    y, z = specimen.grip_width_mm / 2, specimen.thickness_mm / 2
+    return [WeldLine(name=side, label=f"{side} face, weld centre line",
+                     points_mm=[(centre_x_mm, -y, sign * z), (centre_x_mm, y, sign * z)])
+            for side, sign in (("top", 1.0), ("bottom", -1.0))]
+
+
 class WeldDescription(StrictModel):
+    """The weld (schema 1.1): how it was made and treated, its joint, and where it runs:
+    ``weld_lines``, named polylines in the specimen frame, mm (at least one)."""
+
+    process: str = "GMAW"
+    joint: Joint
+    weld_lines: list[WeldLine] = Field(min_length=1)
+    treatment: Treatment = "as-welded"
+
+    @field_validator("weld_lines")
+    @classmethod
+    def _unique_names(cls, value: list[WeldLine]) -> list[WeldLine]:
+        names = [line.name for line in value]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(f"weld line names must be unique, repeated: {twice}")
+        return value
+
+
+class CentreLineWeld(StrictModel):
+    """The weld of a schema 1.0 manifest: a dog-bone's double-sided butt weld across it, its
+    centre line x = ``centre_x_mm`` of the specimen frame. Read, never written:
+    ``SampleManifest.weld_lines`` gives its lines (``dog_bone_weld_lines``)."""
+
     process: str = "GMAW"
     joint: Literal["double-sided butt"] = "double-sided butt"
     centre_x_mm: float = Field(default=0.0, description="weld centre line, specimen frame")
@@ -117,9 +351,12 @@ class NominalMotion(StrictModel):
 
 
 class PassEntry(StrictModel):
+    """One pass. ``direction``: a label for people ("along-length", "across-weld", "rolled 45");
+    the reconstruction goes by ``nominal_motion.direction_world`` alone."""
+
     pass_id: str = Field(pattern=_ID_PATTERN)
     file: RelativeFile
-    direction: Literal["along-length", "along-width"]
+    direction: str = Field(min_length=1, max_length=64, pattern=r"\S")
     n_profiles: int = Field(gt=0, le=10_000_000)
     duration_s: float = Field(gt=0)
     nominal_motion: NominalMotion
@@ -131,7 +368,7 @@ class Setup(StrictModel):
     """One placement of the specimen in the cell; the robot frame ('world') is the cell's.
 
     ``T_world_specimen_nominal``: where the fixture puts the specimen frame in this setup, as
-    drawn (optional); the specimen lies within ``placement_tolerance_mm`` of it at its weld line.
+    drawn (optional); the specimen lies within ``placement_tolerance_mm`` of it at its weld lines.
     With it, the reconstruction knows roughly where the weld is before it has seen the weld and
     keeps that zone at full resolution."""
 
@@ -140,17 +377,22 @@ class Setup(StrictModel):
     passes: list[PassEntry] = Field(min_length=1)
     T_world_specimen_nominal: Pose4x4 | None = None
     placement_tolerance_mm: float = Field(default=0.0, ge=0, le=1000, description=(
-        "how far the specimen's weld line may lie from where T_world_specimen_nominal puts it"))
+        "how far the specimen's weld lines may lie from where T_world_specimen_nominal puts them"))
 
 
 class SampleManifest(StrictModel):
-    schema_version: Literal["1.0"]  # required: a file of another version is told apart, never guessed
+    """A sample's manifest. ``schema_version`` 1.1 is written; 1.0 (a dog-bone, its weld given by
+    ``centre_x_mm``: ``CentreLineWeld``) is read as it is. Read the weld's lines through
+    ``weld_lines()``, whatever the version."""
+
+    schema_version: Literal["1.0", "1.1"]  # required: a file of another version is told apart, never guessed
     units: Literal["mm"]
     sample_id: str = Field(pattern=_ID_PATTERN)
     created: datetime
     material: str = "S355"
     specimen: SpecimenGeometry
-    weld: WeldDescription
+    weld: Union[WeldDescription, CentreLineWeld] = Field(description=(
+        "schema_version 1.1: WeldDescription (weld_lines); 1.0: CentreLineWeld (centre_x_mm)"))
     sticker_diameter_mm: float = Field(gt=0, le=100)
     scanner: ScannerSettings
     setups: list[Setup] = Field(min_length=1)
@@ -161,6 +403,18 @@ class SampleManifest(StrictModel):
         if value.tzinfo is None:
             raise ValueError("created must carry a timezone (e.g. 2026-11-22T10:00:00+00:00)")
         return value
+
+    @field_validator("weld", mode="wrap")
+    @classmethod
+    def _weld_of_its_version(cls, value: Any, handler: ValidatorFunctionWrapHandler,
+                             info: ValidationInfo) -> WeldDescription | CentreLineWeld:
+        """The weld in the form of the manifest's schema_version, so that an error names that
+        form's fields. When schema_version itself was refused, its error stands alone (the
+        manifest is refused whatever the weld)."""
+        version = info.data.get("schema_version")
+        if version is None:
+            return value
+        return (CentreLineWeld if version == "1.0" else WeldDescription).model_validate(value)
 
     @model_validator(mode="after")
     def _unique_names(self) -> "SampleManifest":
@@ -178,6 +432,33 @@ class SampleManifest(StrictModel):
             raise ValueError("each pass needs a file of its own; " + "; ".join(
                 f"passes {', '.join(ids)} all refer to {f}" for f, ids in sorted(shared.items())))
         return self
+
+    @model_validator(mode="after")
+    def _weld_fits_the_part(self) -> "SampleManifest":
+        kind = self.specimen.kind
+        if self.schema_version == "1.0" and kind != "dog-bone":
+            raise ValueError(f"specimen.kind {kind!r}: schema_version 1.0 describes dog-bones only; expected "
+                             "schema_version 1.1 (with weld.weld_lines)")
+        if self.weld.joint not in self.specimen.joints:
+            raise ValueError(f"weld.joint {self.weld.joint!r} does not fit specimen.kind {kind!r}; expected one of "
+                             f"{', '.join(self.specimen.joints)}")
+        lo, hi = self.specimen.bounds_mm()
+        for n, line in enumerate(self.weld_lines()):
+            for k, point in enumerate(line.points_mm):
+                outside = max(max(a - p, p - b) for p, a, b in zip(point, lo, hi))
+                if outside > WELD_LINE_MARGIN_MM:
+                    raise ValueError(
+                        f"weld.weld_lines.{n} ({line.name}): point {k} {list(point)} lies {outside:.1f} mm outside "
+                        f"the {kind}'s bounding box {list(lo)} .. {list(hi)} mm; expected weld lines in the "
+                        f"specimen frame, in mm, within {WELD_LINE_MARGIN_MM:g} mm of the part")
+        return self
+
+    def weld_lines(self) -> list[WeldLine]:
+        """The weld's lines in the specimen frame, mm: a 1.1 manifest's own, a 1.0 manifest's from
+        its centre line (``dog_bone_weld_lines``): the one place ``centre_x_mm`` is read."""
+        if isinstance(self.weld, CentreLineWeld):
+            return dog_bone_weld_lines(self.specimen, self.weld.centre_x_mm)
+        return list(self.weld.weld_lines)
 
     def passes(self) -> list[tuple[str, PassEntry]]:
         """All passes as ``(setup_name, entry)`` in manifest order."""

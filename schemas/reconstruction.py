@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from schemas.common import StrictModel
+from schemas.common import StrictModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "RefineConfig", "MergeConfig", "SegmentConfig",
            "MeshConfig", "ReconstructionConfig"]
@@ -97,7 +97,25 @@ class MergeConfig(StrictModel):
 
 
 class SegmentConfig(StrictModel):
+    """Two setups: the components holding the stickers seen in both are the part. One setup: the
+    fixture's plane, the part's drawing box where the setup puts it, one body of its size
+    (``tasks.single_setup``); the fields below ``link_mm`` are for that case."""
+
     link_mm: float = Field(default=1.0, gt=0, le=50, description="points closer than this are connected")
+    up_world: Vector3 = Field(default=(0.0, 0.0, 1.0), description=(
+        "single setup: the cell's up direction in the robot (world) frame; the fixture's plane is "
+        "the lowest large plane facing it"))
+    plane_clearance_mm: float = Field(default=1.0, ge=0, le=50, description=(
+        "single setup: points within this of the fixture's plane (or below it) go with it"))
+    size_tolerance: float = Field(default=0.1, ge=0, le=1, description=(
+        "the kept body's two longest extents may exceed the drawing box's by this fraction (more: "
+        "refused, the setups were not registered as one body or the fixture is kept)"))
+    min_seen_fraction: float = Field(default=0.7, gt=0, le=1, description=(
+        "single setup: and fall short of them down to this fraction (a part not scanned all round)"))
+    underside_fill_mm: float = Field(default=1.0, ge=0, le=20, description=(
+        "single setup: the part's underside, never seen, is closed by a plane at its lowest measured "
+        "height, one point per this many mm (marked not measured); 0: left open (Poisson then runs "
+        "out to its bounding cube: no watertight mesh)"))
 
 
 class MeshConfig(StrictModel):

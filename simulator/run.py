@@ -29,8 +29,8 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
 from data_catalog.truth import TRUTH_DIR, TruthPassWriter, write_truth
-from schemas.manifest import (MANIFEST_SCHEMA_VERSION, NominalMotion, PassEntry, SampleManifest, ScannerSettings, Setup,
-                              SpecimenGeometry, WeldDescription)
+from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
+                              ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
 from schemas.simulation import SimulationConfig
 from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
@@ -148,12 +148,14 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
         setups.append(Setup(name=setup, description=description, passes=entries,
                             T_world_specimen_nominal=nominal.tolist(),
                             placement_tolerance_mm=round(placement_tolerance_mm(config.placement, sp.grip_width_mm / 2), 3)))
+    specimen = DogBoneSpecimen(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
+                               gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
+                               transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm)
     return SampleManifest(
         schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=config.sample_id, created=SCAN_DATE, material="S355",
-        specimen=SpecimenGeometry(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
-                                  gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
-                                  transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm),
-        weld=WeldDescription(treatment=config.weld.treatment),
+        specimen=specimen,
+        weld=WeldDescription(joint="double-sided butt", weld_lines=dog_bone_weld_lines(specimen, 0.0),
+                             treatment=config.weld.treatment),  # the simulated weld is drawn about x = 0
         sticker_diameter_mm=config.stickers.diameter_mm,
         scanner=ScannerSettings(model=sc.model, points_per_profile=sc.points_per_profile,
                                 x_spacing_mm=sc.x_spacing_mm, z_resolution_mm=sc.z_resolution_mm,

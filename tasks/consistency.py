@@ -13,7 +13,10 @@ Flags (the run goes on; the report states them and the command warns):
 - a storage chunk boundary where the measured surface steps far more than it does between the
   profiles around it (``chunk_jumps``): a chunk out of place;
 - a pass whose target residuals after the pose solve stand far above the sample's
-  (``residual_outliers``): its data or poses disagree with the others.
+  (``residual_outliers``): its data or poses disagree with the others;
+- the surfaces two setups both saw (``surfaces_between_setups``): none overlapping after the
+  refinement (only the stickers tie the setups: nothing confirms their match), or overlapping far
+  worse than one setup's passes do.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["POSE_TOLERANCE", "STEP_FACTOR", "STEP_SLACK_MM", "MAX_TURN_RAD", "MotionCheck", "profile_steps",
-           "chunk_jumps", "residual_outliers"]
+           "chunk_jumps", "residual_outliers", "surfaces_between_setups"]
 
 POSE_TOLERANCE = 1e-6  # largest entry of R^T R - I, as for the manifest's poses (schemas.common)
 STEP_FACTOR = 2.0
@@ -34,6 +37,8 @@ CHUNK_JUMP_FACTOR = 10.0  # a boundary step this many times the largest step aro
 CHUNK_JUMP_FLOOR_MM = 0.05  # and at least this large (the sensor's noise is ~0.01 mm)
 CHUNK_JUMP_CONTEXT = 8  # profile steps looked at on each side of a boundary
 RESIDUAL_FACTOR = 3.0  # a pass's median target residual this many times the sample's median
+SHARED_SURFACE_FACTOR = 3.0  # surfaces of two setups this many times further apart than one setup's
+SHARED_SURFACE_FLOOR_MM = 0.01  # and at least this much further (the sensor's noise)
 
 
 @dataclass
@@ -184,3 +189,32 @@ def residual_outliers(per_pass: dict[str, float], *, floor_mm: float) -> list[di
     typical = float(np.median(values))
     return [{"pass": p, "residual_median_mm": round(v, 5), "sample_median_mm": round(typical, 5)}
             for p, v in per_pass.items() if np.isfinite(v) and v > RESIDUAL_FACTOR * typical and v > floor_mm]
+
+
+def surfaces_between_setups(setup_of: list[str], pair_rms_mm: dict[tuple[int, int], float],
+                            pair_count: dict[tuple[int, int], int]) -> dict | None:
+    """Independent evidence for the match between setups: the refined surface pairs (pass
+    indices (a, b) -> RMS mm and point count, as ``tasks.refine`` gives them), split into pairs of
+    one setup and pairs across setups (``setup_of``: each pass's setup). None with fewer than two
+    setups; else the figures and ``flagged``: None, or why (no pair across setups, or their median
+    RMS over ``SHARED_SURFACE_FACTOR`` times one setup's and ``SHARED_SURFACE_FLOOR_MM`` more)."""
+    setups = list(dict.fromkeys(setup_of))
+    if len(setups) < 2:
+        return None
+    cross = [k for k in pair_rms_mm if setup_of[k[0]] != setup_of[k[1]] and pair_count.get(k, 0) > 0]
+    within = [k for k in pair_rms_mm if setup_of[k[0]] == setup_of[k[1]] and pair_count.get(k, 0) > 0]
+    cross_rms = float(np.median([pair_rms_mm[k] for k in cross])) if cross else None
+    within_rms = float(np.median([pair_rms_mm[k] for k in within])) if within else None
+    flagged = None
+    if not cross:
+        flagged = (f"no surface of one setup overlaps one of another ({', '.join(setups)}) after the refinement: "
+                   "only the stickers tie the setups, nothing confirms their match")
+    elif within_rms is not None and cross_rms > max(SHARED_SURFACE_FACTOR * within_rms,
+                                                    within_rms + SHARED_SURFACE_FLOOR_MM):
+        flagged = (f"the surfaces two setups both saw lie {cross_rms * 1000:.0f} um apart (median RMS over {len(cross)} "
+                   f"pass pairs), over {SHARED_SURFACE_FACTOR:g} x one setup's {within_rms * 1000:.0f} um: the setups "
+                   "disagree where they overlap")
+    return {"pairs_across": len(cross), "points_across": int(sum(pair_count[k] for k in cross)),
+            "rms_median_across_mm": None if cross_rms is None else round(cross_rms, 6),
+            "pairs_within": len(within), "rms_median_within_mm": None if within_rms is None else round(within_rms, 6),
+            "flagged": flagged}

@@ -58,13 +58,39 @@ def _distance_signatures(points: np.ndarray, max_mm: float = np.inf) -> list[np.
     return out
 
 
+_MIN_SPREAD_MM = 2.0  # targets whose second singular value (about their centroid) is below this: a line
+
+
+def _leave_one_out_spread(points: np.ndarray) -> tuple[int, float]:
+    """(the target whose removal leaves the others nearest a line, their spread off it then): the
+    second singular value of the others about their centroid, mm, the least over the targets."""
+    spreads = [np.linalg.svd(np.delete(points, k, axis=0) - np.delete(points, k, axis=0).mean(0),
+                             compute_uv=False)[1] for k in range(len(points))]
+    k = int(np.argmin(spreads))
+    return k, float(spreads[k])
+
+
+def _distance_gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """For each of the sorted distances a, how far the nearest of the sorted distances b is."""
+    if a.size == 0 or b.size == 0:
+        return np.full(a.size, np.inf)
+    pos = np.clip(np.searchsorted(b, a), 1, b.size - 1) if b.size > 1 else np.zeros(a.size, int)
+    return np.minimum(np.abs(b[pos] - a), np.abs(b[pos - 1] - a)) if b.size > 1 else np.abs(b[0] - a)
+
+
 def _shared_distances(a: np.ndarray, b: np.ndarray, tol: float) -> int:
     """How many of the sorted distances a find a partner in the sorted distances b within tol."""
-    if a.size == 0 or b.size == 0:
-        return 0
-    pos = np.clip(np.searchsorted(b, a), 1, b.size - 1) if b.size > 1 else np.zeros(a.size, int)
-    best = np.minimum(np.abs(b[pos] - a), np.abs(b[pos - 1] - a)) if b.size > 1 else np.abs(b[0] - a)
-    return int(np.count_nonzero(best <= tol))
+    return int(np.count_nonzero(_distance_gaps(a, b) <= tol))
+
+
+def _agreement(a: np.ndarray, b: np.ndarray, tol: float) -> tuple[int, float]:
+    """(how many of the sorted distances a find a partner in b within tol, how closely: the sum
+    over those of exp(-(gap / (tol/5))**2 / 2)). Within a loose tolerance many distances agree by
+    chance, evenly over the window; the true partner's agree to the centres' error: the closeness
+    ranks it first where the count alone ties it with chance."""
+    gaps = _distance_gaps(a, b)
+    close = gaps[gaps <= tol]
+    return len(close), float(np.exp(-0.5 * (close / (tol / 5)) ** 2).sum())
 
 
 def match_by_translation(a_mm: np.ndarray, b_mm: np.ndarray, *, max_offset_mm: float = 3.0,
@@ -145,11 +171,12 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     """
     a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
     sig_a, sig_b = _distance_signatures(a, neighbourhood_mm), _distance_signatures(b, neighbourhood_mm)
-    score = np.array([[_shared_distances(s, t, tolerance_mm) for t in sig_b] for s in sig_a]).reshape(len(a), len(b))
+    agree = np.array([[_agreement(s, t, tolerance_mm) for t in sig_b] for s in sig_a]).reshape(len(a), len(b), 2)
+    count, score = agree[..., 0], agree[..., 1]
     cand = []
     for i in range(len(a)):
         for j in np.argsort(-score[i], kind="stable")[:per_target]:
-            if score[i, j] >= min_shared:
+            if count[i, j] >= min_shared:
                 cand.append((i, j))
     cand = np.array(cand, int).reshape(-1, 2)
     if len(cand) < 3:
@@ -178,7 +205,7 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                 if len(set(trio[:, 0])) < 3 or len(set(trio[:, 1])) < 3:
                     continue
                 src, dst = b[trio[:, 1]], a[trio[:, 0]]
-                if np.linalg.svd(src - src.mean(0), compute_uv=False)[1] < 2.0:
+                if np.linalg.svd(src - src.mean(0), compute_uv=False)[1] < _MIN_SPREAD_MM:
                     continue  # nearly collinear: the rotation about their line is unknown
                 tries += 1
                 T = kabsch(src, dst)
@@ -205,6 +232,12 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                              "no evidence)")
     T = kabsch(b[best_pairs[:, 1]], a[best_pairs[:, 0]])
     at = b[best_pairs[:, 1]]
+    weakest, spread = _leave_one_out_spread(at)
+    if spread < _MIN_SPREAD_MM:
+        raise AmbiguousMatch(f"the best rigid transform brings {len(best_pairs)} targets together, but without one of "
+                             f"them (at {np.round(a[best_pairs[weakest, 0]], 1).tolist()} mm) the others lie nearly on a "
+                             f"line (spread {spread:.2f} mm off it, expected {_MIN_SPREAD_MM:g} or more): one sticker alone "
+                             "would decide the turn about that line, which a chance coincidence can (no evidence)")
 
     def distinct(other: np.ndarray) -> bool:
         degrees, mm = pose_difference(T, other, at)

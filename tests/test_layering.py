@@ -17,14 +17,15 @@ RULES = {
     "schemas": ({"schemas"}, {"pydantic", "typing_extensions"}),
     "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba", "threadpoolctl"}),
     "data_catalog": ({"data_catalog", "schemas"}, {"numpy", "zarr", "numcodecs", "yaml", "pydantic", "plyfile",
-                                                   "pypcd4", "pye57", "laspy"}),
+                                                   "pypcd4", "pye57", "laspy", "scipy"}),
     "simulator": ({"simulator", "schemas", "data_catalog", "tasks"}, {"numpy", "scipy", "open3d", "cv2", "pydantic",
                                                                      "yaml", "zarr"}),
 }
 # flows may import anything; only these functions of flows/cli.py may touch the simulator (the
-# `simulate` command is the simulator's own command line; `demo` simulates the demo sample)
+# `simulate` command is the simulator's own command line; `demo` simulates the demo sample;
+# `export-cell` writes a sample as a cell's logs, for trying `import` on known data)
 SIMULATOR_IN_FLOWS = {("flows/cli.py", "_simulation_config"), ("flows/cli.py", "_cmd_simulate"),
-                      ("flows/cli.py", "_cmd_demo")}
+                      ("flows/cli.py", "_cmd_demo"), ("flows/cli.py", "_cmd_export_cell")}
 
 
 def _imports(path: Path):

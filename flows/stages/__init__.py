@@ -40,8 +40,9 @@ STAGES: tuple[Stage, ...] = (
     Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, merge.merge_view,
           "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
           "away from the weld"),
-    Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, _sample_wide,
-          "remove unwanted objects (the fixture): components of occupied grid cells"),
+    Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, segment.segment_view,
+          "remove unwanted objects (the fixture): components of occupied grid cells holding the part's stickers; "
+          "a single setup: the fixture's plane, the drawing's box, one body of the part's size"),
     Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), mesh.mesh, _sample_wide,
           "screened Poisson (MeshLab) on the merged points and normals"),
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,

@@ -1,8 +1,8 @@
 """Stage ``merge``: every pass into the common frame, merged by the box-grid filter, out of core.
 
 Where the manifest says where the fixture put the specimen (``Setup.T_world_specimen_nominal``),
-the zone around its weld line (``merge.weld_zone_mm`` plus the setup's placement tolerance) stays
-at the fine resolution, flat or not (``weld_bands``).
+the zone around its weld lines (every point within ``merge.weld_zone_mm`` plus the setup's
+placement tolerance of a line) stays at the fine resolution, flat or not (``weld_zones``).
 
 Each pass is read in blocks of profiles; a block's points and normals go into the common frame and
 are summed per cell (``tasks.merge.cell_sums``, a few times fewer records than points at the
@@ -24,10 +24,10 @@ from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import block_rows, zarr_array
 from schemas.manifest import SampleManifest
-from tasks.merge import (Band, CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells, combine_cell_sums,
-                         transform_measured)
+from tasks.merge import (CellSums, PolylineZone, cell_index_of_keys, cell_sums, coarsen_flat_cells,
+                         combine_cell_sums, transform_measured)
 
-__all__ = ["merge", "merge_view", "weld_bands"]
+__all__ = ["merge", "merge_view", "weld_zones"]
 
 SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
@@ -74,37 +74,41 @@ class _Spill:
 
 def merge_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
     """What the merge reads of the manifest: the passes (in order), each setup's nominal placement
-    and tolerance, and the weld line."""
-    return {"passes": [e.pass_id for _, e in manifest.passes()], "weld_centre_x_mm": manifest.weld.centre_x_mm,
+    and tolerance, and the weld lines (specimen frame, mm; a 1.0 and a 1.1 manifest of one part
+    give the same lines, hence the same key)."""
+    return {"passes": [e.pass_id for _, e in manifest.passes()],
+            "weld_lines_mm": [[list(p) for p in line.points_mm] for line in manifest.weld_lines()],
             "setups": [{"name": s.name, "passes": [e.pass_id for e in s.passes],
                         "T_world_specimen_nominal": s.T_world_specimen_nominal,
                         "placement_tolerance_mm": s.placement_tolerance_mm} for s in manifest.setups]}
 
 
-def weld_bands(manifest: SampleManifest, T_common_pass: np.ndarray, zone_mm: float) -> tuple[Band, ...]:
-    """The weld's zone in the common frame, one band per setup that states its nominal placement:
-    the plane x = weld centre of the specimen frame, through that setup's first pass's pose
-    (its robot frame into the common one), ``zone_mm`` plus the setup's tolerance either side."""
+def weld_zones(manifest: SampleManifest, T_common_pass: np.ndarray, zone_mm: float) -> tuple[PolylineZone, ...]:
+    """The weld's zone in the common frame, per setup that states its nominal placement and per
+    weld line: the line (specimen frame) through the setup's nominal placement and its first
+    pass's pose (its robot frame into the common one), and every point within ``zone_mm`` plus
+    the setup's tolerance of it."""
     if zone_mm <= 0:
         return ()
     index = {e.pass_id: k for k, (_, e) in enumerate(manifest.passes())}
-    bands = []
+    lines = [np.asarray(line.points_mm, np.float64) for line in manifest.weld_lines()]
+    zones = []
     for setup in manifest.setups:
         if setup.T_world_specimen_nominal is None:
             continue
         T = np.asarray(T_common_pass[index[setup.passes[0].pass_id]]) @ np.asarray(setup.T_world_specimen_nominal)
-        point = T @ np.array([manifest.weld.centre_x_mm, 0.0, 0.0, 1.0])
-        normal = T[:3, :3] @ np.array([1.0, 0.0, 0.0])
-        bands.append(Band(tuple(float(v) for v in point[:3]), tuple(float(v) for v in normal),
-                          float(zone_mm + setup.placement_tolerance_mm)))
-    return tuple(bands)
+        for points in lines:
+            common = points @ T[:3, :3].T + T[:3, 3]
+            zones.append(PolylineZone(tuple(tuple(float(v) for v in p) for p in common),
+                                      float(zone_mm + setup.placement_tolerance_mm)))
+    return tuple(zones)
 
 
 def merge(ctx) -> dict[str, Any]:
     s = ctx.settings
     slab_cells = SLAB_CELLS // s.coarse_factor * s.coarse_factor  # a coarse cell never straddles two slabs
     T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
-    bands = weld_bands(ctx.manifest, T_all, s.weld_zone_mm)
+    zones = weld_zones(ctx.manifest, T_all, s.weld_zone_mm)
     points_in = 0
     with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         spill = _Spill(Path(scratch))
@@ -118,11 +122,11 @@ def merge(ctx) -> dict[str, Any]:
                 part = cell_sums(p, q, cell_mm=s.cell_mm)
                 spill.add(part, np.floor_divide(cell_index_of_keys(part.keys)[:, 0], slab_cells))
         out = MERGED.writer(ctx.out, chunk_rows=1 << 18)
-        points_out = fine_cells = fine_out = banded_out = 0
+        points_out = fine_cells = fine_out = zone_out = 0
         for part in spill.slabs():
             merged = combine_cell_sums(part, cell_mm=s.cell_mm)
             cloud = coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
-                                       max_deviation_mm=s.flat_deviation_mm, fine_bands=bands)
+                                       max_deviation_mm=s.flat_deviation_mm, fine_zones=zones)
             out.append("points", cloud.points_mm)
             out.append("normals", cloud.normals.astype(np.float32))
             out.append("counts", cloud.counts.astype(np.int32))
@@ -130,11 +134,11 @@ def merge(ctx) -> dict[str, Any]:
             fine_cells += merged.n_points
             points_out += len(cloud.points_mm)
             fine_out += int(cloud.fine.sum())
-            banded_out += int(cloud.banded.sum())
+            zone_out += int(cloud.in_zone.sum())
         if points_out == 0:
             raise ValueError("no points to merge: every pass is empty after denoising")
         out.close()
     return {"points_in": int(points_in), "points_out": int(points_out), "fine_cells": int(fine_cells),
             "fine_points_out": int(fine_out), "coarse_points_out": int(points_out - fine_out),
-            "weld_zone_points_out": int(banded_out),
-            "weld_zones": [{"point_mm": b.point_mm, "normal": b.normal, "half_width_mm": b.half_width_mm} for b in bands]}
+            "weld_zone_points_out": int(zone_out),
+            "weld_zones": [{"points_mm": [list(p) for p in z.points_mm], "radius_mm": z.radius_mm} for z in zones]}

@@ -82,6 +82,7 @@ class SpecimenCloud:
     points: np.ndarray  # (n, 3) float64, mm, common frame: the specimen's merged points
     normals: np.ndarray  # (n, 3) float32, unit, outward (toward the sensors)
     fine: np.ndarray  # (n,) bool: from a fine cell (bent surface) or a coarse one (flat)
+    measured: np.ndarray  # (n,) bool: a merged measurement; False: the plane closing a single setup's unseen underside
 
 SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
-from tasks.consistency import residual_outliers
+from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import refine_poses, surface_sample
 
 __all__ = ["refine"]
@@ -81,6 +81,8 @@ def refine(ctx) -> dict[str, Any]:
         mine = np.asarray(target_res)[(edges == k).any(axis=1)] if len(edges) else np.zeros(0)
         per_pass[name] = float(np.median(mine)) if len(mine) else float("nan")
     flagged = residual_outliers(per_pass, floor_mm=rc.target_sigma_mm)
+    setup_of = [setup for setup, _ in ctx.manifest.passes()]
+    shared = surfaces_between_setups(setup_of, pairs, counts) if rc.enabled else None
     return {"enabled": rc.enabled, "iterations": len(steps), "last_step_mm": steps[-1] if steps else 0.0,
             "surface_pairs": len(pairs), "surface_points": int(sum(counts.values())),
             "largest_pose_change_mm": moved,
@@ -89,4 +91,5 @@ def refine(ctx) -> dict[str, Any]:
             "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None,
             "checks": {"target_residuals": {"per_pass_median_mm": {p: (round(v, 6) if np.isfinite(v) else None)
                                                                    for p, v in per_pass.items()},
-                                            "flagged": flagged}}}
+                                            "flagged": flagged},
+                       **({"surfaces_between_setups": shared} if shared else {})}}

@@ -65,6 +65,13 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
                              f"{f['sample_median_mm'] * 1000:.0f} um: its data or poses disagree with the other passes"
                              if f else "in line with the other passes"),
                     "measured": value})
+    shared = refine.metrics.get("checks", {}).get("surfaces_between_setups")
+    if shared:
+        out.append({"check": "surfaces the setups share", "pass": "all", "result": "flagged" if shared["flagged"] else "ok",
+                    "what": shared["flagged"] or (f"{shared['pairs_across']} pass pairs across setups overlap, median RMS "
+                                                  f"{shared['rms_median_across_mm'] * 1000:.0f} um (one setup's "
+                                                  f"{(shared['rms_median_within_mm'] or 0) * 1000:.0f} um)"),
+                    "measured": {k: v for k, v in shared.items() if k != "flagged"}})
     return out
 
 

@@ -1,6 +1,13 @@
-"""Stage ``segment`` (remove unwanted objects): keep the connected components that carry the
-specimen's targets; the fixture goes. Components come from the occupied cells of a grid
-(``tasks.segment``): memory follows the merged points, not pairs of them."""
+"""Stage ``segment`` (remove unwanted objects): keep the specimen, the fixture goes.
+
+Two or more setups: the connected components that carry the specimen's targets (the stickers seen
+in more than one setup: the part moved, the fixture did not). Components come from the occupied
+cells of a grid (``tasks.segment``): memory follows the merged points, not pairs of them.
+
+One setup (the part never turned): the fixture's plane, the part's drawing where the setup puts
+it, and one body of the part's size (``tasks.single_setup``); a body that is not of the part's size
+is refused with its figures, never kept.
+"""
 
 from __future__ import annotations
 
@@ -10,24 +17,98 @@ import numpy as np
 
 from flows.stages.contracts import zarr_array
 from flows.stages.outputs import MERGED, REFINED, SPECIMEN
+from schemas.manifest import SampleManifest
 from tasks.segment import keep_specimen_components
+from tasks.single_setup import Underside, fill_underside, keep_part_single_setup, principal_extents_mm
 
-__all__ = ["segment"]
+__all__ = ["segment", "segment_view"]
 
 _ROWS = 1 << 20  # merged points per block written
+
+
+def segment_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
+    """What the segment reads of the manifest: the passes (in order), the part's drawing box, and
+    for a single setup the setup's nominal placement and tolerance."""
+    view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()],
+                            "bounds_mm": [list(b) for b in manifest.specimen.bounds_mm()]}
+    if len(manifest.setups) == 1:
+        setup = manifest.setups[0]
+        view["single_setup"] = {"T_world_specimen_nominal": setup.T_world_specimen_nominal,
+                                "placement_tolerance_mm": setup.placement_tolerance_mm}
+    return view
+
+
+def _single_setup(ctx, T_common_pass: np.ndarray, points: np.ndarray,
+                  normals) -> tuple[np.ndarray, Underside | None, dict[str, Any]]:
+    """The part in a single setup's merged cloud (common frame: the setup's robot frame through its
+    first pass's pose), and the plane closing its unseen underside (None: ``underside_fill_mm`` 0)."""
+    setup = ctx.manifest.setups[0]
+    first = [e.pass_id for _, e in ctx.manifest.passes()].index(setup.passes[0].pass_id)
+    T_common_world = np.asarray(T_common_pass[first])
+    T_part = None
+    if setup.T_world_specimen_nominal is not None:
+        T_part = T_common_world @ np.asarray(setup.T_world_specimen_nominal)
+    s = ctx.settings
+    result = keep_part_single_setup(points, np.asarray(normals[...]), up=T_common_world[:3, :3] @ np.asarray(s.up_world),
+                                    link_mm=s.link_mm, part_bounds_mm=ctx.manifest.specimen.bounds_mm(),
+                                    T_frame_part=T_part, placement_tolerance_mm=setup.placement_tolerance_mm,
+                                    plane_clearance_mm=s.plane_clearance_mm, size_tolerance=s.size_tolerance,
+                                    min_seen_fraction=s.min_seen_fraction)
+    plane = result.plane
+    up = T_common_world[:3, :3] @ np.asarray(s.up_world)
+    fill = fill_underside(points[result.keep], up=up, spacing_mm=s.underside_fill_mm) if s.underside_fill_mm else None
+    return result.keep, fill, {
+        "method": "single setup: fixture plane, drawing box, one body of the part's size",
+        "components": result.n_components, "kept_components": 1,
+        "fixture_plane": None if plane is None else {"normal": [round(float(v), 6) for v in plane.normal],
+                                                     "offset_mm": round(plane.offset_mm, 4),
+                                                     "support": plane.support, "rms_mm": round(plane.rms_mm, 4)},
+        "points_on_or_below_plane": result.below_plane, "points_outside_drawing_box": result.outside_box,
+        "part_extents_mm": [round(float(v), 2) for v in result.extents_mm],
+        "drawing_extents_mm": [round(float(v), 2) for v in result.expected_mm],
+        "underside": None if fill is None else {
+            "note": "never seen in a single setup: closed by a plane at the lowest measured height (not measured)",
+            "points": int(len(fill.points_mm)), "height_mm": round(fill.height_mm, 4), "spacing_mm": fill.spacing_mm}}
+
+
+def _one_body_of_the_parts_size(ctx, kept: np.ndarray) -> dict[str, Any]:
+    """Evidence that the setups were registered as one body: what is kept is no larger than the
+    part's drawing along its two longest axes (setups matched wrongly put two copies of the part
+    side by side, or turned; a fixture kept adds its size). Smaller is not refused: a sample may
+    scan part of the part."""
+    extents = principal_extents_mm(kept)
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in ctx.manifest.specimen.bounds_mm())
+    drawing = np.sort(hi - lo)[::-1]
+    limit = 1 + ctx.settings.size_tolerance
+    if np.any(extents[:2] > limit * drawing[:2]):
+        raise ValueError(f"the part kept is {extents[0]:.1f} x {extents[1]:.1f} mm along its two longest axes, its "
+                         f"drawing {drawing[0]:.1f} x {drawing[1]:.1f} mm (segment.size_tolerance {limit - 1:g}): larger "
+                         "than the part, so the setups are not registered as one body (or the fixture is kept); "
+                         "check the stickers both setups see (report: registration) and the specimen's dimensions")
+    return {"part_extents_mm": [round(float(v), 2) for v in extents],
+            "drawing_extents_mm": [round(float(v), 2) for v in drawing]}
 
 
 def segment(ctx) -> dict[str, Any]:
     reg = REFINED.open(ctx.inputs["refine"])
     anchors = reg.track_positions_mm[reg.specimen_track.astype(bool)]
-    if len(anchors) == 0:
-        raise ValueError("no target was seen in more than one setup: the specimen cannot be told from the fixture")
     points = zarr_array(ctx.inputs["merge"], MERGED, "points")
     normals = zarr_array(ctx.inputs["merge"], MERGED, "normals")
     fine = zarr_array(ctx.inputs["merge"], MERGED, "fine")
     all_points = np.asarray(points[...])  # labelling needs every point; normals and zones are read by block
-    result = keep_specimen_components(all_points, link_mm=ctx.settings.link_mm, target_points_mm=anchors)
-    keep = result.keep
+    fill = None
+    if len(anchors):
+        result = keep_specimen_components(all_points, link_mm=ctx.settings.link_mm, target_points_mm=anchors)
+        keep = result.keep
+        metrics = {"method": "components holding the targets seen in more than one setup",
+                   "components": int(result.n_components), "kept_components": int(len(result.kept_labels)),
+                   **_one_body_of_the_parts_size(ctx, all_points[keep])}
+    elif len(ctx.manifest.setups) == 1:
+        keep, fill, metrics = _single_setup(ctx, reg.T_common_pass, all_points, normals)
+    else:
+        raise ValueError(f"no target was seen in more than one of the {len(ctx.manifest.setups)} setups: the "
+                         "specimen cannot be told from the fixture (the part's stickers are those seen in two "
+                         "setups; is a side seen from both?)")
     out = SPECIMEN.writer(ctx.out, chunk_rows=1 << 18)
     kept = no_normal = 0
     for start in range(0, len(keep), _ROWS):
@@ -38,7 +119,12 @@ def segment(ctx) -> dict[str, Any]:
         out.append("points", p[take])
         out.append("normals", q[take])
         out.append("fine", np.asarray(fine[rows])[take])
+        out.append("measured", np.ones(int(take.sum()), bool))
         kept += int(take.sum())
+    if fill is not None:
+        out.append("points", fill.points_mm)
+        out.append("normals", fill.normals.astype(np.float32))
+        out.append("fine", np.zeros(len(fill.points_mm), bool))
+        out.append("measured", np.zeros(len(fill.points_mm), bool))
     out.close()
-    return {"points_in": int(len(keep)), "points_out": kept, "without_normal": no_normal,
-            "components": int(result.n_components), "kept_components": int(len(result.kept_labels))}
+    return {"points_in": int(len(keep)), "points_out": kept, "without_normal": no_normal, **metrics}

@@ -156,3 +156,20 @@ def test_a_pose_log_that_does_not_move_is_refused():
     with pytest.raises(ValueError, match=r"pass top-L03: the logged flange poses travel 0\.000 mm over the pass, the "
                                          r"nominal sweep 63\.7 mm \(10 mm/s for 6\.37 s\); expected the robot's motion"):
         check.summary()
+
+
+def test_surfaces_between_setups_are_evidence_for_their_match():
+    from tasks.consistency import surfaces_between_setups
+
+    setup_of = ["top", "top", "bottom", "bottom"]
+    counts = {(0, 1): 900, (2, 3): 800, (0, 2): 300, (1, 3): 200}
+    agree = {(0, 1): 0.010, (2, 3): 0.012, (0, 2): 0.013, (1, 3): 0.015}
+    ok = surfaces_between_setups(setup_of, agree, counts)
+    assert ok["flagged"] is None and ok["pairs_across"] == 2 and ok["points_across"] == 500
+    assert ok["rms_median_across_mm"] == 0.014 and ok["rms_median_within_mm"] == 0.011
+    apart = surfaces_between_setups(setup_of, {**agree, (0, 2): 0.09, (1, 3): 0.11}, counts)
+    assert apart["flagged"] == ("the surfaces two setups both saw lie 100 um apart (median RMS over 2 pass pairs), "
+                                "over 3 x one setup's 11 um: the setups disagree where they overlap")
+    none = surfaces_between_setups(setup_of, agree, {**counts, (0, 2): 0, (1, 3): 0})
+    assert none["flagged"].startswith("no surface of one setup overlaps one of another (top, bottom)")
+    assert surfaces_between_setups(["top"] * 2, {(0, 1): 0.01}, {(0, 1): 10}) is None  # one setup: nothing to tie

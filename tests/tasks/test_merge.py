@@ -161,24 +161,45 @@ def test_flat_cells_coarsen_and_bent_cells_stay_fine():
     assert same.fine.all() and np.array_equal(same.points_mm, fine.points_mm)
 
 
-def test_cells_in_a_fine_band_stay_fine_even_where_flat():
-    """The weld's zone from the manifest: a band across a flat plate keeps its fine cells; outside
-    it the plate coarsens as before, and nothing is lost."""
-    from tasks.merge import Band, coarsen_flat_cells
+def test_cells_in_a_weld_line_zone_stay_fine_even_where_flat():
+    """The weld's zone from the manifest: the zone round a line across a flat plate keeps its fine
+    cells; outside it the plate coarsens as before, and nothing is lost."""
+    from tasks.merge import PolylineZone, coarsen_flat_cells
 
     rng = np.random.default_rng(4)
     points = np.column_stack([rng.uniform(0.0, 20.0, (200_000, 2)), rng.normal(0, 0.001, 200_000)])
     normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
     fine = merge_box_grid(points, cell_mm=0.1, normals=normals)
-    band = Band(point_mm=(10.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0), half_width_mm=2.0)
+    zone = PolylineZone(points_mm=((10.0, -1.0, 0.0), (10.0, 21.0, 0.0)), radius_mm=2.0)
     plain = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01)
-    banded = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01, fine_bands=(band,))
-    assert plain.fine.sum() < 0.01 * len(plain.fine) and not plain.banded.any()
-    assert banded.counts.sum() == len(points)
-    x = banded.points_mm[:, 0]
-    # a coarse cell (0.4 mm) is in the band when its mean is: its fine cells reach 0.2 mm further
-    assert np.all(banded.fine[np.abs(x - 10.0) <= 1.8])
-    assert np.all(~banded.fine[np.abs(x - 10.0) > 2.4])
-    assert np.array_equal(banded.banded, banded.fine)
+    zoned = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01, fine_zones=(zone,))
+    assert plain.fine.sum() < 0.01 * len(plain.fine) and not plain.in_zone.any()
+    assert zoned.counts.sum() == len(points)
+    x = zoned.points_mm[:, 0]
+    # a coarse cell (0.4 mm) is in the zone when its mean is: its fine cells reach 0.2 mm further
+    assert np.all(zoned.fine[np.abs(x - 10.0) <= 1.8])
+    assert np.all(~zoned.fine[np.abs(x - 10.0) > 2.4])
+    assert np.array_equal(zoned.in_zone, zoned.fine)
     inside = np.abs(fine.points_mm[:, 0] - 10.0) <= 1.8
-    assert banded.fine.sum() >= inside.sum()
+    assert zoned.fine.sum() >= inside.sum()
+
+
+def test_polyline_zone_distance_against_brute_force():
+    """The zone's distance to a bent 3-D polyline (a fillet weld's toe round a corner) equals the
+    least distance to a dense sampling of its segments, inside and outside the zone's bounding
+    box; ``contains`` is that distance against the radius."""
+    from tasks.merge import PolylineZone
+
+    rng = np.random.default_rng(7)
+    vertices = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 5.0], [30.0, 40.0, 5.0], [10.0, 60.0, -5.0]])
+    zone = PolylineZone(tuple(map(tuple, vertices.tolist())), radius_mm=6.0)
+    probe = rng.uniform([-20, -20, -20], [50, 80, 20], (4000, 3))
+    t = np.linspace(0.0, 1.0, 20_001)[:, None]
+    dense = np.concatenate([a + t * (b - a) for a, b in zip(vertices[:-1], vertices[1:])])
+    brute = np.sqrt(((probe[:, None, :] - dense[None, ::4, :]) ** 2).sum(axis=2).min(axis=1))
+    step = max(np.linalg.norm(np.diff(vertices, axis=0), axis=1)) / 5000  # the sampling's spacing
+    got = zone.distance_mm(probe)
+    assert np.all(got <= brute + 1e-9) and np.all(brute - got <= step)
+    clear = np.abs(brute - zone.radius_mm) > step
+    assert np.array_equal(zone.contains(probe)[clear], (brute <= zone.radius_mm)[clear])
+    assert 100 < zone.contains(probe).sum() < 3900  # both sides of the radius are probed
