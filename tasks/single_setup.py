@@ -142,8 +142,8 @@ def _principal_extents(points: np.ndarray) -> np.ndarray:
 def keep_part_single_setup(points_mm: np.ndarray, normals: np.ndarray, *, up, link_mm: float,
                            part_bounds_mm: tuple, T_frame_part: np.ndarray | None = None,
                            placement_tolerance_mm: float = 0.0, box_margin_mm: float = 2.0,
-                           plane_clearance_mm: float = 1.0, size_tolerance: float = 0.1,
-                           min_seen_fraction: float = 0.7) -> SingleSetupResult:
+                           plane_clearance_mm: float, size_tolerance: float,
+                           min_seen_fraction: float) -> SingleSetupResult:
     """The part's points in a single setup's merged cloud (see the module's description).
 
     points_mm, normals : (n, 3), mm / unit (NaN normals allowed), in one frame; up : (3,) the

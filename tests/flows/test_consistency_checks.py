@@ -15,6 +15,7 @@ import zarr
 
 from data_catalog.hashing import sha256_tree
 from tests.flows.cli import run_cli
+from tests.conftest import SIX
 from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
@@ -88,15 +89,14 @@ def test_the_refusal_is_one_line_on_the_terminal(ci_sample, tmp_path):
 
 def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sample, tmp_path):
     """A chunk of top-L02 swapped with another of the same pass (x, z and intensity; times and poses
-    as they were), the hash refreshed: exit 0 as before, but the report flags the pass (the surface
-    steps at the chunk boundaries) and the terminal says so; its target residuals, pulled by the
-    broken surface, are the sample's largest (measured median 0.044 mm against 0.018-0.025 mm), but
-    with the sticker centres' spread at the ci sample's 0.32 mm points and their paper edge that is
-    short of the 3 x the sample's median a pass needs to be flagged (before the simulator modelled the
-    edge, the clean passes sat near 0.01 mm and it was flagged too); then a rerun with settings refine
-    cannot use fails clearly and leaves the published results as they were."""
-    sample = copy_sample(ci_sample, tmp_path / "s",
-                   ["top-L01", "top-L02", "top-L03", "bottom-L01", "bottom-L02", "bottom-L03"])
+    as they were), the hash refreshed, in the six-pass subset whose setups share the side walls'
+    stickers (the first three passes of each setup share none: registration refuses them): exit 0
+    as before, but the report flags the pass (the surface steps at the chunk boundaries) and the
+    terminal says so; its target residuals are not what shows it (measured 0.013 mm, the other
+    passes 0.015-0.028 mm);
+    then a rerun with settings refine cannot use fails clearly and leaves the published results as
+    they were."""
+    sample = copy_sample(ci_sample, tmp_path / "s", SIX)
 
     def swap(g):
         c = g["z_mm"].chunks[0]
@@ -111,13 +111,10 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     report = json.loads((out / "results" / "report.json").read_text())
     flagged = {(c["pass"], c["check"]) for c in report["checks"] if c["result"] != "ok"}
     assert flagged == {("top-L02", "surface continuity at chunk boundaries")}
-    assert len(report["checks"]) == 3 * 6
-    residuals = {c["pass"]: c["measured"] for c in report["checks"] if c["check"].startswith("target residuals")}
-    others = [v for p, v in residuals.items() if p != "top-L02"]
-    assert residuals["top-L02"] > 1.5 * max(others), residuals
+    assert len(report["checks"]) == 3 * 6 + 1  # and the surfaces the setups share
     jumps = next(c for c in report["checks"] if c["pass"] == "top-L02" and c["check"].startswith("surface"))
     assert {j["profile"] for j in jumps["measured"]} <= {256, 384, 512, 640} and jumps["measured"]
-    assert "checks: 17 of 18 ok" in done.stdout
+    assert "checks: 18 of 19 ok" in done.stdout
     warnings = [line for line in done.stderr.splitlines() if "warning: pass top-L02" in line]
     assert len(warnings) == 1 and "a chunk may be out of place" in warnings[0]
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from schemas.reconstruction import SegmentConfig
 from tasks.single_setup import PartNotFound, fill_underside, find_fixture_plane, keep_part_single_setup
 
 
@@ -42,6 +43,8 @@ def _table(size=300.0, z=0.0):
     return _face((-size / 2, -size / 2, z), (size, 0, 0), (0, size, 0), (0, 0, 1), step=2.0)
 
 
+# the stage's settings, as the segment stage passes them (the task function has no defaults of its own)
+SETTINGS = {k: getattr(SegmentConfig(), k) for k in ("plane_clearance_mm", "size_tolerance", "min_seen_fraction")}
 PART_BOUNDS = ((-80.0, -20.0, -5.0), (80.0, 20.0, 5.0))  # a 160 x 40 x 10 mm plate, specimen frame
 
 
@@ -49,7 +52,7 @@ def test_the_plate_on_blocks_is_kept_and_the_table_and_blocks_go():
     part = _box((-80, -20, 10), (80, 20, 20))
     blocks = [_box((x - 10, -10, 0), (x + 10, 10, 10), faces=("-x", "+x", "-y", "+y")) for x in (-60, 60)]
     points, normals, labels = _scene(part, _table(), *blocks)
-    result = keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
+    result = keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
     assert np.array_equal(result.keep, labels == 0)
     assert result.plane is not None and abs(result.plane.offset_mm) < 1e-9 and result.plane.normal[2] > 0.999
     np.testing.assert_allclose(result.extents_mm[:2], [160, 40], atol=1e-6)
@@ -59,8 +62,8 @@ def test_a_plate_standing_on_the_table_comes_apart_from_it_at_the_plane():
     """Its walls reach down to the table: only the plane's removal separates the two."""
     part = _box((-80, -20, 0), (80, 20, 10), step=0.5)
     points, normals, labels = _scene(part, _table())
-    result = keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS,
-                                    plane_clearance_mm=1.0)
+    result = keep_part_single_setup(points, normals, **{**SETTINGS, "plane_clearance_mm": 1.0}, up=(0, 0, 1),
+                                    link_mm=1.0, part_bounds_mm=PART_BOUNDS)
     assert np.array_equal(result.keep, (labels == 0) & (points[:, 2] > 1.0))
     assert result.below_plane == int(np.count_nonzero((labels == 1) | (points[:, 2] <= 1.0)))
 
@@ -87,8 +90,8 @@ def test_rails_beside_the_part_are_cut_by_the_placed_drawing_box():
     T_frame_part[:3, 3] = [0.5, -0.3, 25.0]  # nominal, half a millimetre off the truth
     without = pytest.raises(PartNotFound, match=r"is 2\d\d\.\d x 40\.0 mm .* the part's drawing 160\.0 x 40\.0 mm")
     with without:
-        keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
-    result = keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS,
+        keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
+    result = keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=PART_BOUNDS,
                                     T_frame_part=T_frame_part, placement_tolerance_mm=1.0, box_margin_mm=1.0)
     assert result.keep[labels == 0].all()
     # what is kept of the rails lies within the grown box under the part: at most the 2 mm under it
@@ -102,7 +105,7 @@ def test_a_body_not_of_the_parts_size_is_refused_with_the_figures():
     points, normals, _ = _scene(part, _table())
     with pytest.raises(PartNotFound, match=r"160\.0 x 40\.0 mm along its two longest axes, the part's drawing "
                                            r"300\.0 x 40\.0 mm"):
-        keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0,
+        keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 1), link_mm=1.0,
                                part_bounds_mm=((-150, -20, -5), (150, 20, 5)))
 
 
@@ -112,15 +115,15 @@ def test_an_up_direction_given_upside_down_finds_no_plane_and_refuses():
     part = _box((-80, -20, 0), (80, 20, 10))
     points, normals, _ = _scene(part, _table())
     with pytest.raises(PartNotFound, match=r"plane none found.* is [34]\d\d\.\d x [234]\d\d\.\d mm"):
-        keep_part_single_setup(points, normals, up=(0, 0, -1), link_mm=2.5, part_bounds_mm=PART_BOUNDS)
+        keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, -1), link_mm=2.5, part_bounds_mm=PART_BOUNDS)
 
 
 def test_bad_arguments_are_named():
     points, normals, _ = _scene(_box((-80, -20, 10), (80, 20, 20)))
     with pytest.raises(ValueError, match=r"up must be a finite non-zero 3-vector"):
-        keep_part_single_setup(points, normals, up=(0, 0, 0), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
+        keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 0), link_mm=1.0, part_bounds_mm=PART_BOUNDS)
     with pytest.raises(ValueError, match=r"part_bounds_mm must be \(min corner, max corner\)"):
-        keep_part_single_setup(points, normals, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=((0, 0, 0), (1, 1, 0)))
+        keep_part_single_setup(points, normals, **SETTINGS, up=(0, 0, 1), link_mm=1.0, part_bounds_mm=((0, 0, 0), (1, 1, 0)))
     with pytest.raises(ValueError, match=r"normals must have the points' shape"):
         find_fixture_plane(points, normals[:5], up=(0, 0, 1))
 
