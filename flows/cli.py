@@ -150,6 +150,14 @@ def _print_report(report: dict, out: Path) -> None:
           f"{'watertight' if mesh['watertight'] else 'NOT watertight'}"
           + (f"; target residual median {residual * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um"
              if residual is not None else ""))
+    volume = report.get("volume_mesh", {})
+    if volume.get("made"):
+        solid, quality = volume["solid"], volume["quality"]
+        print(f"FE model: {solid['tetrahedra']:,} tetrahedra, one solid, volume {100 * solid['volume_difference']:+.2f} % "
+              f"of the mesh's; worst element: dihedral {quality['min_dihedral_deg']['worst']:.1f} deg, "
+              f"aspect ratio {quality['aspect_ratio']['worst']:.1f}")
+    elif volume:
+        print(f"FE model: not made: {volume['why']}")
     for item in report["outputs"].values():
         print(f"  {item['path']}")
     head = report.get("trail_head")

@@ -325,7 +325,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
             outputs_of(name)
         cached = {n: all(r.cached for r in each(v)) for n, v in refs.items()}
         with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
-            published = publish(out, manifest.sample_id, refs["report"], refs["export"],
+            published = publish(out, manifest.sample_id, refs["report"], refs,
                                 config.model_dump_json(indent=2) + "\n")
             finished = audit.append(out, "run-finished", sample_id=manifest.sample_id,
                                     artefacts={f"{RESULTS}/{name}": item["sha256"] for name, item in published.items()},

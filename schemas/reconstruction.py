@@ -10,7 +10,7 @@ from pydantic import Field, model_validator
 from schemas.common import StrictModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "RefineConfig", "MergeConfig", "SegmentConfig",
-           "MeshConfig", "ReconstructionConfig"]
+           "MeshConfig", "VolumeConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -127,6 +127,23 @@ class MeshConfig(StrictModel):
         "specimen's ends) close inside it instead of being cut open"))
 
 
+class VolumeConfig(StrictModel):
+    """The FE model: tetrahedra filling the mesh (gmsh), graded toward the weld (``tasks.volume_mesh``).
+    Element size ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines (the cap, its toes and
+    an HFMI groove), growing by ``growth`` mm per mm beyond, ``size_mm`` at most."""
+
+    size_mm: float = Field(default=3.0, gt=0, le=100, description="largest element edge, away from the weld")
+    weld_size_mm: float = Field(default=0.5, gt=0, le=100, description="element edge within the weld zone")
+    weld_zone_mm: float = Field(default=8.0, ge=0, le=1000, description=(
+        "distance from a weld line kept at weld_size_mm: at least half the cap's width plus the groove"))
+    growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm beyond the weld zone")
+    feature_angle_deg: float = Field(default=40.0, gt=0, lt=180, description=(
+        "surface patches split where the normals turn by more (gmsh classifySurfaces)"))
+    optimize: bool = Field(default=True, description="Netgen's optimizer after gmsh's own")
+    max_volume_difference: float = Field(default=0.005, gt=0, le=1, description=(
+        "the solid's volume against the surface mesh's, relative: beyond it the stage fails"))
+
+
 class ReconstructionConfig(StrictModel):
     schema_version: Literal["1.0"] = "1.0"
     denoise: DenoiseConfig = DenoiseConfig()
@@ -136,3 +153,4 @@ class ReconstructionConfig(StrictModel):
     merge: MergeConfig = MergeConfig()
     segment: SegmentConfig = SegmentConfig()
     mesh: MeshConfig = MeshConfig()
+    volume: VolumeConfig = VolumeConfig()

@@ -15,9 +15,10 @@ PROJECT = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 # package -> (allowed project packages, forbidden third-party top-level names; None: only these)
 RULES = {
     "schemas": ({"schemas"}, {"pydantic", "typing_extensions"}),
-    "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba", "threadpoolctl"}),
+    "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba", "threadpoolctl",
+                                     "gmsh"}),
     "data_catalog": ({"data_catalog", "schemas"}, {"numpy", "zarr", "numcodecs", "yaml", "pydantic", "plyfile",
-                                                   "pypcd4", "pye57", "laspy", "scipy"}),
+                                                   "pypcd4", "pye57", "laspy", "scipy", "meshio"}),
     "simulator": ({"simulator", "schemas", "data_catalog", "tasks"}, {"numpy", "scipy", "open3d", "cv2", "pydantic",
                                                                      "yaml", "zarr"}),
 }

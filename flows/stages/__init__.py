@@ -8,9 +8,10 @@ description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs
 
 from __future__ import annotations
 
-from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets
+from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets, volume
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.passes import pass_view
+from flows.stages.weld_lines import weld_lines_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
@@ -47,7 +48,11 @@ STAGES: tuple[Stage, ...] = (
           "screened Poisson (MeshLab) on the merged points and normals"),
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
           "binary STL and PLY"),
-    Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "mesh", "export"), "*",
+    Stage("volume", False, ("refine", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY),
+          volume.volume, weld_lines_view, "the FE model: gmsh tetrahedra graded toward the weld lines, one checked solid; "
+          "Abaqus .inp and VTU with the weld zone as a named set"),
+    Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "mesh", "export",
+                            "volume"), "*",
           (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
 )
 

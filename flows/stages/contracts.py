@@ -154,9 +154,11 @@ class JsonFile:
 
 @dataclass(frozen=True)
 class MeshFile:
-    """A triangle mesh file (binary STL or PLY) in the stage's folder."""
+    """A mesh file in the stage's folder: a surface (binary STL, PLY) or a volume (Abaqus, VTU).
+    ``optional``: the stage may leave it out (and says why in its other outputs)."""
 
     name: str
+    optional: bool = False
 
 
 OutputFile = ArrayFile | JsonFile | MeshFile

@@ -23,11 +23,14 @@ import numpy as np
 from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import block_rows, zarr_array
+from flows.stages.weld_lines import weld_lines_common, weld_lines_view
 from schemas.manifest import SampleManifest
 from tasks.merge import (CellSums, PolylineZone, cell_index_of_keys, cell_sums, coarsen_flat_cells,
                          combine_cell_sums, transform_measured)
 
 __all__ = ["merge", "merge_view", "weld_zones"]
+
+merge_view = weld_lines_view  # what the merge reads of the manifest
 
 SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
@@ -72,36 +75,14 @@ class _Spill:
             yield CellSums(rec["key"], rec["count"], rec["p"], rec["q"])
 
 
-def merge_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
-    """What the merge reads of the manifest: the passes (in order), each setup's nominal placement
-    and tolerance, and the weld lines (specimen frame, mm; a 1.0 and a 1.1 manifest of one part
-    give the same lines, hence the same key)."""
-    return {"passes": [e.pass_id for _, e in manifest.passes()],
-            "weld_lines_mm": [[list(p) for p in line.points_mm] for line in manifest.weld_lines()],
-            "setups": [{"name": s.name, "passes": [e.pass_id for e in s.passes],
-                        "T_world_specimen_nominal": s.T_world_specimen_nominal,
-                        "placement_tolerance_mm": s.placement_tolerance_mm} for s in manifest.setups]}
-
-
 def weld_zones(manifest: SampleManifest, T_common_pass: np.ndarray, zone_mm: float) -> tuple[PolylineZone, ...]:
     """The weld's zone in the common frame, per setup that states its nominal placement and per
-    weld line: the line (specimen frame) through the setup's nominal placement and its first
-    pass's pose (its robot frame into the common one), and every point within ``zone_mm`` plus
-    the setup's tolerance of it."""
+    weld line (``weld_lines_common``): every point within ``zone_mm`` plus the setup's tolerance
+    of the line."""
     if zone_mm <= 0:
         return ()
-    index = {e.pass_id: k for k, (_, e) in enumerate(manifest.passes())}
-    lines = [np.asarray(line.points_mm, np.float64) for line in manifest.weld_lines()]
-    zones = []
-    for setup in manifest.setups:
-        if setup.T_world_specimen_nominal is None:
-            continue
-        T = np.asarray(T_common_pass[index[setup.passes[0].pass_id]]) @ np.asarray(setup.T_world_specimen_nominal)
-        for points in lines:
-            common = points @ T[:3, :3].T + T[:3, 3]
-            zones.append(PolylineZone(tuple(tuple(float(v) for v in p) for p in common),
-                                      float(zone_mm + setup.placement_tolerance_mm)))
-    return tuple(zones)
+    return tuple(PolylineZone(tuple(tuple(float(v) for v in p) for p in points), float(zone_mm + tolerance))
+                 for points, tolerance in weld_lines_common(manifest, T_common_pass))
 
 
 def merge(ctx) -> dict[str, Any]:

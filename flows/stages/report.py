@@ -13,7 +13,8 @@ from typing import Any
 
 from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
-from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
+from flows.stages.outputs import (PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, VOLUME_INP, VOLUME_SUMMARY,
+                                  VOLUME_VTU)
 from data_catalog.hashing import sha256_file
 
 __all__ = ["report", "report_view", "publish", "checks", "RESULTS", "CONFIG_NAME"]
@@ -26,9 +27,11 @@ def report_view(manifest, entry) -> dict[str, Any]:
     return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()]}
 
 
-def _deliverables(sample_id: str) -> dict[str, str]:
-    """results/ file name -> the export output it is a copy of."""
-    return {f"{sample_id}.stl": STL.name, f"{sample_id}.ply": PLY.name}
+def _deliverables(sample_id: str) -> dict[str, tuple[str, str]]:
+    """results/ file name -> (the stage, its output) it is a copy of (the volume's files only
+    where the stage made them)."""
+    return {f"{sample_id}.stl": ("export", STL.name), f"{sample_id}.ply": ("export", PLY.name),
+            f"{sample_id}.inp": ("volume", VOLUME_INP.name), f"{sample_id}.vtu": ("volume", VOLUME_VTU.name)}
 
 
 def _metrics(ref: StageRef | list[StageRef]) -> Any:
@@ -79,7 +82,6 @@ def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     registration = REGISTRATION_SUMMARY.read(inputs["registration"])
     registration["refinement"] = REFINE_SUMMARY.read(inputs["refine"])
-    export = inputs["export"]
     body = {
         "sample_id": ctx.manifest.sample_id,
         "passes": ctx.names,
@@ -87,15 +89,18 @@ def report(ctx) -> dict[str, Any]:
         "stages": {name: _metrics(ref) for name, ref in inputs.items()},
         "registration": registration,
         "mesh": _metrics(inputs["mesh"]),
+        "volume_mesh": VOLUME_SUMMARY.read(inputs["volume"]),
         "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),
-        "deliverables": {name: export.outputs[source] for name, source in _deliverables(ctx.manifest.sample_id).items()},
+        "deliverables": {name: inputs[stage].outputs[source]
+                         for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
+                         if source in inputs[stage].outputs},
         "stage_keys": {name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
     }
     REPORT.write(ctx.out, body)
     return {"deliverables": len(body["deliverables"])}
 
 
-def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: StageRef,
+def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str, StageRef],
             config_json: str) -> dict[str, dict[str, str]]:
     """Publish the deliverables, the report and the settings they were made with (``config.json``)
     into ``out_dir/results/`` as one unit: the folder is built complete beside it, each copy checked
@@ -105,7 +110,8 @@ def publish(out_dir: Path, sample_id: str, report_ref: StageRef, export_ref: Sta
     have (another sample id's) go with it. Returns file name -> {path, sha256}."""
     out_dir = Path(out_dir)
     results = out_dir / RESULTS
-    sources = {name: (export_ref, source) for name, source in _deliverables(sample_id).items()}
+    sources = {name: (refs[stage], source) for name, (stage, source) in _deliverables(sample_id).items()
+               if source in refs[stage].outputs}  # an optional output the stage left out is not published
     sources[REPORT.name] = (report_ref, REPORT.name)
     staging = Path(tempfile.mkdtemp(prefix=f".{RESULTS}.{owner_tag()}.", suffix=".partial", dir=out_dir))
     try:

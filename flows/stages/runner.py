@@ -280,14 +280,15 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
         metrics = dict(stage.body(context))
         written = sorted(p.name for p in build.iterdir())
         declared = sorted(o.name for o in stage.outputs)
-        if written != declared:
-            raise RuntimeError(f"stage {stage.name} wrote {written}, but declares {declared}")
+        required = sorted(o.name for o in stage.outputs if not getattr(o, "optional", False))
+        if not set(required) <= set(written) <= set(declared):
+            raise RuntimeError(f"stage {stage.name} wrote {written}, but declares {declared} ({required} required)")
     except Exception as exc:  # noqa: BLE001 - recorded, then raised as StageFailed
         shutil.rmtree(build, ignore_errors=True)
         _fail(store, stage.name, item, exc, ids)
     metrics["seconds"] = round(time.perf_counter() - t0, 3)
     record = StageRecord(sample_id=manifest.sample_id, stage=stage.name, item=item, cache_key=key, inputs=hashes,
-                         outputs={o.name: "" for o in stage.outputs}, parameters=parameters, code_version=code,
+                         outputs={name: "" for name in written}, parameters=parameters, code_version=code,
                          host=socket.gethostname(), started=started, finished=datetime.now(UTC), metrics=metrics,
                          flow_run_id=ids["flow_run_id"])
     store.commit(build, record)

@@ -60,6 +60,39 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     assert not (out / "config.json").exists()
 
 
+def test_the_fe_model_is_one_solid_of_the_meshes_volume_graded_toward_the_weld(run):
+    """Stage volume: the published Abaqus and VTU files read back with meshio as one connected,
+    positively oriented solid whose volume is the STL's within 0.5 %, with the weld zone's set."""
+    import meshio
+
+    from tasks.volume_mesh import signed_volumes
+
+    out, report = run
+    sid = report["sample_id"]
+    inp = meshio.read(Path(report["outputs"][f"{sid}.inp"]["path"]))
+    vtu = meshio.read(Path(report["outputs"][f"{sid}.vtu"]["path"]))
+    tets = inp.cells_dict["tetra"]
+    assert np.array_equal(tets, vtu.cells_dict["tetra"]) and len(tets) == report["volume_mesh"]["solid"]["tetrahedra"]
+    volumes = signed_volumes(inp.points, tets)
+    assert np.all(volumes > 0)
+    assert abs(volumes.sum() / report["mesh"]["volume_mm3"] - 1) < 0.005
+    solid = report["volume_mesh"]["solid"]
+    assert solid["components"] == 1 and solid["open_boundary_edges"] == 0 and solid["negative_or_flat"] == 0
+    quality = report["volume_mesh"]["quality"]
+    assert quality["min_dihedral_deg"]["worst"] > 5 and quality["aspect_ratio"]["worst"] < 20
+    assert np.allclose(vtu.cell_data["min_dihedral_deg"][0].min(), quality["min_dihedral_deg"]["worst"], atol=1e-3)
+    # the weld zone: a named node set and surface, its elements at the weld's size, finer than the rest
+    zone = inp.point_sets["WELD_ZONE_NODES"]
+    assert 0 < len(zone) < len(inp.points)
+    assert "WELD_ZONE_SURFACE" in Path(report["outputs"][f"{sid}.inp"]["path"]).read_text()
+    p = inp.points[tets]
+    edge = np.linalg.norm(p[:, [0, 0, 0, 1, 1, 2]] - p[:, [1, 2, 3, 2, 3, 3]], axis=2).mean(axis=1)
+    in_zone = vtu.cell_data["weld_zone_boundary"][0].astype(bool)
+    weld_size = report["config"]["volume"]["weld_size_mm"]
+    assert np.median(edge[in_zone]) < 1.15 * weld_size  # measured 1.58 mm at 1.5
+    assert np.median(edge[~in_zone]) > 1.8 * np.median(edge[in_zone])  # measured 3.52 mm
+
+
 def test_every_consistency_check_is_stated_and_passes_on_a_clean_sample(run):
     _, report = run
     checks = report["checks"]
@@ -157,7 +190,7 @@ def test_a_rerun_executes_no_stage_and_a_new_depth_only_meshing(run, ci_sample, 
     deeper = tmp_path / "deeper.yaml"
     deeper.write_text(Path(CI_CONFIG).read_text().replace("poisson_depth: 8", "poisson_depth: 7"))
     changed = reconstruct_sample(str(ci_sample), str(out), str(deeper))
-    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "report"}
+    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "volume", "report"}
 
 
 def test_the_weld_zone_stays_fine(run, ci_sample):

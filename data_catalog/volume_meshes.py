@@ -1,0 +1,41 @@
+"""FE volume meshes on disk, written by meshio: Abaqus input and VTU.
+
+Abaqus ``.inp`` (C3D4 tetrahedra, mm): element set ``ALL``; the weld zone's boundary as node set
+``WELD_ZONE_NODES`` and as the element-face surface ``WELD_ZONE_SURFACE`` (built from one element
+set per face number, ``WELD_ZONE_S1`` ... ``WELD_ZONE_S4``), for sub-modelling. VTU (binary,
+zlib) with per-element data for ParaView. Node and element numbers follow the arrays' order.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+__all__ = ["write_abaqus", "write_vtu", "WELD_ZONE_NODES", "WELD_ZONE_SURFACE"]
+
+WELD_ZONE_NODES = "WELD_ZONE_NODES"
+WELD_ZONE_SURFACE = "WELD_ZONE_SURFACE"
+
+
+def write_abaqus(path: Path, points: np.ndarray, tetrahedra: np.ndarray, *, zone_faces: dict[int, np.ndarray],
+                 zone_nodes: np.ndarray) -> None:
+    """``points`` (p, 3) mm, ``tetrahedra`` (e, 4) positively oriented; ``zone_faces`` Abaqus face
+    number (1-4) -> the 0-based elements whose face of that number lies on the weld zone's
+    boundary; ``zone_nodes`` the 0-based nodes of those faces."""
+    cell_sets = {"ALL": [np.arange(len(tetrahedra))]}
+    cell_sets.update({f"WELD_ZONE_S{n}": [np.asarray(zone_faces[n])] for n in sorted(zone_faces)})
+    out = meshio.Mesh(points, [("tetra", tetrahedra)], cell_sets=cell_sets,
+                      point_sets={WELD_ZONE_NODES: np.asarray(zone_nodes)} if len(zone_nodes) else {})
+    meshio.abaqus.write(str(path), out, float_fmt=".9e")
+    if zone_faces:
+        with open(path, "a", encoding="ascii") as f:
+            f.write(f"*SURFACE, TYPE=ELEMENT, NAME={WELD_ZONE_SURFACE}\n")
+            f.writelines(f"WELD_ZONE_S{n}, S{n}\n" for n in sorted(zone_faces))
+
+
+def write_vtu(path: Path, points: np.ndarray, tetrahedra: np.ndarray, cell_data: dict[str, np.ndarray]) -> None:
+    """VTU (binary, zlib) of the tetrahedra with one array per element in ``cell_data``."""
+    out = meshio.Mesh(points, [("tetra", tetrahedra)], cell_data={k: [np.asarray(v)] for k, v in cell_data.items()})
+    meshio.vtu.write(str(path), out, binary=True, compression="zlib")

@@ -1,0 +1,67 @@
+"""Stage ``volume``: the FE model. gmsh fills the Poisson surface with tetrahedra graded toward the
+weld lines (where the setups' nominal placements and the refined poses put them), checked to be
+one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU with
+the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
+unclosed) has no solid: ``volume.json`` says so and the model files are left out; a closed one
+that gmsh cannot fill, or fills into anything but one solid of its volume, fails the stage."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
+from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU
+from flows.stages.weld_lines import weld_lines_common
+from tasks.mesh import mesh_report
+from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
+
+__all__ = ["volume"]
+
+
+def volume(ctx) -> dict[str, Any]:
+    s = ctx.settings
+    surface = MESH.read(ctx.inputs["mesh"])
+    closed = mesh_report(surface.vertices, surface.triangles)
+    if not (closed.watertight and closed.consistently_oriented):
+        # no solid to fill: said in volume.json and the report, the model files left out
+        why = (f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
+               f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
+        VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
+        return {"made": False, "why": why}
+    lines = [points for points, _ in weld_lines_common(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass)]
+    solid = tetrahedralize(surface.vertices, surface.triangles, weld_lines_mm=lines, size_mm=s.size_mm,
+                           weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
+                           feature_angle_deg=s.feature_angle_deg,
+                           optimize=s.optimize)
+    checks = solid_checks(solid, closed.volume_mm3)
+    difference = checks["volume_difference"]  # None: a surface of no volume (refused as off)
+    problems = [what for what, bad in (
+        (f"{checks['components']} separate solids, expected one", checks["components"] != 1),
+        (f"{checks['negative_or_flat']} tetrahedra with no positive volume", checks["negative_or_flat"] > 0),
+        (f"{checks['open_boundary_edges']} boundary edges not shared by two boundary faces",
+         checks["open_boundary_edges"] > 0),
+        (f"volume {checks['volume_mm3']:.1f} mm3 differs from the surface's {checks['surface_volume_mm3']:.1f} mm3 "
+         f"by {100 * abs(difference or 0):.2f} %, over volume.max_volume_difference "
+         f"{100 * s.max_volume_difference:.2f} %", difference is None or abs(difference) > s.max_volume_difference),
+    ) if bad]
+    if problems:
+        raise VolumeMeshError("the volume mesh is not one valid solid: " + "; ".join(problems))
+    min_dihedral, aspect = element_quality(solid.points, solid.tetrahedra)
+    zone_faces = solid.weld_zone_faces()
+    write_abaqus(ctx.out / VOLUME_INP.name, solid.points, solid.tetrahedra, zone_faces=zone_faces,
+                 zone_nodes=solid.weld_zone_nodes())
+    in_zone = np.zeros(len(solid.tetrahedra), np.uint8)
+    in_zone[np.concatenate(list(zone_faces.values()) or [np.zeros(0, np.int64)])] = 1
+    write_vtu(ctx.out / VOLUME_VTU.name, solid.points, solid.tetrahedra,
+              {"min_dihedral_deg": min_dihedral.astype(np.float32), "aspect_ratio": aspect.astype(np.float32),
+               "weld_zone_boundary": in_zone})
+    rounded = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.items()}
+    summary = {"made": True, "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
+               "sets": {"elements": "ALL", "weld_zone_nodes": WELD_ZONE_NODES, "weld_zone_surface": WELD_ZONE_SURFACE}}
+    VOLUME_SUMMARY.write(ctx.out, summary)
+    return {"made": True, "tetrahedra": rounded["tetrahedra"], "nodes": rounded["nodes"],
+            "volume_difference": rounded["volume_difference"], "weld_zone_faces": rounded["weld_zone_faces"],
+            "min_dihedral_deg": summary["quality"]["min_dihedral_deg"]["worst"],
+            "aspect_ratio_worst": summary["quality"]["aspect_ratio"]["worst"]}

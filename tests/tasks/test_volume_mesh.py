@@ -1,0 +1,182 @@
+"""The FE volume mesh (tasks.volume_mesh): gmsh's tetrahedra of a closed surface, one solid of its
+volume, graded toward the weld, written for Abaqus and VTK and read back by meshio."""
+
+from __future__ import annotations
+
+import hashlib
+import subprocess
+import sys
+
+import meshio
+import numpy as np
+import pytest
+
+from tasks.mesh import mesh_report
+from data_catalog.volume_meshes import write_abaqus, write_vtu
+from tasks.volume_mesh import (VolumeMesh, VolumeMeshError, element_quality, polyline_samples, quality_summary,
+                               signed_volumes, solid_checks, tetrahedralize)
+
+# a plate 40 x 20 x 6 mm with a weld line across its top face at x = 0
+BOX = (40.0, 20.0, 6.0)
+WELD = [np.array([[0.0, -10.0, 3.0], [0.0, 10.0, 3.0]])]
+SIZES = dict(size_mm=4.0, weld_size_mm=0.8, weld_zone_mm=2.0, growth=0.5,
+             feature_angle_deg=40.0, optimize=True)
+
+
+def box_surface(size=BOX, n=8, offset=(0.0, 0.0, 0.0)):
+    """A closed, outward-oriented triangulated box, each face split into n x n squares."""
+    vertices, triangles = [], []
+    half = np.asarray(size) / 2
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u, v = [a for a in range(3) if a != axis]
+            s, t = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
+            p = np.zeros((n + 1, n + 1, 3))
+            p[..., axis], p[..., u], p[..., v] = sign * half[axis], s * half[u], t * half[v]
+            base = sum(len(x) for x in vertices)
+            vertices.append(p.reshape(-1, 3))
+            idx = base + np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+            a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+            quads = np.stack([a, b, c, d], -1).reshape(-1, 4)
+            tri = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+            # (u, v, axis) right-handed for axis 0 and 2 with this (u, v) order, left-handed for axis 1
+            outward = sign * (1 if axis != 1 else -1)
+            triangles.append(tri if outward > 0 else tri[:, [0, 2, 1]])
+    vertices = np.vstack(vertices) + np.asarray(offset)
+    triangles = np.vstack(triangles)
+    # weld the faces' shared edge vertices into one
+    unique, inverse = np.unique(np.round(vertices, 9), axis=0, return_inverse=True)
+    return unique, inverse.ravel()[triangles]
+
+
+@pytest.fixture(scope="module")
+def plate():
+    vertices, triangles = box_surface()
+    assert mesh_report(vertices, triangles).watertight
+    return vertices, triangles, tetrahedralize(vertices, triangles, weld_lines_mm=WELD, **SIZES)
+
+
+def test_the_box_is_one_positive_solid_of_its_volume(plate):
+    vertices, triangles, solid = plate
+    checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
+    assert checks["components"] == 1 and checks["negative_or_flat"] == 0 and checks["open_boundary_edges"] == 0
+    assert checks["surface_volume_mm3"] == pytest.approx(np.prod(BOX), rel=1e-9)
+    assert abs(checks["volume_difference"]) < 1e-6  # flat faces: the remeshed surface is the box itself
+    assert np.all(signed_volumes(solid.points, solid.tetrahedra) > 0)
+    # the boundary is the box's surface, wound outward: its signed volume is the solid's
+    b = solid.boundary_triangles()
+    p = solid.points
+    assert np.einsum("ij,ij->i", p[b[:, 0]], np.cross(p[b[:, 1]], p[b[:, 2]])).sum() / 6 == pytest.approx(np.prod(BOX))
+
+
+def test_elements_are_finer_at_the_weld_and_the_weld_zone_is_marked(plate):
+    _, _, solid = plate
+    p = solid.points[solid.tetrahedra]
+    edges = np.linalg.norm(p[:, [0, 0, 0, 1, 1, 2]] - p[:, [1, 2, 3, 2, 3, 3]], axis=2).mean(axis=1)
+    centre = p.mean(axis=1)
+    near = (np.abs(centre[:, 0]) < 1.5) & (centre[:, 2] > 2.0)
+    far = np.abs(centre[:, 0]) > 15
+    assert near.any() and far.any()
+    assert np.median(edges[near]) < 1.2 * SIZES["weld_size_mm"]
+    assert np.median(edges[far]) > 2.5 * np.median(edges[near])
+    faces = solid.points[solid.boundary_triangles()].mean(axis=1)
+    zone = solid.weld_zone_face
+    assert zone.any() and not zone.all()
+    assert np.all(np.abs(faces[zone, 0]) <= SIZES["weld_zone_mm"] + 1e-9)
+    assert np.all(faces[zone, 2] > 3.0 - SIZES["weld_zone_mm"] - 1e-9)
+    outside = (np.abs(faces[:, 0]) > SIZES["weld_zone_mm"] + 0.5)
+    assert not np.any(zone & outside)
+
+
+def test_the_same_surface_gives_the_same_tetrahedra_in_another_process(plate):
+    _, _, solid = plate
+    here = hashlib.sha256(solid.points.tobytes() + solid.tetrahedra.tobytes()).hexdigest()
+    code = ("import hashlib, numpy as np; from tests.tasks.test_volume_mesh import box_surface, WELD, SIZES;"
+            "from tasks.volume_mesh import tetrahedralize; v, t = box_surface();"
+            "s = tetrahedralize(v, t, weld_lines_mm=WELD, **SIZES);"
+            "print(hashlib.sha256(s.points.tobytes() + s.tetrahedra.tobytes()).hexdigest())")
+    there = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert there == here
+
+
+def test_abaqus_and_vtu_read_back_with_meshio(plate, tmp_path):
+    _, _, solid = plate
+    dihedral, aspect = element_quality(solid.points, solid.tetrahedra)
+    write_abaqus(tmp_path / "model.inp", solid.points, solid.tetrahedra, zone_faces=solid.weld_zone_faces(),
+                 zone_nodes=solid.weld_zone_nodes())
+    write_vtu(tmp_path / "model.vtu", solid.points, solid.tetrahedra,
+              {"min_dihedral_deg": dihedral.astype(np.float32), "aspect_ratio": aspect.astype(np.float32)})
+    inp = meshio.read(tmp_path / "model.inp")
+    assert np.array_equal(inp.cells_dict["tetra"], solid.tetrahedra)
+    assert np.allclose(inp.points, solid.points, rtol=0, atol=1e-6)
+    zone_nodes = np.unique(solid.boundary_triangles()[solid.weld_zone_face])
+    assert np.array_equal(np.sort(inp.point_sets["WELD_ZONE_NODES"]), zone_nodes)
+    faces = {int(k[-1]): v[0] for k, v in inp.cell_sets.items() if k.startswith("WELD_ZONE_S")}
+    expected = {n: np.unique(solid.boundary_element[solid.weld_zone_face & (solid.boundary_face == n)]) for n in range(1, 5)}
+    assert faces and all(np.array_equal(np.sort(faces[n]), expected[n]) for n in faces)
+    text = (tmp_path / "model.inp").read_text()
+    assert "*SURFACE, TYPE=ELEMENT, NAME=WELD_ZONE_SURFACE" in text
+    assert all(f"WELD_ZONE_S{n}, S{n}" in text for n in faces)
+    vtu = meshio.read(tmp_path / "model.vtu")
+    assert np.array_equal(vtu.cells_dict["tetra"], solid.tetrahedra)
+    assert np.allclose(vtu.cell_data["min_dihedral_deg"][0], dihedral, atol=1e-4)
+    assert np.allclose(vtu.cell_data["aspect_ratio"][0], aspect, rtol=1e-6)
+
+
+def test_abaqus_faces_leave_out_the_node_their_number_says():
+    # one positive tetrahedron: each face's nodes wound outward (their normal away from the left-out node)
+    points = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    tet = np.array([[0, 1, 2, 3]])
+    solid = VolumeMesh(points=points, tetrahedra=tet, boundary_element=np.zeros(4, np.int64),
+                       boundary_face=np.arange(1, 5), weld_zone_face=np.zeros(4, bool))
+    for face in solid.boundary_triangles():
+        left_out = ({0, 1, 2, 3} - set(face.tolist())).pop()
+        a, b, c = points[face]
+        assert np.dot(np.cross(b - a, c - a), a - points[left_out]) > 0
+    assert sorted(map(tuple, map(sorted, solid.boundary_triangles().tolist()))) == [(0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3)]
+
+
+def test_quality_of_the_regular_tetrahedron_and_a_sliver():
+    regular = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]])
+    sliver = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.02]])
+    dihedral, aspect = element_quality(np.vstack([regular, sliver]), np.array([[0, 1, 2, 3], [4, 5, 6, 7]]))
+    assert dihedral[0] == pytest.approx(np.degrees(np.arccos(1 / 3)), abs=1e-9) and aspect[0] == pytest.approx(1.0)
+    assert dihedral[1] < 3 and aspect[1] > 10
+    summary = quality_summary(dihedral, aspect)
+    assert summary["min_dihedral_deg"]["worst"] == pytest.approx(dihedral[1], abs=1e-4)
+    assert summary["below_10_deg"] == 1
+
+
+def test_solid_checks_see_two_bodies_and_a_flipped_element():
+    one = tetrahedralize(*box_surface((10, 10, 10), n=2), weld_lines_mm=[], **{**SIZES, "size_mm": 5.0})
+    n = len(one.points)
+    two = VolumeMesh(points=np.vstack([one.points, one.points + [30.0, 0, 0]]),
+                     tetrahedra=np.vstack([one.tetrahedra, one.tetrahedra + n]),
+                     boundary_element=np.concatenate([one.boundary_element, one.boundary_element + len(one.tetrahedra)]),
+                     boundary_face=np.tile(one.boundary_face, 2), weld_zone_face=np.tile(one.weld_zone_face, 2))
+    checks = solid_checks(two, 2000.0)
+    assert checks["components"] == 2 and checks["negative_or_flat"] == 0
+    flipped = VolumeMesh(points=two.points, tetrahedra=two.tetrahedra[:, [0, 2, 1, 3]],
+                         boundary_element=two.boundary_element, boundary_face=two.boundary_face,
+                         weld_zone_face=two.weld_zone_face)
+    assert solid_checks(flipped, 2000.0)["negative_or_flat"] == len(two.tetrahedra)
+
+
+def test_an_open_surface_is_refused():
+    vertices, triangles = box_surface((10, 10, 10), n=2)
+    top = vertices[triangles].mean(axis=1)[:, 2] > 4.9
+    with pytest.raises(VolumeMeshError, match="gmsh|no tetrahedra|enclose"):
+        tetrahedralize(vertices, triangles[~top], weld_lines_mm=[], **SIZES)
+    a, b = box_surface((10, 10, 10), n=2), box_surface((10, 10, 10), n=2, offset=(30, 0, 0))
+    with pytest.raises(VolumeMeshError, match="more than one body"):
+        tetrahedralize(np.vstack([a[0], b[0]]), np.vstack([a[1], b[1] + len(a[0])]), weld_lines_mm=[], **SIZES)
+    with pytest.raises(VolumeMeshError, match="no triangles"):
+        tetrahedralize(vertices, triangles[:0], weld_lines_mm=[], **SIZES)
+
+
+def test_polyline_samples_keep_the_step_and_the_ends():
+    line = np.array([[0.0, 0, 0], [10, 0, 0], [10, 5, 0]])
+    samples = polyline_samples([line], step_mm=0.7)
+    assert np.allclose(samples[0], line[0]) and np.allclose(samples[-1], line[-1])
+    gaps = np.linalg.norm(np.diff(samples, axis=0), axis=1)
+    assert gaps.max() <= 0.7 + 1e-12
