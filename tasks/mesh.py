@@ -31,7 +31,7 @@ from tasks.checks import check_points
 _MESHLAB = threading.Lock()
 
 __all__ = ["MeshReport", "SurfaceResult", "estimate_normals", "flagged_vertices", "mesh_report", "screened_poisson",
-           "write_mesh"]
+           "simplify_surface", "write_mesh"]
 
 
 @dataclass(frozen=True)
@@ -255,6 +255,29 @@ def screened_poisson(points_mm: np.ndarray, normals: np.ndarray, *, depth: int, 
         trim += ": returned the open, trimmed mesh"
     return SurfaceResult(vertices=cut_vertices, triangles=cut_triangles, vertex_density=cut_density, report=cut_report,
                          trimmed=True, n_trimmed_triangles=n_trimmed, note="; ".join([*notes, trim]))
+
+
+def simplify_surface(vertices: np.ndarray, triangles: np.ndarray, *, max_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """The closed surface with at most ``max_triangles`` triangles: MeshLab's quadric edge
+    collapse (Garland & Heckbert), topology and normals kept, planar quadrics so flat faces go
+    first and bends keep their triangles; unchanged when it has no more. One thread, outputs in
+    canonical order: the same surface gives the same bytes."""
+    if len(triangles) <= max_triangles:
+        return vertices, triangles
+    with _MESHLAB, _one_openmp_thread():
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(vertices, np.float64),
+                                   face_matrix=np.ascontiguousarray(triangles, np.int32)))
+        ms.meshing_decimation_quadric_edge_collapse(targetfacenum=int(max_triangles), qualitythr=0.5,
+                                                    preserveboundary=True, preservenormal=True, preservetopology=True,
+                                                    planarquadric=True, optimalplacement=True, autoclean=True)
+        mesh = ms.current_mesh()
+        out_vertices = np.array(mesh.vertex_matrix(), dtype=np.float64)
+        out_triangles = np.array(mesh.face_matrix(), dtype=np.int64)
+        del mesh, ms
+    out_vertices, out_triangles, _ = _canonical_order(*_drop_unused_vertices(out_vertices, out_triangles,
+                                                                             np.zeros(len(out_vertices))))
+    return out_vertices, out_triangles
 
 
 def flagged_vertices(vertices: np.ndarray, points_mm: np.ndarray, flags: np.ndarray) -> np.ndarray:

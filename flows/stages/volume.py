@@ -1,5 +1,6 @@
 """Stage ``volume``: the FE model. gmsh fills the Poisson surface with tetrahedra graded toward the
-weld lines (where the setups' nominal placements and the refined poses put them), checked to be
+weld lines (where the setups' nominal placements and the refined poses put them), from the
+surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse), checked to be
 one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU with
 the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
 unclosed) has no solid: ``volume.json`` says so and the model files are left out; a closed one
@@ -14,7 +15,7 @@ import numpy as np
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
 from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU
 from flows.stages.weld_lines import weld_lines_common
-from tasks.mesh import mesh_report
+from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
 
 __all__ = ["volume"]
@@ -30,8 +31,9 @@ def volume(ctx) -> dict[str, Any]:
                f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
         VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
         return {"made": False, "why": why}
+    vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
     lines = [points for points, _ in weld_lines_common(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass)]
-    solid = tetrahedralize(surface.vertices, surface.triangles, weld_lines_mm=lines, size_mm=s.size_mm,
+    solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                            weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
                            feature_angle_deg=s.feature_angle_deg,
                            optimize=s.optimize)
@@ -58,7 +60,8 @@ def volume(ctx) -> dict[str, Any]:
               {"min_dihedral_deg": min_dihedral.astype(np.float32), "aspect_ratio": aspect.astype(np.float32),
                "weld_zone_boundary": in_zone})
     rounded = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.items()}
-    summary = {"made": True, "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
+    summary = {"made": True, "surface_triangles": int(len(surface.triangles)), "meshed_triangles": int(len(triangles)),
+               "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
                "sets": {"elements": "ALL", "weld_zone_nodes": WELD_ZONE_NODES, "weld_zone_surface": WELD_ZONE_SURFACE}}
     VOLUME_SUMMARY.write(ctx.out, summary)
     return {"made": True, "tetrahedra": rounded["tetrahedra"], "nodes": rounded["nodes"],

@@ -180,3 +180,22 @@ def test_polyline_samples_keep_the_step_and_the_ends():
     assert np.allclose(samples[0], line[0]) and np.allclose(samples[-1], line[-1])
     gaps = np.linalg.norm(np.diff(samples, axis=0), axis=1)
     assert gaps.max() <= 0.7 + 1e-12
+
+
+def test_a_large_surface_is_simplified_first_keeping_its_volume_and_closure():
+    import open3d as o3d
+
+    from tasks.mesh import simplify_surface
+
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=10.0, resolution=80)
+    vertices, triangles = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    before = mesh_report(vertices, triangles)
+    v, t = simplify_surface(vertices, triangles, max_triangles=4000)
+    after = mesh_report(v, t)
+    assert len(triangles) > 12_000 and 3900 <= len(t) <= 4000
+    assert after.watertight and after.consistently_oriented
+    assert abs(after.volume_mm3 / before.volume_mm3 - 1) < 0.002
+    again = simplify_surface(vertices, triangles, max_triangles=4000)
+    assert np.array_equal(again[0], v) and np.array_equal(again[1], t)  # the same bytes
+    same = simplify_surface(vertices, triangles, max_triangles=len(triangles))
+    assert same[0] is vertices and same[1] is triangles  # nothing to do: untouched
