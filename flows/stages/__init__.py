@@ -23,7 +23,7 @@ def _sample_wide(manifest, entry):
 
 def _sample_wide_grids(manifest, entry):
     """The passes and the pitch of each one's grid (refine reads the grids thinned by it)."""
-    pitches = [list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
+    pitches = [None if manifest.surfaces else list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
     return {**_sample_wide(manifest, entry), "pitch_mm": pitches}
 
 
