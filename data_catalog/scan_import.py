@@ -19,7 +19,7 @@ import numpy as np
 
 from data_catalog.atomic import atomic_directory
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
-from data_catalog.pointclouds import UNITS_TO_MM, PointCloudFormatError, ScanCloud, read_conf_poses, read_point_clouds
+from data_catalog.pointclouds import POINT_CLOUD_SUFFIXES, UNITS_TO_MM, PointCloudFormatError, ScanCloud, read_conf_poses, read_point_clouds
 from data_catalog.scans import write_scan
 from schemas.manifest import MANIFEST_SCHEMA_VERSION, SampleManifest, ScanEntry, Setup
 
@@ -45,6 +45,13 @@ class ScanImportSummary:
 def _pass_id(text: str) -> str:
     cleaned = _ID.sub("-", text).strip("-._")[:64]
     return cleaned or "scan"
+
+
+def _stem(path: Path) -> str:
+    """The file's name without its point-cloud extension (``d.xyz.gz`` -> ``d``)."""
+    name = path.name
+    suffix = next((s for s in POINT_CLOUD_SUFFIXES if name.lower().endswith(s)), "")
+    return name[:len(name) - len(suffix)] if suffix and len(name) > len(suffix) else path.stem
 
 
 def _conf_lines(path: Path) -> dict[str, int]:
@@ -119,7 +126,7 @@ def import_scans(files: list[str | Path], out_sample: str | Path, *, units: str 
             raise ScanImportError(f"{path}: {'not a file' if path.exists() else 'no such file'}, expected a point "
                                   "cloud to import")
     read = [(path, scan) for path in paths for scan in _read(path, units)]
-    ids = [_pass_id(path.stem if len([1 for p, _ in read if p == path]) == 1 else f"{path.stem}-{scan.scan_name}")
+    ids = [_pass_id(_stem(path) if len([1 for p, _ in read if p == path]) == 1 else f"{_stem(path)}-{scan.scan_name}")
            for path, scan in read]
     repeated = sorted({i for i in ids if ids.count(i) > 1})
     if repeated:
