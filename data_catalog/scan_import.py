@@ -165,6 +165,8 @@ def import_scans(files: list[str | Path], out_sample: str | Path, *, units: str 
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", sample_id):
         raise ScanImportError(f"--sample-id {sample_id!r}: expected a letter or digit, then letters, digits, '_', '.', "
                               "'-' (up to 64 in all)")
+    # the scans' date: the newest file's modification time (importing the same files twice gives the same bytes)
+    created = datetime.fromtimestamp(int(max(p.stat().st_mtime for p in paths)), tz=UTC)
     entries = []
     with atomic_directory(out) as tmp:
         (tmp / "passes").mkdir()
@@ -175,7 +177,7 @@ def import_scans(files: list[str | Path], out_sample: str | Path, *, units: str 
                                      n_points=len(scan.points_mm), has_pose=pose is not None, view_direction=view,
                                      source=path.name if len(ids) == len(paths) else f"{path.name}: {scan.scan_name}"))
         manifest = SampleManifest(schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=sample_id,
-                                  created=datetime.now(UTC).replace(microsecond=0), registration="surfaces",
+                                  created=created, registration="surfaces",
                                   setups=[Setup(name="scans", passes=entries)])
         write_manifest(tmp / MANIFEST_NAME, manifest)
     return ScanImportSummary(out_dir=out, n_scans=len(entries), n_points=sum(e.n_points for e in entries),

@@ -34,12 +34,13 @@ def _pose(seed: int) -> np.ndarray:
     return T
 
 
-def _conf(path, poses_mm: dict, extra: str = "") -> None:
-    """A scanalyze .conf (metres): ``p_world = R(q)^T p + t``, q scalar last."""
+def _conf(path, poses_mm: dict, extra: str = "", *, unit_mm: float = 1000.0) -> None:
+    """A scanalyze .conf (translations in a unit of ``unit_mm`` mm, default metres):
+    ``p_world = R(q)^T p + t``, q scalar last."""
     lines = ["camera 0 0 0 0 0 0 1"]
     for name, T in poses_mm.items():
         q = Rotation.from_matrix(T[:3, :3].T).as_quat()
-        lines.append(f"bmesh {name} " + " ".join(f"{v:.17g}" for v in [*(T[:3, 3] / 1000), *q]))
+        lines.append(f"bmesh {name} " + " ".join(f"{v:.17g}" for v in [*(T[:3, 3] / unit_mm), *q]))
     path.write_text("\n".join(lines) + "\n" + extra)
 
 
