@@ -66,8 +66,10 @@ def weldrecon(*args: str) -> float:
     return time.perf_counter() - start
 
 
-def run_case(label: str, work: Path, files: list[Path], extra: list[str]) -> dict:
+def run_case(label: str, work: Path, files: list[Path], extra: list[str], reuse: bool = False) -> dict:
     sample, run = work / f"sample-{label}", work / f"run-{label}"
+    if reuse and (run / "results" / "report.json").is_file():  # evaluate an earlier run again (no times)
+        return dict(sample=sample, run=run, import_s=float("nan"), reconstruct_s=float("nan"))
     t_import = weldrecon("import-scans", str(sample), *map(str, files), "--units", "m", *extra)
     t_flow = weldrecon("reconstruct", str(sample), "--config", str(CONFIG), "--out", str(run))
     return dict(sample=sample, run=run, import_s=t_import, reconstruct_s=t_flow)
@@ -124,6 +126,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--work", type=Path, help="keep the samples and runs here (default: a temporary folder)")
     parser.add_argument("--json", type=Path)
+    parser.add_argument("--reuse", action="store_true", help="with --work: evaluate the runs already there")
     args = parser.parse_args()
 
     import open3d as o3d
@@ -139,19 +142,21 @@ def main() -> int:
     files = [args.data / n for n in names]
     points = [read_point_cloud(f, units="m").points_mm for f in files]
     T_start = perturb(T_lab, points, seed=args.seed, degrees=5.0, mm=5.0)
-    write_conf(work / "perturbed.conf", names, T_start)
+    if not (args.reuse and (work / "perturbed.conf").is_file()):
+        write_conf(work / "perturbed.conf", names, T_start)
     back = read_conf_poses(work / "perturbed.conf", units="m")
     assert max(np.abs(back[n] - T_start[k]).max() for k, n in enumerate(names)) < 1e-9, "the .conf does not round-trip"
     zipper_mesh = o3d.io.read_triangle_mesh(str(args.data / "bun_zipper.ply"))
     zipper = (np.asarray(zipper_mesh.vertices) * 1000.0, np.asarray(zipper_mesh.triangles))
 
-    cases = {"a": run_case("a", work, files, ["--poses", str(work / "perturbed.conf")]),
-             "b": run_case("b", work, files, [])}
+    cases = {"a": run_case("a", work, files, ["--poses", str(work / "perturbed.conf")], args.reuse),
+             "b": run_case("b", work, files, [], args.reuse)}
     rows, meshes, methods = {}, {}, {}
     err_start = pose_errors(T_start, T_lab, points)
     for label, case in cases.items():
         T, report, scan_points = final_poses(case)
-        assert all(np.array_equal(p, q) for p, q in zip(scan_points, points)), "the imported points differ from the files'"
+        assert all(np.abs(p - q).max() < 1e-4 for p, q in zip(scan_points, points)), \
+            "the imported points differ from the files' (beyond float32 at 0.1 m)"
         rows[label] = pose_errors(T, T_lab, points)
         G = T_lab[0] @ np.linalg.inv(T[0])  # the common frame into the lab's: bun000 where the lab put it
         meshes[label] = mesh_figures(case, report, G, zipper)

@@ -28,7 +28,7 @@ def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
 
 def refine(ctx) -> dict[str, Any]:
     if ctx.manifest.surfaces:  # imported scans, no stickers: registered on their surfaces (settings refine.surfaces)
-        return register_on_surfaces(ctx)
+        return register_on_surfaces(ctx, ctx.settings.surfaces)
     rc, names = ctx.settings, ctx.names
     reg = REGISTRATION.read(ctx.inputs["registration"])
     T_targets = reg.T_common_pass

@@ -52,9 +52,9 @@ def _pair_figures(names, result) -> list[dict[str, Any]]:
             for a, b in sorted(result.pair_rms_mm)]
 
 
-def register_on_surfaces(ctx) -> dict[str, Any]:
+def register_on_surfaces(ctx, sc) -> dict[str, Any]:
+    """The body of stage refine for a surfaces sample; ``sc`` its settings ``refine.surfaces``."""
     rc, names = ctx.settings, ctx.names
-    sc = rc.surfaces
     entries = [e for _, e in ctx.manifest.passes()]
     clouds = [_scan_cloud(r) for r in ctx.inputs["denoise"]]
     n = len(clouds)
