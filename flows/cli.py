@@ -141,6 +141,10 @@ def _print_report(report: dict, out: Path) -> None:
                               "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
                               "target_residual_median_mm")}
             print(f"  {name:<12} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
+    methods = report.get("registration_method", {})
+    if methods:  # per pass: targets, surfaces from given poses, surfaces, global
+        kinds = sorted(set(methods.values()))
+        print("registration: " + "; ".join(f"{k} ({sum(v == k for v in methods.values())} passes)" for k in kinds))
     weak = report["registration"]["pairs_below_min_common"]
     if weak:
         print("  pass pairs with fewer common targets than needed: "
