@@ -10,7 +10,7 @@ from pydantic import ValidationError
 from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_file
 from data_catalog.textfiles import read_text_file
-from schemas.manifest import DrawingSpecimen, SampleManifest
+from schemas.manifest import DrawingSpecimen, SampleManifest, ScanEntry
 
 __all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files",
            "check_pass_file", "check_drawing_file", "write_manifest", "manifest_json_schema"]
@@ -65,10 +65,11 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
     (``check_drawing_file``). Missing pass files are left to the stages, which name every
     missing pass at once."""
     root = Path(sample_dir)
-    total = sum(entry.n_profiles for _, entry in manifest.passes()) * manifest.scanner.points_per_profile
+    total = sum(entry.n_points if isinstance(entry, ScanEntry)
+                else entry.n_profiles * manifest.scanner.points_per_profile for _, entry in manifest.passes())
     if total > MAX_POINTS_PER_SAMPLE:
         raise ManifestError(f"{root}: the manifest's passes declare {total:,} points (n_profiles x "
-                            f"points_per_profile), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
+                            f"points_per_profile, n_points), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
     for setup, entry in manifest.passes():
         check_pass_file(root, manifest, setup, entry)
     if isinstance(manifest.specimen, DrawingSpecimen):
@@ -92,8 +93,17 @@ def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entr
     path = root / entry.file
     where = f"pass {entry.pass_id} (setup {setup})"
     _refuse_links(root, entry.file, where, "pass files")
-    meta = path / "x_mm" / "zarr.json"
-    if meta.is_file():
+    scan = isinstance(entry, ScanEntry)
+    meta = path / ("points_mm" if scan else "x_mm") / "zarr.json"
+    if meta.is_file() and scan:
+        try:
+            shape = tuple(json.loads(meta.read_text(encoding="utf-8"))["shape"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ManifestError(f"{where}: {meta} is unreadable ({exc})") from None
+        if shape != (entry.n_points, 3):
+            raise ManifestError(f"{where}: {path} holds {shape[0]:,} points, the manifest declares n_points "
+                                f"{entry.n_points:,}")
+    elif meta.is_file():
         try:
             shape = tuple(json.loads(meta.read_text(encoding="utf-8"))["shape"])
         except (ValueError, KeyError, TypeError) as exc:

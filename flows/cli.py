@@ -141,6 +141,10 @@ def _print_report(report: dict, out: Path) -> None:
                               "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
                               "target_residual_median_mm")}
             print(f"  {name:<12} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
+    methods = report.get("registration_method", {})
+    if methods:  # per pass: targets, surfaces from given poses, surfaces, global
+        kinds = sorted(set(methods.values()))
+        print("registration: " + "; ".join(f"{k} ({sum(v == k for v in methods.values())} passes)" for k in kinds))
     weak = report["registration"]["pairs_below_min_common"]
     if weak:
         print("  pass pairs with fewer common targets than needed: "
@@ -247,6 +251,26 @@ def _cmd_import(args: argparse.Namespace) -> int:
     check_can_create(out, f"OUT_SAMPLE {out}")
     summary = import_cell(args.cell_yaml, out)
     print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_profiles:,} profiles, {summary.n_points:,} points")
+    return 0
+
+
+def _cmd_import_scans(args: argparse.Namespace) -> int:
+    from data_catalog.atomic import check_can_create
+    from data_catalog.scan_import import import_scans
+
+    out = Path(args.out_sample)
+    if out.exists():
+        raise ValueError(f"{out} already exists; choose a new folder (nothing was written)")
+    check_can_create(out, f"OUT_SAMPLE {out}")
+    try:
+        view = tuple(float(v) for v in args.view_direction.split(","))
+    except ValueError:
+        view = args.view_direction
+    summary = import_scans(args.files, out, units=args.units, poses=args.poses, ignore_poses=args.ignore_poses,
+                           sample_id=args.sample_id, view_direction=view)
+    print(f"{summary.out_dir}: {summary.n_scans} scans, {summary.n_points:,} points, "
+          f"{'poses given' if summary.with_poses else 'no poses (the registration finds them)'}; "
+          f"registration: surfaces")
     return 0
 
 
@@ -520,6 +544,20 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("cell_yaml", metavar="CELL.yaml", help="the cell description (docs/cell-logs.md)")
     imp.add_argument("out_sample", metavar="OUT_SAMPLE", help="new folder for the sample (must not exist)")
     imp.set_defaults(func=_cmd_import)
+    isc = sub.add_parser("import-scans", help="point clouds of any scanner (PLY, PCD, XYZ/CSV/TXT, E57, LAS/LAZ) into a "
+                         "sample registered on its surfaces (docs/point-clouds.md)")
+    isc.add_argument("out_sample", metavar="OUT_SAMPLE", help="new folder for the sample (must not exist)")
+    isc.add_argument("files", nargs="+", metavar="FILE", help="the scans, one pass each (an E57 file: one per scan in it)")
+    isc.add_argument("--units", metavar="mm|cm|m|in", help="length unit of the files' coordinates and of the .conf "
+                     "(required but for E57, metres by its standard)")
+    isc.add_argument("--poses", metavar="FILE.conf", help="the scans' poses: a Stanford/scanalyze .conf "
+                     "(bmesh FILE tx ty tz qx qy qz qw), one line per scan given")
+    isc.add_argument("--ignore-poses", action="store_true", help="use no pose (not the E57 files' own): the "
+                     "registration finds them")
+    isc.add_argument("--sample-id", help="the sample's id (default: OUT_SAMPLE's name)")
+    isc.add_argument("--view-direction", default="0,0,1", metavar="x,y,z", help="from the surface toward the scanner "
+                     "in each scan's frame (normals are turned toward it; default 0,0,1)")
+    isc.set_defaults(func=_cmd_import_scans)
     exp = sub.add_parser("export-cell", help="write a sample (with flange poses per profile) as cell logs + CELL.yaml")
     exp.add_argument("sample_dir", metavar="SAMPLE", help="folder with manifest.json and the passes")
     exp.add_argument("out_dir", metavar="OUT_DIR", help="new folder for CELL.yaml and the logs (must not exist)")

@@ -19,8 +19,8 @@ from datetime import datetime
 from pathlib import PurePosixPath
 from typing import Any, ClassVar, Literal, Union
 
-from pydantic import (AfterValidator, Field, ValidationInfo, ValidatorFunctionWrapHandler, WrapValidator,
-                      field_validator, model_validator)
+from pydantic import (AfterValidator, Field, SerializerFunctionWrapHandler, ValidationInfo, ValidatorFunctionWrapHandler,
+                      WrapValidator, field_validator, model_serializer, model_validator)
 from typing_extensions import Annotated
 
 from schemas.common import Pose4x4, StrictModel, Vector3
@@ -43,6 +43,8 @@ __all__ = [
     "ScannerSettings",
     "NominalMotion",
     "PassEntry",
+    "ScanEntry",
+    "REGISTRATIONS",
     "Setup",
     "SampleManifest",
 ]
@@ -364,6 +366,53 @@ class PassEntry(StrictModel):
     content_sha256: str | None = Field(default=None, pattern=r"^[0-9a-f]{64}$")
 
 
+class ScanEntry(StrictModel):
+    """One scan of a sample registered on its surfaces (``registration: surfaces``): a point cloud
+    from any scanner, imported by ``weldrecon import-scans`` into a scan store
+    (``data_catalog.scans``: its points in the scan's own frame, and its pose ``T_world_pass``
+    when one was given). ``view_direction``: from the surface toward the sensor, in the scan's
+    frame (normals are turned toward it); ``source``: the file it was imported from (a label)."""
+
+    kind: Literal["scan"]
+    pass_id: str = Field(pattern=_ID_PATTERN)
+    file: RelativeFile
+    n_points: int = Field(gt=0, le=1_000_000_000)
+    has_pose: bool = Field(description="the scan store holds the scan's pose T_world_pass (a .conf, E57)")
+    view_direction: Vector3 = Field(description="from the surface toward the sensor, scan frame (unit)")
+    source: str = Field(default="", max_length=1000)
+    content_sha256: str | None = Field(default=None, pattern=r"^[0-9a-f]{64}$")
+
+    @field_validator("view_direction")
+    @classmethod
+    def _unit_view(cls, value: Vector3) -> Vector3:
+        norm = math.sqrt(sum(v * v for v in value))
+        if abs(norm - 1.0) > 1e-6:
+            raise ValueError(f"view_direction must be a unit vector, got norm {norm:g}")
+        return value
+
+
+def _pass_of_its_kind(value: Any, handler: ValidatorFunctionWrapHandler) -> "PassEntry | ScanEntry":
+    """A scan entry (``kind: scan``) or a robot pass (no ``kind``), so that an error names the
+    entry's own fields."""
+    if isinstance(value, (PassEntry, ScanEntry)):
+        return value
+    if not isinstance(value, dict):
+        return handler(value)
+    kind = value.get("kind")
+    if kind is None:
+        return PassEntry.model_validate(value)
+    if kind != "scan":
+        raise ValueError(f"kind {kind!r} is not a pass kind weldrecon knows; expected 'scan' (a point cloud) or no "
+                         "kind (a robot pass of the line scanner)")
+    return ScanEntry.model_validate(value)
+
+
+AnyPass = Annotated[Union[PassEntry, ScanEntry], WrapValidator(_pass_of_its_kind)]
+"""A setup's pass: a robot pass of the line scanner (``PassEntry``) or an imported scan (``ScanEntry``)."""
+
+REGISTRATIONS = ("targets", "surfaces")
+
+
 class Setup(StrictModel):
     """One placement of the specimen in the cell; the robot frame ('world') is the cell's.
 
@@ -374,7 +423,7 @@ class Setup(StrictModel):
 
     name: str = Field(pattern=_ID_PATTERN)
     description: str = ""
-    passes: list[PassEntry] = Field(min_length=1)
+    passes: list[AnyPass] = Field(min_length=1)
     T_world_specimen_nominal: Pose4x4 | None = None
     placement_tolerance_mm: float = Field(default=0.0, ge=0, le=1000, description=(
         "how far the specimen's weld lines may lie from where T_world_specimen_nominal puts them"))
@@ -390,11 +439,15 @@ class SampleManifest(StrictModel):
     sample_id: str = Field(pattern=_ID_PATTERN)
     created: datetime
     material: str = "S355"
-    specimen: SpecimenGeometry
-    weld: Union[WeldDescription, CentreLineWeld] = Field(description=(
+    registration: Literal["targets", "surfaces"] = Field(default="targets", description=(
+        "targets: the passes are registered on their sticker targets (the paper's method; specimen, "
+        "weld, sticker_diameter_mm and scanner required); surfaces: imported scans (kind scan) "
+        "registered on their overlapping surfaces, from their given poses or from none"))
+    specimen: SpecimenGeometry | None = None
+    weld: Union[WeldDescription, CentreLineWeld] | None = Field(default=None, description=(
         "schema_version 1.1: WeldDescription (weld_lines); 1.0: CentreLineWeld (centre_x_mm)"))
-    sticker_diameter_mm: float = Field(gt=0, le=100)
-    scanner: ScannerSettings
+    sticker_diameter_mm: float | None = Field(default=None, gt=0, le=100)
+    scanner: ScannerSettings | None = None
     setups: list[Setup] = Field(min_length=1)
 
     @field_validator("created")
@@ -412,7 +465,7 @@ class SampleManifest(StrictModel):
         form's fields. When schema_version itself was refused, its error stands alone (the
         manifest is refused whatever the weld)."""
         version = info.data.get("schema_version")
-        if version is None:
+        if version is None or value is None:
             return value
         return (CentreLineWeld if version == "1.0" else WeldDescription).model_validate(value)
 
@@ -434,7 +487,48 @@ class SampleManifest(StrictModel):
         return self
 
     @model_validator(mode="after")
+    def _sections_of_its_registration(self) -> "SampleManifest":
+        """A sticker sample needs its part, weld, stickers and scanner, and robot passes; a
+        surfaces sample holds imported scans, all with a pose or none with one."""
+        if self.registration == "targets":
+            missing = [k for k in ("specimen", "weld", "sticker_diameter_mm", "scanner") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"{', '.join(missing)} required: registration 'targets' (the default) registers the "
+                                 "passes on their stickers; a sample of imported scans says registration 'surfaces'")
+            scans = [e.pass_id for _, e in self.passes() if isinstance(e, ScanEntry)]
+            if scans:
+                raise ValueError(f"passes {', '.join(scans)} are scans (kind scan): they take registration 'surfaces', "
+                                 "not 'targets'")
+        else:
+            passes = [e.pass_id for _, e in self.passes() if not isinstance(e, ScanEntry)]
+            if passes:
+                raise ValueError(f"passes {', '.join(passes)} are robot passes: registration 'surfaces' takes imported "
+                                 "scans (kind scan); robot passes are registered on their targets")
+            posed = {e.has_pose for _, e in self.passes()}
+            if len(posed) > 1:
+                raise ValueError("some scans have a pose and some none (has_pose); expected all or none: give every "
+                                 "scan's pose, or none and let the registration find them")
+            if (self.specimen is None) != (self.weld is None):
+                raise ValueError("specimen and weld go together: give both or neither")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _targets_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Written as before for a sticker sample (no ``registration`` field, as every manifest
+        written before it); the optional sections a surfaces sample leaves out are left out."""
+        data = handler(self)
+        if self.registration == "targets":
+            data.pop("registration", None)
+        else:
+            for key in ("specimen", "weld", "sticker_diameter_mm", "scanner"):
+                if data.get(key) is None:
+                    data.pop(key, None)
+        return data
+
+    @model_validator(mode="after")
     def _weld_fits_the_part(self) -> "SampleManifest":
+        if self.specimen is None or self.weld is None:
+            return self
         kind = self.specimen.kind
         if self.schema_version == "1.0" and kind != "dog-bone":
             raise ValueError(f"specimen.kind {kind!r}: schema_version 1.0 describes dog-bones only; expected "
@@ -455,12 +549,20 @@ class SampleManifest(StrictModel):
 
     def weld_lines(self) -> list[WeldLine]:
         """The weld's lines in the specimen frame, mm: a 1.1 manifest's own, a 1.0 manifest's from
-        its centre line (``dog_bone_weld_lines``): the one place ``centre_x_mm`` is read."""
+        its centre line (``dog_bone_weld_lines``): the one place ``centre_x_mm`` is read. None
+        where the manifest gives no weld (a surfaces sample may not)."""
+        if self.weld is None:
+            return []
         if isinstance(self.weld, CentreLineWeld):
             return dog_bone_weld_lines(self.specimen, self.weld.centre_x_mm)
         return list(self.weld.weld_lines)
 
-    def passes(self) -> list[tuple[str, PassEntry]]:
+    @property
+    def surfaces(self) -> bool:
+        """Whether the passes are registered on their surfaces (imported scans, no stickers)."""
+        return self.registration == "surfaces"
+
+    def passes(self) -> list[tuple[str, PassEntry | ScanEntry]]:
         """All passes as ``(setup_name, entry)`` in manifest order."""
         return [(s.name, p) for s in self.setups for p in s.passes]
 

@@ -9,8 +9,8 @@ from pydantic import Field, model_validator
 
 from schemas.common import StrictModel, Vector3
 
-__all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "RefineConfig", "MergeConfig", "SegmentConfig",
-           "MeshConfig", "VolumeConfig", "ReconstructionConfig"]
+__all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
+           "MergeConfig", "SegmentConfig", "MeshConfig", "VolumeConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -25,6 +25,9 @@ class DenoiseConfig(StrictModel):
         "edge of the window of grid neighbours each normal is fitted to; the paper's 100 neighbours "
         "are a 0.5 mm window at its 0.02 x 0.1 mm grid (5 profiles x 25 columns)"))
     normal_min_points: int = Field(default=6, ge=3, le=1000, description="fewer points: the normal faces the sensor")
+    scan_normal_neighbours: int = Field(default=16, ge=3, le=200, description=(
+        "imported scans (no grid; the outliers by k and alpha on the k nearest points): each normal "
+        "from this many nearest points, turned toward the scan's view direction"))
 
 
 class TargetsConfig(StrictModel):
@@ -40,6 +43,49 @@ class RegistrationConfig(StrictModel):
     min_setup_targets: int = Field(default=4, ge=3, le=100, description=(
         "targets a turned setup's match to the first must bring together: any 3 stickers whose "
         "distances agree fit some rigid motion, so 3 is no evidence"))
+
+
+class SurfaceRegistrationConfig(StrictModel):
+    """Registration of imported scans on their surfaces alone (``registration: surfaces``;
+    ``tasks.surface_registration``). Given poses: refined together, coarse to fine, one level per
+    gate of ``gates_given_mm`` (the first above the poses' worst error at a point). No poses:
+    every pair registered globally (FPFH on a ``voxel_mm`` grid, RANSAC of ``draws`` triples from
+    ``seed``, point-to-plane ICP of the ``top_k`` best distinct hypotheses), accepted on its
+    surfaces' evidence (overlap ``min_fitness`` within ``inlier_mm``, RMS ``max_rms_mm``, no pose
+    ``distinct_mm`` / ``distinct_deg`` away scoring ``max_runner_up_ratio`` of its overlap), chained
+    along a maximum spanning tree of the accepted pairs, then refined together (``gates_global_mm``).
+    The defaults suit scans of about 0.5 mm point spacing (the Stanford bunny)."""
+
+    sample_spacing_mm: float = Field(default=2.0, gt=0, le=100, description="thinning of each scan's matched points")
+    neighbour_mm: float = Field(default=2.0, gt=0, le=100, description="normal neighbourhood and least match radius")
+    normal_neighbours: int = Field(default=16, ge=6, le=200)
+    max_plane_rms_mm: float = Field(default=0.25, gt=0, le=10, description="curved neighbourhoods are not matched")
+    min_normal_cos: float = Field(default=0.8, gt=0, le=1)
+    surface_sigma_mm: float = Field(default=0.15, gt=0, le=10)
+    max_points_per_pair: int = Field(default=2000, ge=100, le=1_000_000)
+    iterations_per_level: int = Field(default=10, ge=1, le=100)
+    tolerance_mm: float = Field(default=0.01, gt=0, le=1, description="the last level stops when no point moves more")
+    gates_given_mm: tuple[float, ...] = Field(default=(16.0, 8.0, 4.0, 2.0, 1.0), min_length=1, max_length=20)
+    gates_global_mm: tuple[float, ...] = Field(default=(8.0, 4.0, 2.0, 1.0), min_length=1, max_length=20)
+    voxel_mm: float = Field(default=3.0, gt=0, le=1000, description="FPFH keypoint grid (features over 5 voxels)")
+    ransac_inlier_mm: float = Field(default=4.5, gt=0, le=1000)
+    inlier_mm: float = Field(default=1.0, gt=0, le=100, description="a surface sample overlaps within this")
+    max_rms_mm: float = Field(default=0.4, gt=0, le=100)
+    distinct_mm: float = Field(default=10.0, gt=0, le=10000)
+    distinct_deg: float = Field(default=10.0, gt=0, le=180)
+    min_fitness: float = Field(default=0.25, gt=0, le=1)
+    max_runner_up_ratio: float = Field(default=0.7, gt=0, le=1)
+    draws: int = Field(default=20000, ge=1, le=10_000_000)
+    top_k: int = Field(default=4, ge=1, le=100)
+    seed: int = Field(default=0, ge=0)
+
+    @model_validator(mode="after")
+    def _descending(self) -> "SurfaceRegistrationConfig":
+        for name in ("gates_given_mm", "gates_global_mm"):
+            gates = getattr(self, name)
+            if any(g <= 0 for g in gates) or any(b > a for a, b in zip(gates, gates[1:])):
+                raise ValueError(f"{name} must be positive and descending, got {list(gates)}")
+        return self
 
 
 class RefineConfig(StrictModel):
@@ -69,6 +115,8 @@ class RefineConfig(StrictModel):
         "7.8 / 31.4 -> 31.8 um, paper 8.4 -> 7.8 / 17.7 -> 18.9 um: off until it helps the worst pass"))
     max_iterations: int = Field(default=10, ge=1, le=100)
     tolerance_mm: float = Field(default=0.001, gt=0, le=1, description="stop when no pass point moves more")
+    surfaces: SurfaceRegistrationConfig = Field(default=SurfaceRegistrationConfig(), description=(
+        "samples of imported scans (registration: surfaces): their registration on the surfaces alone"))
 
     @model_validator(mode="after")
     def _gates(self) -> "RefineConfig":
@@ -139,7 +187,7 @@ class VolumeConfig(StrictModel):
     growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm beyond the weld zone")
     max_surface_triangles: int = Field(default=150_000, ge=1000, le=50_000_000, description=(
         "the Poisson surface is simplified to at most this many triangles before gmsh reparametrises it "
-        "(quadric edge collapse: flat faces first; the paper preset's 4.9 M would take gmsh hours)"))
+        "(quadric edge collapse: flat faces first; gmsh had not finished the demo's 487,230 in 8 min)"))
     feature_angle_deg: float = Field(default=40.0, gt=0, lt=180, description=(
         "surface patches split where the normals turn by more (gmsh classifySurfaces)"))
     optimize: bool = Field(default=True, description="Netgen's optimizer after gmsh's own")

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from tasks.kernels import numba
 import numpy as np
 
-__all__ = ["DenoiseResult", "DistanceStats", "check_window", "mean_knn_distance", "remove_statistical_outliers",
+__all__ = ["DenoiseResult", "DistanceStats", "check_window", "mean_knn_distance", "mean_neighbour_distance", "remove_statistical_outliers",
            "window_offsets"]
 
 # Statistics are summed on distances quantised to this step (mm), in integers: exact, so the mean
@@ -190,3 +190,20 @@ def remove_statistical_outliers(points_mm: np.ndarray, *, k: int, alpha: float, 
     threshold = stats.threshold_mm(alpha)
     keep = np.isfinite(mean) & (mean <= threshold)
     return DenoiseResult(keep=keep, mean_distance_mm=mean, threshold_mm=threshold)
+
+
+def mean_neighbour_distance(points_mm: np.ndarray, *, k: int) -> np.ndarray:
+    """Each point's mean distance to its ``k`` nearest other points, for a cloud without a grid
+    (an imported scan): ``points_mm`` (n, 3) finite, mm -> (n,) float64, mm; NaN for every point
+    when the cloud has k points or fewer. One-worker k-d tree queries: the same bytes on every run."""
+    from scipy.spatial import cKDTree
+
+    from tasks.checks import check_points
+
+    pts = check_points("points_mm", points_mm)
+    if not isinstance(k, (int, np.integer)) or k < 1:
+        raise ValueError(f"k must be an integer >= 1, got {k!r}")
+    if len(pts) <= k:
+        return np.full(len(pts), np.nan)
+    distances, _ = cKDTree(pts).query(pts, k=k + 1, workers=1)
+    return distances[:, 1:].mean(axis=1)

@@ -24,7 +24,7 @@ def _sample_wide(manifest, entry):
 
 def _sample_wide_grids(manifest, entry):
     """The passes and the pitch of each one's grid (refine reads the grids thinned by it)."""
-    pitches = [list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
+    pitches = [None if manifest.surfaces else list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
     return {**_sample_wide(manifest, entry), "pitch_mm": pitches}
 
 
@@ -37,7 +37,8 @@ STAGES: tuple[Stage, ...] = (
           (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), registration.register, registration.setups_view,
           "match targets between passes, solve all pass poses"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
-          refine.refine, _sample_wide_grids, "all pass poses on targets and overlapping surfaces together"),
+          refine.refine, _sample_wide_grids, "all pass poses on targets and overlapping surfaces together; imported "
+          "scans (registration: surfaces) on their surfaces alone, from given poses or globally"),
     Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, merge.merge_view,
           "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
           "away from the weld"),

@@ -17,19 +17,60 @@ from typing import Any
 import numpy as np
 
 from data_catalog.atomic import owner_tag
+from data_catalog.scans import read_scan
 from flows.stages.outputs import CLOUD
 from flows.stages.passes import block_rows, open_entry, pass_blocks
+from schemas.manifest import ScanEntry
 from tasks.consistency import MotionCheck, chunk_jumps, profile_steps
-from tasks.denoise import DistanceStats, check_window, mean_knn_distance
+from tasks.denoise import DistanceStats, check_window, mean_knn_distance, mean_neighbour_distance
+from tasks.mesh import estimate_normals
 from tasks.normals import grid_normals, normal_window
 
 __all__ = ["denoise"]
 
 # Block size override for tests (profiles per block); None: ``block_rows``.
 BLOCK_ROWS: int | None = None
+# An imported scan's sensor, as the stored ``sensor_origins``: this far from each point along the
+# scan's view direction (a direction, not a position: a range scan's own sensor is not recorded)
+SCAN_SENSOR_DISTANCE_MM = 1.0e4
+_SCAN_CHUNK_ROWS = 1 << 16
+
+
+def _denoise_scan(ctx) -> dict[str, Any]:
+    """An imported scan (no grid): into the coarse world frame by its given pose (none: its own
+    frame), statistical outliers removed on its k nearest points, a normal per kept point from its
+    ``scan_normal_neighbours`` nearest, turned toward the scan's view direction. Written as a
+    (points, 1) grid: one point per row, its row's sensor origin far along the view direction."""
+    s = ctx.settings
+    scan = read_scan(ctx.sample_dir / ctx.entry.file, pass_id=ctx.entry.pass_id)
+    T = scan.T_world_pass if scan.T_world_pass is not None else np.eye(4)
+    points = scan.points_mm @ T[:3, :3].T + T[:3, 3]
+    view = T[:3, :3] @ np.asarray(ctx.entry.view_direction, dtype=np.float64)
+    distances = mean_neighbour_distance(points, k=s.k)
+    stats = DistanceStats()
+    stats.add(distances)
+    threshold = stats.threshold_mm(s.alpha)
+    kept = points[~(distances > threshold)]  # NaN (too few points to judge): kept
+    if len(kept) < s.scan_normal_neighbours:
+        raise ValueError(f"pass {ctx.entry.pass_id}: {len(kept)} points left after the outliers went, fewer than "
+                         f"denoise.scan_normal_neighbours {s.scan_normal_neighbours}; a scan needs more to register")
+    sensors = kept + SCAN_SENSOR_DISTANCE_MM * view
+    normals = estimate_normals(kept, sensors, k=s.scan_normal_neighbours)
+    out = CLOUD.writer(ctx.out, chunk_rows=_SCAN_CHUNK_ROWS)
+    out.create("points", (len(kept), 1, 3), np.float32)
+    out.create("normals", (len(kept), 1, 3), np.float32)
+    out.create("sensor_origins", (len(kept), 3), np.float64)
+    out.write("points", 0, kept[:, None, :])
+    out.write("normals", 0, normals[:, None, :])
+    out.write("sensor_origins", 0, sensors)
+    out.close()
+    return {"points_in": int(len(points)), "points_out": int(len(kept)), "removed": int(len(points) - len(kept)),
+            "threshold_mm": threshold, "pose": "given" if scan.T_world_pass is not None else "none"}
 
 
 def denoise(ctx) -> dict[str, Any]:
+    if isinstance(ctx.entry, ScanEntry):
+        return _denoise_scan(ctx)
     s = ctx.settings
     check_window(k=s.k, window_rows=s.window_rows, window_cols=s.window_cols)
     reader = open_entry(ctx.sample_dir, ctx.entry)

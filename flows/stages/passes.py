@@ -101,5 +101,5 @@ def pass_view(manifest: SampleManifest, entry: PassEntry | None) -> dict[str, An
     """What a per-pass stage reads from the manifest besides the pass file: the scanner (hand-eye
     transform) and the pass's entry (its nominal motion)."""
     assert entry is not None
-    return {"scanner": manifest.scanner.model_dump(mode="json"),
+    return {"scanner": None if manifest.scanner is None else manifest.scanner.model_dump(mode="json"),
             "pass": entry.model_dump(mode="json", exclude={"file", "content_sha256"})}

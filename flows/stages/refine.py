@@ -9,6 +9,7 @@ import numpy as np
 
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from flows.stages.surfaces import register_on_surfaces
 from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import refine_poses, surface_sample
 
@@ -26,6 +27,8 @@ def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
 
 
 def refine(ctx) -> dict[str, Any]:
+    if ctx.manifest.surfaces:  # imported scans, no stickers: registered on their surfaces (settings refine.surfaces)
+        return register_on_surfaces(ctx, ctx.settings.surfaces)
     rc, names = ctx.settings, ctx.names
     reg = REGISTRATION.read(ctx.inputs["registration"])
     T_targets = reg.T_common_pass
@@ -89,6 +92,7 @@ def refine(ctx) -> dict[str, Any]:
             "surface_rms_median_mm": float(np.median(surface_rms)) if surface_rms else None,
             "target_residual_median_mm": float(np.median(target_res)) if len(target_res) else None,
             "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None,
+            "registration_method": {name: "targets" for name in names},
             "checks": {"target_residuals": {"per_pass_median_mm": {p: (round(v, 6) if np.isfinite(v) else None)
                                                                    for p, v in per_pass.items()},
                                             "flagged": flagged},

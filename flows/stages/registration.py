@@ -14,14 +14,29 @@ from tasks.registration import RegistrationError
 __all__ = ["register", "setups_view"]
 
 
-
-
 def setups_view(manifest, entry) -> dict[str, Any]:
     """The passes in order, each with its setup."""
-    return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()]}
+    return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()], "registration": manifest.registration}
+
+
+def _surfaces_sample(ctx) -> dict[str, Any]:
+    """A sample registered on its surfaces (imported scans, no stickers): no target registration;
+    the passes keep their coarse poses here (given, or none) and stage refine registers them."""
+    n = len(ctx.names)
+    empty3, empty = np.zeros((0, 3)), np.zeros(0)
+    REGISTRATION.write(ctx.out, Registration(
+        T_common_pass=np.tile(np.eye(4), (n, 1, 1)), residual_mm=empty, inlier=np.zeros(0, bool),
+        edge_passes=np.zeros((0, 2), np.int64), points_a=empty3, points_b=empty3, track_positions_mm=empty3,
+        specimen_track=np.zeros(0, bool), track_members=np.zeros((0, 2), np.int64), track_centres_mm=empty3))
+    method = "none: registration surfaces (the scans are registered on their surfaces in stage refine)"
+    REGISTRATION_SUMMARY.write(ctx.out, {"method": method, "pairs": [], "pairs_below_min_common": [],
+                                         "pass_rms_mm": {}, "between_setups": []})
+    return {"target_pairs": 0, "method": method}
 
 
 def register(ctx) -> dict[str, Any]:
+    if ctx.manifest.surfaces:
+        return _surfaces_sample(ctx)
     rc, names = ctx.settings, ctx.names
     setups = [s for s, _ in ctx.manifest.passes()]
     targets = [TARGETS.open(r).centres for r in ctx.inputs["targets"]]

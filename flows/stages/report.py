@@ -45,7 +45,9 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
     ``result`` "ok" or "flagged", ``what`` in words. Checks that fail stop the run instead."""
     out = []
     for name, ref in zip(names, denoise):
-        found = ref.metrics.get("checks", {})
+        if "checks" not in ref.metrics:  # an imported scan: no profiles, times or chunks to check
+            continue
+        found = ref.metrics["checks"]
         motion = found.get("motion", {})
         out.append({"check": "profile times and poses", "pass": name, "result": "ok",
                     "what": ("times in order; logged flange poses rigid, no jump or turn beyond the limits"
@@ -88,6 +90,8 @@ def report(ctx) -> dict[str, Any]:
         "config": ctx.config.model_dump(mode="json"),
         "stages": {name: _metrics(ref) for name, ref in inputs.items()},
         "registration": registration,
+        # per pass, what registered it: "targets" (stickers), "surfaces from given poses", "surfaces, global"
+        "registration_method": inputs["refine"].metrics.get("registration_method", {}),
         "mesh": _metrics(inputs["mesh"]),
         "volume_mesh": VOLUME_SUMMARY.read(inputs["volume"]),
         "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),

@@ -30,8 +30,10 @@ def segment_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
     """What the segment reads of the manifest: the passes (in order), the part's drawing box, and
     for a single setup the setup's nominal placement and tolerance."""
     view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()],
-                            "bounds_mm": [list(b) for b in manifest.specimen.bounds_mm()]}
-    if len(manifest.setups) == 1:
+                            "bounds_mm": None if manifest.specimen is None else [list(b) for b in manifest.specimen.bounds_mm()]}
+    if manifest.surfaces:
+        view["registration"] = manifest.registration
+    elif len(manifest.setups) == 1:
         setup = manifest.setups[0]
         view["single_setup"] = {"T_world_specimen_nominal": setup.T_world_specimen_nominal,
                                 "placement_tolerance_mm": setup.placement_tolerance_mm}
@@ -97,7 +99,11 @@ def segment(ctx) -> dict[str, Any]:
     fine = zarr_array(ctx.inputs["merge"], MERGED, "fine")
     all_points = np.asarray(points[...])  # labelling needs every point; normals and zones are read by block
     fill = None
-    if len(anchors):
+    if ctx.manifest.surfaces:  # imported scans: no fixture, no stickers to tell the part by
+        keep = np.ones(len(all_points), bool)
+        metrics = {"method": "surfaces sample (imported scans): every merged point kept, no fixture to remove",
+                   "components": None, "kept_components": None}
+    elif len(anchors):
         result = keep_specimen_components(all_points, link_mm=ctx.settings.link_mm, target_points_mm=anchors)
         keep = result.keep
         metrics = {"method": "components holding the targets seen in more than one setup",

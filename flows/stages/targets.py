@@ -16,6 +16,7 @@ import numpy as np
 from data_catalog.passes import PassReader
 from flows.stages.outputs import PassTargets, TARGETS
 from flows.stages.passes import open_entry, pass_blocks, pass_view
+from schemas.manifest import ScanEntry
 from tasks.targets import (GridSpacing, HoughImage, SearchGrid, TargetDetection, TargetRefinement, find_circles,
                            refine_target, search_grid)
 
@@ -27,7 +28,7 @@ BLOCK_ROWS: int | None = None
 
 
 def targets_view(manifest, entry) -> dict[str, Any]:
-    return {**pass_view(manifest, entry), "sticker_diameter_mm": manifest.sticker_diameter_mm}
+    return {**pass_view(manifest, entry), "sticker_diameter_mm": manifest.sticker_diameter_mm}  # None: surfaces
 
 
 def _blocks(ctx, reader: PassReader, halo_rows: int = 0):
@@ -81,6 +82,11 @@ def _detect(ctx) -> TargetDetection:
 
 
 def targets(ctx) -> dict[str, Any]:
+    if isinstance(ctx.entry, ScanEntry):  # a sample registered on its surfaces: no stickers to look for
+        empty = np.zeros((0, 3))
+        TARGETS.write(ctx.out, PassTargets(centres=empty, normals=empty, rms_mm=np.zeros(0), rim_coverage=np.zeros(0),
+                                           pixel=np.zeros((0, 2))))
+        return {"targets": 0, "skipped": "an imported scan (registration: surfaces): no sticker targets sought"}
     found = _detect(ctx)
     if not found.targets:
         raise ValueError(f"pass {ctx.entry.pass_id}: no sticker targets found ({found.n_circles} circle candidates, "
