@@ -168,6 +168,21 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     if u.shape != h.shape or u.ndim != 1:
         raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
     keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    # least median of squares first (a sticker can cover a third of a plate window, 0.1 mm high):
+    # lines through point pairs drawn with a fixed seed, the one whose median |residual| is least
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if ok.any():
+        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+        offsets = hk[i[ok]] - slopes * uk[i[ok]]
+        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
+        best = int(np.argmin(med))
+        r = h - (slopes[best] * u + offsets[best])
+        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
     for _ in range(3):
         if keep.sum() < max(min_points, 3):
             return None

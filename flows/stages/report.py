@@ -13,10 +13,10 @@ from typing import Any
 
 from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
-from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL
+from flows.stages.outputs import PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, WELD_GEOMETRY
 from data_catalog.hashing import sha256_file
 
-__all__ = ["report", "report_view", "publish", "checks", "RESULTS", "CONFIG_NAME"]
+__all__ = ["report", "report_view", "publish", "checks", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
@@ -75,6 +75,19 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
     return out
 
 
+def weld_summary(geometry: dict[str, Any]) -> dict[str, Any]:
+    """The weld's part of the report: the verdict, where it fails, the figures along the weld
+    (the per-section values and their uncertainties stay in the weld stage's weld_geometry.json)."""
+    if not geometry.get("measured"):
+        return {"measured": False, "why_not": geometry.get("why_not")}
+    return {"measured": True, "joint": geometry["joint"], "treatment": geometry["treatment"],
+            "acceptance_source": geometry["acceptance_source"],
+            "acceptance_rule_source": (geometry["acceptance"] or {}).get("source"), **geometry["summary"],
+            "failing_sections": [{k: f[k] for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
+                                 for f in geometry["failing"]],
+            "lines": geometry["lines"], "statistics": geometry["statistics"]}
+
+
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     registration = REGISTRATION_SUMMARY.read(inputs["registration"])
@@ -87,6 +100,7 @@ def report(ctx) -> dict[str, Any]:
         "stages": {name: _metrics(ref) for name, ref in inputs.items()},
         "registration": registration,
         "mesh": _metrics(inputs["mesh"]),
+        "weld": weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
         "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),
         "deliverables": {name: export.outputs[source] for name, source in _deliverables(ctx.manifest.sample_id).items()},
         "stage_keys": {name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
