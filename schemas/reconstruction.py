@@ -148,6 +148,9 @@ class WeldGeometryConfig(StrictModel):
     toe_threshold_mm: float = Field(default=0.1, gt=0, le=5, description="height over the plate where the weld starts")
     groove_min_depth_mm: float = Field(default=0.05, gt=0, le=5, description=(
         "a treated toe's dip below the plate deeper than this is fitted as a groove"))
+    groove_plate_gap_mm: float = Field(default=0.5, gt=0, le=10, description=(
+        "a stretch of plate longer than this between a groove and the weld's flank: the toe is not "
+        "within the groove (part of the original toe is left)"))
     undercut_min_depth_mm: float = Field(default=0.03, gt=0, le=5, description=(
         "an as-welded toe's dip below the plate deeper than this is fitted as undercut"))
     end_margin_mm: float = Field(default=2.0, ge=0, le=100, description=(

@@ -18,9 +18,10 @@ Per section (every figure a value and its 1-sigma from its fit's residuals and c
   to the plate), toe radius, undercut depth;
 - an HFMI groove where the profile dips below the plate beside the toe: a circle fitted to the
   groove's lower part (the pin's imprint): depth below the plate, width at the plate, radius; the
-  flank above it fitted by a parabola and extended to the plate for the flank angle and the toe's
-  old position; the toe is within the groove when the groove's inner edge at plate level lies
-  under the weld (the profile stands above the plate there), not on the plate;
+  flank above it fitted by a line over ``toe_window_mm[0]`` (the flank angle just above the
+  groove; the toe's old position where that line meets the plate); the toe is within the groove
+  when the groove's wall runs up into the weld's flank with no stretch of plate between them
+  longer than ``groove_plate_gap_mm``;
 - reinforcement height (the peak over the line between the toes, a parabola over the peak, on the
   points within ``height_half_width_mm``) and width (between the toes).
 
@@ -70,6 +71,7 @@ class SectionSettings:
     toe_window_mm: tuple[float, float]  # toe fit: this far onto the flank, this far onto the plate
     toe_threshold_mm: float  # height over the plate that starts the weld (toe first guess)
     groove_min_depth_mm: float  # a dip deeper than this beside the toe is a groove (treated welds)
+    groove_plate_gap_mm: float  # a longer stretch of plate between groove and flank: the toe is not within it
     undercut_min_depth_mm: float  # a dip deeper than this beside an as-welded toe is fitted as undercut
     height_half_width_mm: float  # the peak is read on the points this close to the section
     min_points: int  # fewer points in a fit: not measured
@@ -302,45 +304,36 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     g_depth = Measured(D, _propagate(depth, p, cov))
     g_width = Measured(W, _propagate(width, p, cov))
     g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
-    inner_v = p[0] - W / 2
-    near = np.abs(v - inner_v) < 0.25
-    toe_within = bool(near.any() and np.median(h[near]) > settings.groove_min_depth_mm)
     # the flank: points inward of the groove, above its circle, over the window's flank length
     on_circle_z = p[1] - np.sqrt(np.maximum(p[2] ** 2 - (v - p[0]) ** 2, 0.0))
     above = (v < p[0]) & ((np.abs(v - p[0]) >= p[2]) | (h > on_circle_z + max(3 * rms, 0.02))) & (h > 0)
     flank = above & (v > toe_guess_v - flank_mm - W) & (v < p[0])
+    # the toe is within the groove when the groove's wall runs straight up into the weld's flank:
+    # no stretch of plate (|h| < groove_min_depth_mm) longer than groove_plate_gap_mm between them
+    inward = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W)])
+    level = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W) & (np.abs(h) < settings.groove_min_depth_mm)])
+    up = v[(v < vv[k]) & (h > settings.toe_threshold_mm)]
+    flat = level[level > up.max()] if len(up) else level
+    toe_within = bool(len(up) and len(inward) and (len(flat) < 2 or flat.max() - flat.min() <= settings.groove_plate_gap_mm))
     note = ""
-    angle, toe_v = Measured.none(), float(inner_v)
-    if flank.sum() >= max(settings.min_points // 2, 4):
+    angle, toe_v = Measured.none(), float(p[0] - W / 2)
+    if flank.sum() >= 3:
         edge = float(v[flank].max())
         fl = flank & (v > edge - flank_mm)
         fv, fz = v[fl], h[fl]
-        A = np.stack([fv * fv, fv, np.ones(len(fv))], 1)
-        coef, *_ = np.linalg.lstsq(A, fz, rcond=None)
-        r = fz - A @ coef
-        c_cov = np.linalg.pinv(A.T @ A) * float(r @ r) / max(len(r) - 3, 1)
-
-        def toe_root(c):
-            a2, b, c0 = c
-            if abs(a2) < 1e-9:
-                return -c0 / b
-            disc = b * b - 4 * a2 * c0
-            if disc < 0:
-                return _NAN
-            roots = np.array([(-b - math.sqrt(disc)) / (2 * a2), (-b + math.sqrt(disc)) / (2 * a2)])
-            roots = roots[roots > edge - 1e-6]
-            return float(roots.min()) if len(roots) else _NAN
-
-        def flank_deg(c):
-            x = toe_root(c)
-            return math.degrees(math.atan(abs(2 * c[0] * x + c[1]))) if math.isfinite(x) else _NAN
-
-        x0 = toe_root(coef)
-        if math.isfinite(x0):
-            toe_v = x0
-            angle = Measured(flank_deg(coef), _propagate(flank_deg, coef, c_cov))
+        if len(fv) >= 3 and np.ptp(fv) > 0.1:
+            A = np.stack([fv, np.ones(len(fv))], 1)
+            coef, *_ = np.linalg.lstsq(A, fz, rcond=None)
+            r = fz - A @ coef
+            c_cov = np.linalg.pinv(A.T @ A) * float(r @ r) / max(len(r) - 2, 1)
+            if coef[0] < 0:
+                toe_v = float(-coef[1] / coef[0])
+                angle = Measured(math.degrees(math.atan(-coef[0])),
+                                 math.degrees(math.sqrt(max(c_cov[0, 0], 0.0)) / (1 + coef[0] ** 2)))
+            else:
+                note = "the flank above the groove does not fall toward the plate"
         else:
-            note = "the flank above the groove does not reach the plate"
+            note = "too few flank points above the groove"
     else:
         note = "too few flank points above the groove"
     groove = GrooveFit(depth=g_depth, width=g_width, radius=g_radius, centre_v_mm=float(p[0]),

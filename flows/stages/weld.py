@@ -133,6 +133,7 @@ def weld(ctx) -> dict[str, Any]:
     normals = cloud.normals[keep].astype(np.float64) @ T_inv[:3, :3].T
     settings = SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
                                toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
+                               groove_plate_gap_mm=s.groove_plate_gap_mm,
                                undercut_min_depth_mm=s.undercut_min_depth_mm,
                                height_half_width_mm=s.height_half_width_mm, min_points=s.min_points)
     treated = treatment != "as-welded"
