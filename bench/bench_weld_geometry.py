@@ -5,7 +5,9 @@ stage store under WORK when already there); each measured section is placed in t
 specimen frame (the gauge fitted on the stickers, ``simulator.evaluate.fit_gauge``) and compared
 with ``truth/weld_sections.json`` at its position: toe radius (as welded: the fillet's; treated:
 the groove's), flank angle, reinforcement height (the drawn profile's peak, ripple included),
-groove depth, width and undercut. Median and worst absolute error, and the median signed error.
+groove depth, width and undercut. A treated toe's flank angle and the treated weld's width are not
+compared: the drawn flank at the toe is cut away by the groove (the stage reports the flank just
+above it, and the width between where the grooves meet the weld). Median and worst absolute error, and the median signed error.
 
     .venv/bin/python bench/bench_weld_geometry.py SAMPLE_DIR CONFIG.yaml WORK_DIR [--json OUT.json]
 """
@@ -56,14 +58,16 @@ def compare(sample: Path, geometry: dict, T_true_specimen_nominal: np.ndarray) -
             return float(np.interp(y, ys, [get(r) for r in rows]))
 
         add("reinforcement_height_mm", sec["reinforcement_height_mm"]["value"], at(lambda r: r.peak_height_mm))
-        add("reinforcement_width_mm", sec["reinforcement_width_mm"]["value"], at(lambda r: r.width_mm))
+        treated = any(t is not None and t.get("groove") is not None for t in sec["toes"].values())
+        if not treated:  # a treated weld's width is between where the grooves meet it, not the drawn toes
+            add("reinforcement_width_mm", sec["reinforcement_width_mm"]["value"], at(lambda r: r.width_mm))
         for k, side in enumerate(("minus", "plus")):
             toe = sec["toes"][side]
             if toe is None:
                 continue
-            add("flank_angle_deg", toe["flank_angle_deg"]["value"], at(lambda r: r.flank_angle_deg[k]))
             groove = toe.get("groove")
-            if groove is None:
+            if groove is None:  # a treated toe's drawn flank is cut away by the groove: not compared
+                add("flank_angle_deg", toe["flank_angle_deg"]["value"], at(lambda r: r.flank_angle_deg[k]))
                 true_r = at(lambda r: r.toe_radius_mm[k])
                 add("toe_radius_mm", toe["toe_radius_mm"]["value"], true_r)
                 if true_r >= 0.5:

@@ -18,8 +18,9 @@ Per section (every figure a value and its 1-sigma from its fit's residuals and c
   to the plate), toe radius, undercut depth;
 - an HFMI groove where the profile dips below the plate beside the toe: a circle fitted to the
   groove's lower part (the pin's imprint): depth below the plate, width at the plate, radius; the
-  flank above it fitted by a line over ``toe_window_mm[0]`` (the flank angle just above the
-  groove; the toe's old position where that line meets the plate); the toe is within the groove
+  flank above it fitted by a line over ``toe_window_mm[0]`` inward of where the groove meets the
+  weld (the toe's position on a treated weld): the flank angle the weld has now, just above the
+  groove (the original flank at the toe is cut away by the pin); the toe is within the groove
   when the groove's wall runs up into the weld's flank with no stretch of plate between them
   longer than ``groove_plate_gap_mm``;
 - reinforcement height (the peak over the line between the toes, a parabola over the peak, on the
@@ -304,10 +305,21 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     g_depth = Measured(D, _propagate(depth, p, cov))
     g_width = Measured(W, _propagate(width, p, cov))
     g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
-    # the flank: points inward of the groove, above its circle, over the window's flank length
+    # the groove's inner edge: inward from its deepest point, the last point on the circle (three
+    # off it in a row end the walk); the flank is the points inward of that edge
     on_circle_z = p[1] - np.sqrt(np.maximum(p[2] ** 2 - (v - p[0]) ** 2, 0.0))
-    above = (v < p[0]) & ((np.abs(v - p[0]) >= p[2]) | (h > on_circle_z + max(3 * rms, 0.02))) & (h > 0)
-    flank = above & (v > toe_guess_v - flank_mm - W) & (v < p[0])
+    on = (np.abs(v - p[0]) < p[2]) & (np.abs(h - on_circle_z) <= max(3 * rms, 0.02))
+    inner = np.flatnonzero(v <= vv[k])
+    inner = inner[np.argsort(-v[inner])]
+    v_meet, misses = float(vv[k]), 0
+    for i in inner:
+        if on[i]:
+            v_meet, misses = float(v[i]), 0
+        else:
+            misses += 1
+            if misses >= 3:
+                break
+    flank = (v < v_meet - 0.05) & (v > v_meet - flank_mm) & (h > 0)
     # the toe is within the groove when the groove's wall runs straight up into the weld's flank:
     # no stretch of plate (|h| < groove_min_depth_mm) longer than groove_plate_gap_mm between them
     inward = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W)])
@@ -316,18 +328,15 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     flat = level[level > up.max()] if len(up) else level
     toe_within = bool(len(up) and len(inward) and (len(flat) < 2 or flat.max() - flat.min() <= settings.groove_plate_gap_mm))
     note = ""
-    angle, toe_v = Measured.none(), float(p[0] - W / 2)
+    angle, toe_v = Measured.none(), v_meet
     if flank.sum() >= 3:
-        edge = float(v[flank].max())
-        fl = flank & (v > edge - flank_mm)
-        fv, fz = v[fl], h[fl]
+        fv, fz = v[flank], h[flank]
         if len(fv) >= 3 and np.ptp(fv) > 0.1:
             A = np.stack([fv, np.ones(len(fv))], 1)
             coef, *_ = np.linalg.lstsq(A, fz, rcond=None)
             r = fz - A @ coef
             c_cov = np.linalg.pinv(A.T @ A) * float(r @ r) / max(len(r) - 2, 1)
             if coef[0] < 0:
-                toe_v = float(-coef[1] / coef[0])
                 angle = Measured(math.degrees(math.atan(-coef[0])),
                                  math.degrees(math.sqrt(max(c_cov[0, 0], 0.0)) / (1 + coef[0] ** 2)))
             else:
