@@ -24,7 +24,8 @@ Per section (every figure a value and its 1-sigma from its fit's residuals and c
   when the groove's wall runs up into the weld's flank with no stretch of plate between them
   longer than ``groove_plate_gap_mm``;
 - reinforcement height (the peak over the line between the toes, a parabola over the peak, on the
-  points within ``height_half_width_mm``) and width (between the toes).
+  points within ``height_half_width_mm`` of the section, or its nearest ten over the cap's middle)
+  and width (between the toes).
 
 The line is refined on the data: a first pass finds each section's centre, a line through them
 (robust) gives the weld's true offset and direction in the face, and the sections are cut again
@@ -356,15 +357,22 @@ def _centre_guess(u: np.ndarray, h: np.ndarray) -> float | None:
     height), over half the highest rise (on 0.5 mm bins)."""
     if len(u) < 10:
         return None
+    plate = fit_plate_line(u, h, min_points=10)  # the plates dominate a section: tilt taken out
+    base = plate.at(u) if plate is not None else np.median(h)
     bins = np.floor(u / 0.5).astype(np.int64)
     ub, inv = np.unique(bins, return_inverse=True)
     top = np.full(len(ub), -np.inf)
-    np.maximum.at(top, inv, h)
-    rise = top - np.median(h)
-    if rise.max() <= 0:
+    np.maximum.at(top, inv, h - base)
+    if top.max() <= 0:
         return None
-    band = ub[rise > 0.5 * rise.max()] * 0.5 + 0.25
-    return float((band.min() + band.max()) / 2)
+    high = top > 0.5 * top.max()
+    k = lo = hi = int(np.argmax(top))  # the run of high bins around the highest (gaps of 2 bins bridged)
+    while lo > 0 and (high[lo - 1] or (lo > 1 and high[lo - 2] and ub[lo - 1] - ub[lo - 2] <= 2)):
+        lo -= 1
+    while hi < len(ub) - 1 and (high[hi + 1] or (hi < len(ub) - 2 and high[hi + 2] and ub[hi + 2] - ub[hi + 1] <= 2)):
+        hi += 1
+    del k
+    return float((ub[lo] + ub[hi] + 1) * 0.25)
 
 
 def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: SectionSettings, treated: bool,
@@ -424,9 +432,12 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         width = Measured(u1 - u0, math.hypot(_toe_sd(toes[0]), _toe_sd(toes[1])))
         centre = (u0 + u1) / 2
         z0, z1 = float(a.at(u0)), float(b.at(u1))
-        between = (u > u0) & (u < u1) & (np.abs(s) <= settings.height_half_width_mm)
-        if between.sum() < 6:
-            between = (u > u0) & (u < u1)
+        # the peak on the points nearest the section along the line (bead ripples): within
+        # height_half_width_mm, or out to the tenth nearest point over the cap's middle
+        between = (u > u0) & (u < u1)
+        middle = np.sort(np.abs(s[between & (np.abs(u - centre) < 2.0)]))
+        reach = max(settings.height_half_width_mm, float(middle[min(9, len(middle) - 1)]) if len(middle) else np.inf)
+        between &= np.abs(s) <= reach
         rise = h[between] - (z0 + (z1 - z0) * (u[between] - u0) / max(u1 - u0, 1e-9))
         height = _peak(u[between], rise)
     return SectionMeasurement(line, position_mm, tuple(float(x) for x in to_frame(centre, float(a.at(centre)))),
