@@ -83,7 +83,7 @@ class GroundTruth(StrictModel):
 class WeldSectionDetail(StrictModel):
     """The drawn weld cap at one position along the weld, specimen frame: the figures a section
     measures. Pairs are (toe at -x, toe at +x). ``peak_height_mm``: the highest point of the
-    drawn face over the line between the drawn toes (bead ripple and the plates' misalignment
+    drawn face over the line between the plates' surfaces at the drawn toes (bead ripple and the plates' misalignment
     under the cap included; ``cap_height_mm`` is the cap alone, without either).
     Groove figures (HFMI or burr-ground) are None on an as-welded cap: ``groove_width_mm`` is the
     chord at plate level, ``groove_radius_mm`` the imprint's circle."""

@@ -128,11 +128,13 @@ def _weld_truth(specimen: Specimen, treatment: str, step_mm: float = 1.0) -> Wel
             ya = np.array([y])
             half = float(cap.width(ya)[0]) / 2
             centre = float(cap.centre(ya)[0])
-            # the peak over the line between the drawn toes, on the drawn face (the plates'
+            # the peak over the line between the plates' surfaces at the drawn toes (the plates'
             # misalignment included: it steps under the cap, and a gauge measures from the toes)
             x = centre + np.arange(-half, half + 1e-9, 0.005)
-            face = cap.height_mm(x, np.full(x.shape, y))[0] + specimen.z_shift(x)
-            profile = face - (face[0] + (face[-1] - face[0]) * (x - x[0]) / (x[-1] - x[0]))
+            outward = 1.0 if side == "top" else -1.0  # the bottom face's heights are along -z
+            face = cap.height_mm(x, np.full(x.shape, y))[0] + outward * specimen.z_shift(x)
+            plate = outward * specimen.z_shift(x[[0, -1]])  # the plates' level at the toes
+            profile = face - (plate[0] + (plate[1] - plate[0]) * (x - x[0]) / (x[-1] - x[0]))
             grooves = None
             if cap.groove_width is not None and cap.groove_depth is not None:
                 w = [float(g(ya)[0]) for g in cap.groove_width]
