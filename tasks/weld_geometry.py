@@ -250,6 +250,7 @@ def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: st
             p0 += [max(-float(z[plate_side].min()), 0.01), 0.3, 0.3]
             lo += [0.0, -0.5, 0.05]
             hi += [2.0, 2.0, 1.5]
+        p0 = np.clip(p0, np.add(lo, 1e-9), np.subtract(hi, 1e-9))
         res = least_squares(lambda p: _toe_model(p, w, undercut) - z, p0, bounds=(lo, hi), x_scale="jac")
         if best is None or res.cost < best.cost:
             best = res
@@ -291,8 +292,9 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
         return None
     span = max(gv[-1] - gv[0], 1e-3)
     r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
-    res = least_squares(_circle_residuals, [float(vv[k]), r0 - depth0, r0], args=(gv, gz),
-                        bounds=([gv[0] - 5, -50.0, 0.05], [gv[-1] + 5, 50.0, 60.0]), x_scale="jac")
+    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
+    x0 = np.clip([float(vv[k]), r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
+    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
     p = res.x
     cov, rms = _sigmas(res, 3)
 
@@ -529,8 +531,13 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
             def to_frame(uu, hh, pos=pos):
                 return origin + pos * t + uu * a + hh * n
 
-            out.append(measure_section(u[i0:i1], h[i0:i1], s[i0:i1] - pos, settings=settings, treated=treated,
-                                       line=name, position_mm=float(pos), to_frame=to_frame))
+            try:
+                out.append(measure_section(u[i0:i1], h[i0:i1], s[i0:i1] - pos, settings=settings, treated=treated,
+                                           line=name, position_mm=float(pos), to_frame=to_frame))
+            except (ValueError, np.linalg.LinAlgError) as exc:  # one section's fit, not the weld's
+                none = Measured.none()
+                out.append(SectionMeasurement(name, float(pos), tuple(float(x) for x in to_frame(0.0, 0.0)), none,
+                                              none, none, none, (None, None), int(i1 - i0), f"fit failed: {exc}"))
         return out
 
     first = cut(s, u, h, origin, t, a, n)
