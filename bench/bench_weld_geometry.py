@@ -10,6 +10,8 @@ compared: the drawn flank at the toe is cut away by the groove (the stage report
 above it, and the width between where the grooves meet the weld). Median and worst absolute error, and the median signed error.
 
     .venv/bin/python bench/bench_weld_geometry.py SAMPLE_DIR CONFIG.yaml WORK_DIR [--json OUT.json]
+
+(an empty CONFIG, e.g. /dev/null: the default settings, as for the paper preset)
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ def main() -> int:
     manifest = load_manifest(args.sample)
     t0 = time.perf_counter()
     refs = run_in_process(store=StageStore(args.work), sample_dir=args.sample, manifest=manifest,
-                          config=load_config(args.config), upto="weld")
+                          config=load_config(args.config if args.config.stat().st_size else None), upto="weld")
     seconds = time.perf_counter() - t0
     geometry = WELD_GEOMETRY.read(refs["weld"])
     T_true_nominal = T_true_specimen_nominal(args.sample, manifest, REFINED.open(refs["refine"]))
