@@ -517,6 +517,8 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
     P = rel[face]
     s, u, h = P @ t, P @ a, P @ n
     origin = line[0]
+    if len(s) < settings.min_points:
+        return WeldLineMeasurement(name, [], 0.0, 0.0, tuple(float(x) for x in n), tuple(float(x) for x in a))
 
     def cut(s, u, h, origin, t, a, n):
         lo, hi = float(s.min()) + end_margin_mm, float(s.max()) - end_margin_mm

@@ -35,7 +35,7 @@ def test_ci_weld_figures_against_the_drawn_weld(weld_run):
     bead ripples (0.03-0.12 mm, 1.5-3 mm wavelength along the weld) seen through 0.3 mm cells:
     median within 0.08 mm, worst 0.25 mm. The width is between two toe positions fitted on the
     cells: median within 0.15 mm, worst 0.4 mm. (Measured when written: radius 0.10 / 0.25 mm,
-    flank 2.6 / 6.1 deg, height 0.042 / 0.14 mm, width 0.07 / 0.22 mm: median / p90 or worst.)"""
+    flank 2.6 / 6.1 deg, height 0.030 / 0.13 mm, width 0.07 / 0.22 mm: median / p90 or worst.)"""
     refs, geometry, errors = weld_run
     assert geometry["measured"] and geometry["summary"]["sections"] >= 70
     assert geometry["summary"]["not_measured"] <= 2
