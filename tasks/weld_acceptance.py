@@ -9,7 +9,8 @@ import math
 from dataclasses import dataclass
 
 from schemas.acceptance import AcceptanceRule, FigureLimits
-from tasks.weld_geometry import Measured, SectionMeasurement
+from tasks.weld_fits import Measured
+from tasks.weld_geometry import SectionMeasurement
 
 __all__ = ["Violation", "SectionVerdict", "WeldVerdict", "judge_weld"]
 

@@ -21,8 +21,8 @@ from data_catalog.hashing import sha256_file
 from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY
 from schemas.manifest import SampleManifest
 from tasks.weld_acceptance import judge_weld
-from tasks.weld_geometry import (TOE_SIDES, SectionMeasurement, SectionSettings, along_weld_statistics,
-                                 measure_weld_line)
+from tasks.weld_fits import SectionSettings
+from tasks.weld_geometry import TOE_SIDES, SectionMeasurement, along_weld_statistics, measure_weld_line
 
 __all__ = ["weld", "weld_view", "MEASURABLE_JOINTS"]
 
@@ -45,6 +45,7 @@ def _toe_json(toe) -> dict[str, Any] | None:
     if toe is None:
         return None
     out = {"side": toe.side, "position_u_mm": round(toe.position_u_mm, 4),
+           "position_sigma_mm": None if not math.isfinite(toe.position_sigma_mm) else round(toe.position_sigma_mm, 4),
            "flank_angle_deg": toe.flank_angle_deg.as_dict(3), "toe_radius_mm": toe.radius.as_dict(),
            "undercut_depth_mm": toe.undercut_depth.as_dict(), "fit_rms_mm": round(toe.rms_mm, 5),
            "points": toe.n_points, "treated": toe.groove is not None}

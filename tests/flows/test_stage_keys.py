@@ -63,7 +63,7 @@ def _versions(code_root: Path) -> dict[str, str]:
     ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
                                                       "weld", "mesh", "export", "report"}),
-    ("tasks/weld_geometry.py", "", "# edited\n", {"weld"}),
+    ("tasks/weld_fits.py", "", "# edited\n", {"weld"}),
 ])
 def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp_path, path, old, new, changed):
     base = _versions(_code_copy(tmp_path / "base"))

@@ -14,8 +14,8 @@ from schemas.reconstruction import WeldGeometryConfig
 from schemas.simulation import WeldConfig
 from simulator.weld import draw_weld_cap
 from tasks.weld_acceptance import judge_weld
-from tasks.weld_geometry import (SectionSettings, along_weld_statistics, fit_plate_line, measure_section,
-                                 measure_weld_line)
+from tasks.weld_fits import SectionSettings, fit_plate_line
+from tasks.weld_geometry import along_weld_statistics, measure_section, measure_weld_line
 
 DEFAULTS = WeldGeometryConfig()
 SETTINGS = SectionSettings(plate_window_mm=DEFAULTS.plate_window_mm, toe_window_mm=DEFAULTS.toe_window_mm,
