@@ -153,8 +153,8 @@ def weld(ctx) -> dict[str, Any]:
     failing = [] if verdict is None else [v.__dict__ for sv in verdict.sections for v in sv.violations]
     section_rows = [_section_json(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)]
     summary = {"sections": len(sections),
-               "measured": None if verdict is None else verdict.n_measured,
-               "not_measured": None if verdict is None else verdict.n_not_measured,
+               "sections_measured": None if verdict is None else verdict.n_measured,
+               "sections_not_measured": None if verdict is None else verdict.n_not_measured,
                "failing": None if verdict is None else verdict.n_failing,
                "passed": None if verdict is None else verdict.passed,
                "verdict": ("no acceptance rule for this joint and treatment" if verdict is None

@@ -38,7 +38,7 @@ def test_ci_weld_figures_against_the_drawn_weld(weld_run):
     flank 2.6 / 6.1 deg, height 0.030 / 0.13 mm, width 0.07 / 0.22 mm: median / p90 or worst.)"""
     refs, geometry, errors = weld_run
     assert geometry["measured"] and geometry["summary"]["sections"] >= 70
-    assert geometry["summary"]["not_measured"] <= 2
+    assert geometry["summary"]["sections_not_measured"] <= 2
     assert errors["toe_radius_mm"]["median_abs"] <= 0.2 and errors["toe_radius_mm"]["p90_abs"] <= 0.4
     assert errors["flank_angle_deg"]["median_abs"] <= 4.0 and errors["flank_angle_deg"]["p90_abs"] <= 9.0
     assert errors["reinforcement_height_mm"]["median_abs"] <= 0.08
