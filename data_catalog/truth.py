@@ -3,7 +3,8 @@ reads these; tests and benchmarks compare against them.
 
 ``truth/passes/<pass_id>.zarr``: T_world_sensor (n, 4, 4) float64 true sensor pose per profile;
 label (n, m) uint8 (schemas.truth.PointLabel); material (n, m) uint8 (schemas.truth.Material);
-sticker_id (n, m) int16 (-1 for none). ``truth/truth.json``: schemas.truth.GroundTruth.
+sticker_id (n, m) int16 (-1 for none). ``truth/truth.json``: schemas.truth.GroundTruth;
+``truth/weld_sections.json``: schemas.truth.WeldTruth.
 """
 
 from __future__ import annotations
@@ -17,11 +18,13 @@ import zarr
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.passes import check_complete, create_chunked_array
-from schemas.truth import GroundTruth
+from schemas.truth import GroundTruth, WeldTruth
 
-__all__ = ["TRUTH_DIR", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth"]
+__all__ = ["TRUTH_DIR", "WELD_TRUTH_NAME", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth",
+           "write_weld_truth", "read_weld_truth"]
 
 TRUTH_DIR = "truth"
+WELD_TRUTH_NAME = "weld_sections.json"  # schemas.truth.WeldTruth: the drawn weld every 1 mm
 
 
 class TruthPassWriter:
@@ -65,3 +68,11 @@ def write_truth(path: Path, truth: GroundTruth) -> None:
 
 def read_truth(path: Path) -> GroundTruth:
     return GroundTruth.model_validate(json.loads(Path(path).read_text()))
+
+
+def write_weld_truth(path: Path, truth: WeldTruth) -> None:
+    atomic_write_text(path, truth.model_dump_json(indent=1) + "\n")
+
+
+def read_weld_truth(path: Path) -> WeldTruth:
+    return WeldTruth.model_validate_json(Path(path).read_text(encoding="utf-8"))

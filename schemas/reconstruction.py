@@ -7,10 +7,11 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from schemas.acceptance import AcceptanceLimits
 from schemas.common import StrictModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
-           "MergeConfig", "SegmentConfig", "MeshConfig", "VolumeConfig", "ReconstructionConfig"]
+           "MergeConfig", "SegmentConfig", "MeshConfig", "WeldGeometryConfig", "VolumeConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -175,6 +176,50 @@ class MeshConfig(StrictModel):
         "specimen's ends) close inside it instead of being cut open"))
 
 
+class WeldGeometryConfig(StrictModel):
+    """The weld measured on the specimen's merged points (``tasks.weld_geometry``): sections
+    across each of the manifest's weld lines, fits per toe, judged against ``acceptance``."""
+
+    section_step_mm: float = Field(default=1.0, gt=0, le=100, description="distance between sections along the line")
+    section_half_width_mm: float = Field(default=0.5, gt=0, le=10, description=(
+        "a section reads the points this close to it along the line (the toe fits; the figures vary "
+        "over ~15 mm along a weld)"))
+    height_half_width_mm: float = Field(default=0.15, gt=0, le=10, description=(
+        "the peak (reinforcement height) is read this close to the section: bead ripples of 1.5-3 mm "
+        "wavelength along the weld would be averaged away over the whole section"))
+    reach_mm: float = Field(default=32.0, gt=0, le=500, description="points this far across the line are read")
+    plate_window_mm: tuple[float, float] = Field(default=(16.0, 30.0), description=(
+        "each plate's line is fitted this far (from, to) beside the weld's centre: beyond the cap and "
+        "its HFMI groove (half a 20 mm cap + 3/4 of a 6 mm groove = 14.5 mm)"))
+    toe_window_mm: tuple[float, float] = Field(default=(1.5, 1.5), description=(
+        "a toe is fitted on this much flank and this much plate around where the weld starts"))
+    toe_threshold_mm: float = Field(default=0.1, gt=0, le=5, description="height over the plate where the weld starts")
+    groove_min_depth_mm: float = Field(default=0.05, gt=0, le=5, description=(
+        "a treated toe's dip below the plate deeper than this is fitted as a groove"))
+    groove_plate_gap_mm: float = Field(default=0.5, gt=0, le=10, description=(
+        "a stretch of plate longer than this between a groove and the weld's flank: the toe is not "
+        "within the groove (part of the original toe is left)"))
+    undercut_min_depth_mm: float = Field(default=0.03, gt=0, le=5, description=(
+        "an as-welded toe's dip below the plate deeper than this is fitted as undercut"))
+    end_margin_mm: float = Field(default=2.0, ge=0, le=100, description=(
+        "sections start and stop this far inside where the face's points along the line end (cut edges)"))
+    min_normal_cos: float = Field(default=0.2, ge=-1, lt=1, description=(
+        "points whose normal is within acos(this) of the face's normal are read (flanks up to ~78 deg)"))
+    min_points: int = Field(default=8, ge=4, le=10000, description="fewer points in a fit: not measured")
+    acceptance: AcceptanceLimits | None = Field(default=None, description=(
+        "acceptance limits per joint and treatment (schemas.acceptance), given inline in the settings "
+        "file; None: the project's defaults with their sources, data_catalog/weld_acceptance.yaml"))
+
+    @model_validator(mode="after")
+    def _windows(self) -> "WeldGeometryConfig":
+        near, far = self.plate_window_mm
+        if not 0 < near < far <= self.reach_mm:
+            raise ValueError(f"plate_window_mm must be 0 < from < to <= reach_mm ({self.reach_mm}), got {list(self.plate_window_mm)}")
+        if min(self.toe_window_mm) <= 0:
+            raise ValueError(f"toe_window_mm must be positive, got {list(self.toe_window_mm)}")
+        return self
+
+
 class VolumeConfig(StrictModel):
     """The FE model: tetrahedra filling the mesh (gmsh), graded toward the weld (``tasks.volume_mesh``).
     Element size ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines (the cap, its toes and
@@ -204,4 +249,5 @@ class ReconstructionConfig(StrictModel):
     merge: MergeConfig = MergeConfig()
     segment: SegmentConfig = SegmentConfig()
     mesh: MeshConfig = MeshConfig()
+    weld: WeldGeometryConfig = WeldGeometryConfig()
     volume: VolumeConfig = VolumeConfig()

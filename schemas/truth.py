@@ -9,7 +9,7 @@ from pydantic import Field
 from schemas.common import Pose4x4, StrictModel, Vector3
 
 __all__ = ["TRUTH_SCHEMA_VERSION", "PointLabel", "Material", "TrueSticker", "WeldSection",
-           "TruePass", "GroundTruth"]
+           "TruePass", "GroundTruth", "WeldSectionDetail", "WeldTruth"]
 
 TRUTH_SCHEMA_VERSION = "1.0"
 
@@ -78,3 +78,39 @@ class GroundTruth(StrictModel):
     passes: list[TruePass]
     overlapping_pairs: list[tuple[str, str]]
     common_stickers: dict[str, list[int]] = Field(description="'A|B' -> sticker ids both passes see whole")
+
+
+class WeldSectionDetail(StrictModel):
+    """The drawn weld cap at one position along the weld, specimen frame: the figures a section
+    measures. Pairs are (toe at -x, toe at +x). ``peak_height_mm``: the highest point of the
+    drawn face over the line between the plates' surfaces at the drawn toes (bead ripple and the plates' misalignment
+    under the cap included; ``cap_height_mm`` is the cap alone, without either).
+    Groove figures (HFMI or burr-ground) are None on an as-welded cap: ``groove_width_mm`` is the
+    chord at plate level, ``groove_radius_mm`` the imprint's circle."""
+
+    side: Literal["top", "bottom"]
+    y_mm: float
+    centre_x_mm: float
+    cap_height_mm: float
+    peak_height_mm: float
+    width_mm: float
+    flank_angle_deg: tuple[float, float]
+    toe_radius_mm: tuple[float, float]
+    undercut_depth_mm: tuple[float, float]
+    groove_depth_mm: tuple[float, float] | None
+    groove_width_mm: tuple[float, float] | None
+    groove_radius_mm: tuple[float, float] | None
+    toe_within_groove: tuple[bool, bool] | None
+
+
+class WeldTruth(StrictModel):
+    """``truth/weld_sections.json``: the drawn weld, section by section (every ``step_mm``), and the
+    plates' misalignment (the +x plate higher by ``axial_misalignment_mm`` at the weld's centre
+    and tilted by ``angular_misalignment_deg``)."""
+
+    schema_version: Literal["1.0"] = "1.0"
+    treatment: str
+    step_mm: float
+    axial_misalignment_mm: float
+    angular_misalignment_deg: float
+    sections: list[WeldSectionDetail]

@@ -15,13 +15,13 @@ import numpy as np
 
 from data_catalog.manifests import load_manifest
 from data_catalog.passes import read_pass
-from data_catalog.truth import TRUTH_DIR, read_truth, read_truth_pass
+from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, read_truth, read_truth_pass, read_weld_truth
 from schemas.truth import Material, PointLabel
 from tasks.ingest import profile_points, sensor_poses
 from tasks.matching import kabsch, match_rotation_invariant
 
 __all__ = ["STICKER_LIFT_MM", "true_sticker_centres", "Gauge", "fit_gauge", "PassMisalignment",
-           "pass_misalignment"]
+           "pass_misalignment", "T_true_specimen_nominal", "weld_errors", "summarise_weld_errors"]
 
 STICKER_LIFT_MM = 0.1  # the paper sticker's thickness: its visible centre is this far off the surface
 _SPECIMEN = (Material.STEEL, Material.GROUND, Material.STICKER)
@@ -102,3 +102,78 @@ def pass_misalignment(sample_dir: Path, T_common_pass: np.ndarray, gauge: Gauge 
     dist = [np.linalg.norm(o - (t @ G[:3, :3].T + G[:3, 3]), axis=1) for o, t in zip(ours, true)]
     return PassMisalignment(ids, np.array([d.max() if len(d) else np.nan for d in dist]),
                             np.array([np.median(d) if len(d) else np.nan for d in dist]), G)
+
+
+def T_true_specimen_nominal(sample_dir: Path, manifest, refined) -> np.ndarray:
+    """(4, 4): the specimen frame stage ``weld`` measures in (the first setup's nominal placement
+    through its first pass's refined pose) into the true specimen frame, through the gauge.
+    ``refined``: stage refine's ``RefinedPoses``."""
+    T_common_pass = np.asarray(refined.T_common_pass[...])
+    names = [e.pass_id for _, e in manifest.passes()]
+    setup = next(s for s in manifest.setups if s.T_world_specimen_nominal is not None)
+    T_common_nominal = T_common_pass[names.index(setup.passes[0].pass_id)] @ np.asarray(setup.T_world_specimen_nominal)
+    tracks = np.asarray(refined.track_positions_mm[...])
+    gauge = fit_gauge(sample_dir, tracks[np.asarray(refined.specimen_track[...]).astype(bool)], tracks)
+    return np.linalg.inv(gauge.T_recon_specimen) @ T_common_nominal
+
+
+def weld_errors(sample: Path, geometry: dict, T_true_specimen_nominal: np.ndarray) -> dict[str, list[tuple[float, float]]]:
+    """Stage weld's ``weld_geometry.json`` (``geometry``) against ``truth/weld_sections.json``:
+    figure -> [(measured - true, true)] over every measured section and toe. Each section is
+    placed in the true specimen frame by ``T_true_specimen_nominal`` and compared with the drawn
+    cap there (interpolated along y); toes ``minus``/``plus`` are the drawn (-x, +x) ones."""
+    truth = read_weld_truth(Path(sample) / TRUTH_DIR / WELD_TRUTH_NAME)
+    by_side: dict[str, list] = {}
+    for s in truth.sections:
+        by_side.setdefault(s.side, []).append(s)
+    errors: dict[str, list[tuple[float, float]]] = {}
+
+    def add(name, measured, true):
+        if measured is not None and true is not None and np.isfinite(measured):
+            errors.setdefault(name, []).append((float(measured) - float(true), float(true)))
+
+    R, t = T_true_specimen_nominal[:3, :3], T_true_specimen_nominal[:3, 3]
+    for sec in geometry["sections"]:
+        rows = by_side.get(sec["line"])
+        if not rows or sec["reinforcement_height_mm"]["value"] is None:
+            continue
+        y = float((R @ np.asarray(sec["centre_specimen_mm"]) + t)[1])
+        ys = np.array([r.y_mm for r in rows])
+
+        def at(get):
+            return float(np.interp(y, ys, [get(r) for r in rows]))
+
+        add("reinforcement_height_mm", sec["reinforcement_height_mm"]["value"], at(lambda r: r.peak_height_mm))
+        treated = any(t is not None and t.get("groove") is not None for t in sec["toes"].values())
+        if not treated:  # a treated weld's width is between where the grooves meet it, not the drawn toes
+            add("reinforcement_width_mm", sec["reinforcement_width_mm"]["value"], at(lambda r: r.width_mm))
+        for k, side in enumerate(("minus", "plus")):
+            toe = sec["toes"][side]
+            if toe is None:
+                continue
+            groove = toe.get("groove")
+            if groove is None:  # a treated toe's drawn flank is cut away by the groove: not compared
+                add("flank_angle_deg", toe["flank_angle_deg"]["value"], at(lambda r: r.flank_angle_deg[k]))
+                true_r = at(lambda r: r.toe_radius_mm[k])
+                add("toe_radius_mm", toe["toe_radius_mm"]["value"], true_r)
+                if true_r >= 0.5:
+                    add("toe_radius_mm (r >= 0.5)", toe["toe_radius_mm"]["value"], true_r)
+                add("undercut_depth_mm", toe["undercut_depth_mm"]["value"], at(lambda r: r.undercut_depth_mm[k]))
+            elif rows[0].groove_depth_mm is not None:
+                add("groove_depth_mm", groove["depth_mm"]["value"], at(lambda r: r.groove_depth_mm[k]))
+                add("groove_width_mm", groove["width_mm"]["value"], at(lambda r: r.groove_width_mm[k]))
+                add("groove_radius_mm (toe radius, treated)", groove["radius_mm"]["value"],
+                    at(lambda r: r.groove_radius_mm[k]))
+    return errors
+
+
+def summarise_weld_errors(errors: dict[str, list[tuple[float, float]]]) -> dict[str, dict[str, float]]:
+    out = {}
+    for name, pairs in sorted(errors.items()):
+        e = np.array([p[0] for p in pairs])
+        out[name] = {"n": int(len(e)), "median_abs": round(float(np.median(np.abs(e))), 4),
+                     "p90_abs": round(float(np.percentile(np.abs(e), 90)), 4),
+                     "worst_abs": round(float(np.abs(e).max()), 4), "median_signed": round(float(np.median(e)), 4)}
+    return out
+
+

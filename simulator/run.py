@@ -28,11 +28,11 @@ from data_catalog.atomic import atomic_directory, atomic_write_text
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
-from data_catalog.truth import TRUTH_DIR, TruthPassWriter, write_truth
+from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
 from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
                               ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
 from schemas.simulation import SimulationConfig
-from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection
+from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection, WeldSectionDetail, WeldTruth
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
 from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
@@ -116,6 +116,43 @@ def _weld_sections(specimen: Specimen, step_mm: float = 5.0) -> list[WeldSection
                 undercut_depth_mm=(float(cap.undercut[0](ya)[0]), float(cap.undercut[1](ya)[0])),
             ))
     return sections
+
+
+def _weld_truth(specimen: Specimen, treatment: str, step_mm: float = 1.0) -> WeldTruth:
+    """The drawn caps every ``step_mm`` along the weld, with what a section measures (the
+    profile's peak, the grooves' depth, width and radius); draws nothing from the random stream."""
+    sections = []
+    hw = specimen.config.grip_width_mm / 2
+    for side, cap in (("top", specimen.weld_top), ("bottom", specimen.weld_bottom)):
+        for y in np.arange(-hw, hw + 1e-9, step_mm):
+            ya = np.array([y])
+            half = float(cap.width(ya)[0]) / 2
+            centre = float(cap.centre(ya)[0])
+            # the peak over the line between the plates' surfaces at the drawn toes (the plates'
+            # misalignment included: it steps under the cap, and a gauge measures from the toes)
+            x = centre + np.arange(-half, half + 1e-9, 0.005)
+            outward = 1.0 if side == "top" else -1.0  # the bottom face's heights are along -z
+            face = cap.height_mm(x, np.full(x.shape, y))[0] + outward * specimen.z_shift(x)
+            plate = outward * specimen.z_shift(x[[0, -1]])  # the plates' level at the toes
+            profile = face - (plate[0] + (plate[1] - plate[0]) * (x - x[0]) / (x[-1] - x[0]))
+            grooves = None
+            if cap.groove_width is not None and cap.groove_depth is not None:
+                w = [float(g(ya)[0]) for g in cap.groove_width]
+                d = [float(g(ya)[0]) for g in cap.groove_depth]
+                grooves = (tuple(w), tuple(d), tuple((wk * wk / 4 + dk * dk) / (2 * dk) for wk, dk in zip(w, d)),
+                           tuple(bool(half + 0.25 * wk - wk / 2 < half) for wk in w))
+            sections.append(WeldSectionDetail(
+                side=side, y_mm=float(y), centre_x_mm=centre, cap_height_mm=float(cap.height(ya)[0]),
+                peak_height_mm=float(profile.max()), width_mm=2 * half,
+                flank_angle_deg=(float(cap.effective_flank_deg(ya, 0)[0]), float(cap.effective_flank_deg(ya, 1)[0])),
+                toe_radius_mm=(float(cap.toe_radius[0](ya)[0]), float(cap.toe_radius[1](ya)[0])),
+                undercut_depth_mm=(float(cap.undercut[0](ya)[0]), float(cap.undercut[1](ya)[0])),
+                groove_width_mm=None if grooves is None else grooves[0],
+                groove_depth_mm=None if grooves is None else grooves[1],
+                groove_radius_mm=None if grooves is None else grooves[2],
+                toe_within_groove=None if grooves is None else grooves[3]))
+    return WeldTruth(treatment=treatment, step_mm=step_mm, axial_misalignment_mm=specimen.axial_misalignment_mm,
+                     angular_misalignment_deg=specimen.angular_misalignment_deg, sections=sections)
 
 
 def _write_mesh(path: Path, mesh: SurfaceMesh) -> None:
@@ -311,6 +348,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
             common_stickers=common,
         )
         write_truth(tmp / TRUTH_DIR / "truth.json", truth)
+        write_weld_truth(tmp / TRUTH_DIR / WELD_TRUTH_NAME, _weld_truth(specimen, config.weld.treatment))
         atomic_write_text(tmp / TRUTH_DIR / "simulation.json", config.model_dump_json(indent=2) + "\n")
         _write_mesh(tmp / TRUTH_DIR / "specimen.ply", specimen.mesh)
         _write_mesh(tmp / TRUTH_DIR / "fixture.ply", fixture_mesh)

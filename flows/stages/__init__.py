@@ -8,7 +8,8 @@ description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs
 
 from __future__ import annotations
 
-from flows.stages import denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets, volume
+from flows.stages import (denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets,
+                          volume, weld)
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.passes import pass_view
 from flows.stages.weld_lines import weld_lines_view
@@ -45,6 +46,9 @@ STAGES: tuple[Stage, ...] = (
     Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, segment.segment_view,
           "remove unwanted objects (the fixture): components of occupied grid cells holding the part's stickers; "
           "a single setup: the fixture's plane, the drawing's box, one body of the part's size"),
+    Stage("weld", False, ("segment", "refine"), "weld", (outputs.WELD_GEOMETRY,), weld.weld, weld.weld_view,
+          "the weld measured on the specimen's points: sections every 1 mm, toe radius, flank angle, height, "
+          "undercut, misalignment, HFMI grooves, each with its uncertainty; judged against acceptance limits"),
     Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), mesh.mesh, _sample_wide,
           "screened Poisson (MeshLab) on the merged points and normals"),
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
@@ -52,8 +56,8 @@ STAGES: tuple[Stage, ...] = (
     Stage("volume", False, ("refine", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY),
           volume.volume, weld_lines_view, "the FE model: gmsh tetrahedra graded toward the weld lines, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
-    Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "mesh", "export",
-                            "volume"), "*",
+    Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
+                            "export", "volume"), "*",
           (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
 )
 

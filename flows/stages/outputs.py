@@ -87,6 +87,10 @@ class SpecimenCloud:
 SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
 
 
+# --- stage weld ---
+WELD_GEOMETRY = JsonFile("weld_geometry.json")  # per section: figures with 1-sigma, pass/fail; statistics along the weld
+
+
 # --- stage mesh ---
 @dataclass(frozen=True)
 class Mesh:

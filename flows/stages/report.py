@@ -14,10 +14,10 @@ from typing import Any
 from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
 from flows.stages.outputs import (PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, VOLUME_INP, VOLUME_SUMMARY,
-                                  VOLUME_VTU)
+                                  VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
 
-__all__ = ["report", "report_view", "publish", "checks", "RESULTS", "CONFIG_NAME"]
+__all__ = ["report", "report_view", "publish", "checks", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
@@ -80,6 +80,19 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
     return out
 
 
+def weld_summary(geometry: dict[str, Any]) -> dict[str, Any]:
+    """The weld's part of the report: the verdict, where it fails, the figures along the weld
+    (the per-section values and their uncertainties stay in the weld stage's weld_geometry.json)."""
+    if not geometry.get("measured"):
+        return {"measured": False, "why_not": geometry.get("why_not")}
+    return {"measured": True, "joint": geometry["joint"], "treatment": geometry["treatment"],
+            "acceptance_source": geometry["acceptance_source"],
+            "acceptance_rule_source": (geometry["acceptance"] or {}).get("source"), **geometry["summary"],
+            "failing_sections": [{k: f[k] for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
+                                 for f in geometry["failing"]],
+            "lines": geometry["lines"], "statistics": geometry["statistics"]}
+
+
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     registration = REGISTRATION_SUMMARY.read(inputs["registration"])
@@ -94,6 +107,7 @@ def report(ctx) -> dict[str, Any]:
         "registration_method": inputs["refine"].metrics.get("registration_method", {}),
         "mesh": _metrics(inputs["mesh"]),
         "volume_mesh": VOLUME_SUMMARY.read(inputs["volume"]),
+        "weld": weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
         "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),
         "deliverables": {name: inputs[stage].outputs[source]
                          for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()

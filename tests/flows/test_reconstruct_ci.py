@@ -58,6 +58,10 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     assert set(saved["stages"]) == {s.name for s in STAGES} - {"report"}  # every stage before the report
     assert json.loads((out / "results" / "config.json").read_text()) == saved["config"]  # published with them
     assert not (out / "config.json").exists()
+    weld = saved["weld"]  # the weld measured and judged: its summary in the report
+    assert weld["measured"] is True and weld["sections"] >= 70 and weld["verdict"] in ("pass", "fail")
+    assert weld["failing"] == len({(f["line"], f["position_mm"]) for f in weld["failing_sections"]})
+    assert weld["statistics"]["toe_radius_mm"]["n"] >= 140
 
 
 def test_the_fe_model_is_one_solid_of_the_meshes_volume_graded_toward_the_weld(run):

@@ -29,7 +29,9 @@ def test_array_outputs_name_their_arrays():
 
 
 def test_downstream_and_lookup():
-    assert downstream_of("denoise") == ["refine", "merge", "segment", "mesh", "export", "volume", "report"]
+    assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "report"]
+    assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "report"]
+    assert downstream_of("weld") == ["report"]
     assert downstream_of("mesh") == ["export", "volume", "report"]
     assert downstream_of("report") == []
     with pytest.raises(KeyError, match="no stage 'surface'"):

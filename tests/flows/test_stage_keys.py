@@ -62,7 +62,8 @@ def _versions(code_root: Path) -> dict[str, str]:
     ("tasks/ingest.py", "    out += T[:, None, :3, 3]", "    out += 1.0 * T[:, None, :3, 3]", {"denoise", "targets"}),
     ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export", "volume"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
-                                                      "mesh", "export", "volume", "report"}),
+                                                      "weld", "mesh", "export", "volume", "report"}),
+    ("tasks/weld_fits.py", "", "# edited\n", {"weld"}),
 ])
 def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp_path, path, old, new, changed):
     base = _versions(_code_copy(tmp_path / "base"))

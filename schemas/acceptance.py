@@ -1,0 +1,82 @@
+"""Acceptance limits of the measured weld, per joint and treatment (``data_catalog/weld_acceptance.yaml``
+holds the defaults and their sources). A section passes when every figure it measured lies within
+its rule's limits; the weld passes when at most ``max_failing_fraction`` of its sections fail."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from schemas.common import StrictModel
+
+__all__ = ["FigureLimits", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES"]
+
+Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
+
+# the figures a rule may limit: per toe (toe radius, flank angle, undercut, the groove's) or per
+# section (height, width, misalignment, taken by magnitude)
+LIMITED_FIGURES = ("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "groove_depth_mm", "groove_width_mm",
+                   "groove_radius_mm", "reinforcement_height_mm", "reinforcement_width_mm", "axial_misalignment_mm",
+                   "angular_misalignment_deg")
+
+
+class FigureLimits(StrictModel):
+    """Inclusive bounds of one figure, in its unit; None: not limited on that side."""
+
+    min: float | None = Field(default=None, ge=0)
+    max: float | None = Field(default=None, ge=0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> "FigureLimits":
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueError(f"min {self.min} is above max {self.max}")
+        return self
+
+
+class AcceptanceRule(StrictModel):
+    joint: str = Field(min_length=1, description="the manifest's weld.joint, e.g. 'double-sided butt'")
+    treatment: Treatment
+    source: str = Field(min_length=1, description="where the limits come from, in words")
+    toe_radius_mm: FigureLimits = FigureLimits()
+    flank_angle_deg: FigureLimits = FigureLimits()
+    undercut_depth_mm: FigureLimits = FigureLimits()
+    groove_depth_mm: FigureLimits = FigureLimits()
+    groove_width_mm: FigureLimits = FigureLimits()
+    groove_radius_mm: FigureLimits = FigureLimits()
+    reinforcement_height_mm: FigureLimits = FigureLimits()
+    reinforcement_width_mm: FigureLimits = FigureLimits()
+    axial_misalignment_mm: FigureLimits = FigureLimits()
+    angular_misalignment_deg: FigureLimits = FigureLimits()
+    toe_within_groove: bool = Field(default=False, description="every toe must lie fully within its groove")
+    groove_required: bool = Field(default=False, description="a toe without a measured groove fails")
+    max_failing_fraction: float = Field(default=0.0, ge=0, le=1, description=(
+        "the weld passes when at most this share of its measured sections fail"))
+
+    @field_validator("flank_angle_deg", "angular_misalignment_deg")
+    @classmethod
+    def _angle(cls, value: FigureLimits) -> FigureLimits:
+        for bound in (value.min, value.max):
+            if bound is not None and bound > 90:
+                raise ValueError(f"an angle limit must lie within [0, 90] degrees, got {bound}")
+        return value
+
+
+class AcceptanceLimits(StrictModel):
+    schema_version: Literal["1.0"] = "1.0"
+    rules: list[AcceptanceRule] = Field(min_length=1)
+
+    @field_validator("rules")
+    @classmethod
+    def _one_rule_each(cls, value: list[AcceptanceRule]) -> list[AcceptanceRule]:
+        seen = [(r.joint, r.treatment) for r in value]
+        twice = sorted({k for k in seen if seen.count(k) > 1})
+        if twice:
+            raise ValueError(f"one rule per joint and treatment, repeated: {twice}")
+        return value
+
+    def rule_for(self, joint: str, treatment: str) -> AcceptanceRule | None:
+        for r in self.rules:
+            if r.joint == joint and r.treatment == treatment:
+                return r
+        return None

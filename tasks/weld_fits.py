@@ -1,0 +1,315 @@
+"""The fits a weld section is made of (``tasks.weld_geometry`` cuts the sections): a plate's line,
+an as-welded toe (flank, toe fillet, undercut) and an HFMI groove (the pin's circular imprint),
+each figure with its 1-sigma from the fit's residuals and covariance.
+
+Profiles are read outward from the weld's centre: ``v`` (mm, away from the weld), ``h`` (mm, height
+over this side's plate line).
+
+- as welded: the flank (a line bending with a curvature), a toe fillet of radius r tangent to the
+  plate and to the flank's tangent at the toe, and an undercut (a Gaussian dip beside the fillet)
+  where the plate dips below its line, fitted together by non-linear least squares: toe position,
+  flank angle (the tangent at the toe to the plate), toe radius, undercut depth;
+- treated: a circle fitted to the groove's lower part: depth below the plate, width at the plate,
+  radius; the toe's position is where the groove meets the weld (walked inward along the circle),
+  the flank a line over ``toe_window_mm[0]`` inward of it (the flank angle the weld has now, just
+  above the groove: the original flank at the toe is cut away by the pin); the toe is within the
+  groove when the groove's wall runs up into the weld's flank with no stretch of plate between them
+  longer than ``groove_plate_gap_mm``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_toe", "fit_groove",
+           "propagate"]
+
+_NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class Measured:
+    """A measured figure: its value and 1-sigma (NaN: not measured / not determined)."""
+
+    value: float
+    sigma: float
+
+    @staticmethod
+    def none() -> "Measured":
+        return Measured(_NAN, _NAN)
+
+    def as_dict(self, digits: int = 4) -> dict[str, float | None]:
+        def r(x: float) -> float | None:
+            return None if not math.isfinite(x) else round(float(x), digits)
+        return {"value": r(self.value), "sigma": r(self.sigma)}
+
+
+@dataclass(frozen=True)
+class SectionSettings:
+    """How a section is read (mm, degrees); the stage passes its settings, nothing defaults here."""
+
+    plate_window_mm: tuple[float, float]  # plate fitted from .. to this far from the weld's centre
+    toe_window_mm: tuple[float, float]  # toe fit: this far onto the flank, this far onto the plate
+    toe_threshold_mm: float  # height over the plate that starts the weld (toe first guess)
+    groove_min_depth_mm: float  # a dip deeper than this beside the toe is a groove (treated welds)
+    groove_plate_gap_mm: float  # a longer stretch of plate between groove and flank: the toe is not within it
+    undercut_min_depth_mm: float  # a dip deeper than this beside an as-welded toe is fitted as undercut
+    height_half_width_mm: float  # the peak is read on the points this close to the section
+    min_points: int  # fewer points in a fit: not measured
+
+
+@dataclass(frozen=True)
+class PlateFit:
+    slope: float
+    intercept: float  # height at u = 0
+    cov: np.ndarray  # (2, 2) of (slope, intercept)
+    rms_mm: float
+    n_points: int
+
+    def at(self, u: np.ndarray | float) -> np.ndarray | float:
+        return self.slope * np.asarray(u) + self.intercept
+
+
+@dataclass(frozen=True)
+class GrooveFit:
+    depth: Measured  # below the plate, mm
+    width: Measured  # chord at plate level, mm
+    radius: Measured  # the imprint's radius, mm
+    centre_v_mm: float  # outward from the toe's old position
+    toe_within: bool
+    rms_mm: float
+    n_points: int
+
+
+@dataclass(frozen=True)
+class ToeFit:
+    side: str
+    position_u_mm: float  # as welded: where the flank meets the plate; treated: where the groove meets the weld
+    position_sigma_mm: float  # 1-sigma of position_u_mm
+    flank_angle_deg: Measured
+    radius: Measured  # the toe fillet's (as welded) or the groove's (treated)
+    undercut_depth: Measured
+    groove: GrooveFit | None
+    rms_mm: float
+    n_points: int
+    note: str = ""
+
+
+def _sigmas(res, n_params: int) -> tuple[np.ndarray, float]:
+    """Covariance of a least_squares result from its Jacobian and residuals, and the RMS."""
+    r = res.fun
+    dof = max(len(r) - n_params, 1)
+    s2 = float(r @ r) / dof
+    J = res.jac
+    try:
+        cov = np.linalg.pinv(J.T @ J) * s2
+    except np.linalg.LinAlgError:
+        cov = np.full((n_params, n_params), np.nan)
+    return cov, math.sqrt(float(np.mean(r * r))) if len(r) else _NAN
+
+
+def propagate(f, p: np.ndarray, cov: np.ndarray) -> float:
+    """1-sigma of f(p) from the parameters' covariance (first order, central differences)."""
+    g = np.zeros(len(p))
+    for k in range(len(p)):
+        step = 1e-6 * max(1.0, abs(p[k]))
+        dp = np.zeros(len(p))
+        dp[k] = step
+        g[k] = (f(p + dp) - f(p - dp)) / (2 * step)
+    var = float(g @ cov @ g)
+    return math.sqrt(var) if var >= 0 and math.isfinite(var) else _NAN
+
+
+def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
+    """A line h = slope * u + intercept through the points, trimmed of outliers (stickers, spatter)
+    by 3 robust sigmas, three rounds. ``u``, ``h``: (n,) float64, mm. None: too few points."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    # least median of squares first (a sticker can cover a third of a plate window, 0.1 mm high):
+    # lines through point pairs drawn with a fixed seed, the one whose median |residual| is least
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if ok.any():
+        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+        offsets = hk[i[ok]] - slopes * uk[i[ok]]
+        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
+        best = int(np.argmin(med))
+        r = h - (slopes[best] * u + offsets[best])
+        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
+    for _ in range(3):
+        if keep.sum() < max(min_points, 3):
+            return None
+        A = np.stack([u[keep], np.ones(int(keep.sum()))], 1)
+        coef, *_ = np.linalg.lstsq(A, h[keep], rcond=None)
+        r = h - (coef[0] * u + coef[1])
+        mad = 1.4826 * np.median(np.abs(r[keep] - np.median(r[keep])))
+        new = keep & (np.abs(r) <= max(3 * mad, 1e-3))
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    if keep.sum() < max(min_points, 3):
+        return None
+    A = np.stack([u[keep], np.ones(int(keep.sum()))], 1)
+    coef, *_ = np.linalg.lstsq(A, h[keep], rcond=None)
+    r = h[keep] - A @ coef
+    dof = max(len(r) - 2, 1)
+    cov = np.linalg.pinv(A.T @ A) * float(r @ r) / dof
+    return PlateFit(float(coef[0]), float(coef[1]), cov, float(np.sqrt(np.mean(r * r))), int(keep.sum()))
+
+
+def _toe_model(p: np.ndarray, w: np.ndarray, undercut: bool) -> np.ndarray:
+    """Height over the plate at w (outward from the toe, mm): flank -w tan(theta) - k w^2 inside,
+    a fillet of radius r tangent to the plate and to the flank's tangent line, an undercut dip."""
+    v0, theta, r, k = p[:4]
+    x = w - v0
+    t = math.tan(theta)
+    d = r * math.tan(theta / 2)
+    flank = np.where(x < 0, -x * t - k * x * x, 0.0)
+    in_fillet = (x > -d * math.cos(theta)) & (x < d)
+    fillet = r - np.sqrt(np.maximum(r * r - (x - d) ** 2, 0.0))
+    z = np.where(in_fillet, np.maximum(flank, fillet), flank)
+    if undercut:
+        depth, centre, width = p[4:7]
+        z = z - depth * np.exp(-(((x - d - centre) / width) ** 2))
+    return z
+
+
+def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
+    """The as-welded toe in a profile: ``v`` (n,) outward from the weld's centre (mm), ``h`` (n,)
+    height over this side's plate line (mm); ``toe_guess_v`` where the weld starts. Fits the
+    flank, toe fillet and undercut model over ``settings.toe_window_mm`` around the guess."""
+    flank_mm, plate_mm = settings.toe_window_mm
+    sel = (v > toe_guess_v - flank_mm) & (v < toe_guess_v + plate_mm)
+    w, z = v[sel], h[sel]
+    if len(w) < settings.min_points:
+        return None
+    on_flank = (z > 0.2 * z.max()) & (w < toe_guess_v)
+    theta0 = math.radians(30.0)
+    if on_flank.sum() >= 2:
+        slope = np.polyfit(w[on_flank], z[on_flank], 1)[0]
+        theta0 = float(np.clip(math.atan(max(-slope, 0.05)), math.radians(3), math.radians(80)))
+    plate_side = w > toe_guess_v + 0.2
+    undercut = bool(plate_side.any() and z[plate_side].min() < -settings.undercut_min_depth_mm)
+    best = None
+    for r0 in (0.3, 1.0, 2.5):
+        p0 = [toe_guess_v, theta0, r0, 0.0]
+        lo = [toe_guess_v - flank_mm, math.radians(2), 0.02, 0.0]
+        hi = [toe_guess_v + plate_mm, math.radians(85), 10.0, 5.0]
+        if undercut:
+            p0 += [max(-float(z[plate_side].min()), 0.01), 0.3, 0.3]
+            lo += [0.0, -0.5, 0.05]
+            hi += [2.0, 2.0, 1.5]
+        p0 = np.clip(p0, np.add(lo, 1e-9), np.subtract(hi, 1e-9))
+        res = least_squares(lambda p: _toe_model(p, w, undercut) - z, p0, bounds=(lo, hi), x_scale="jac")
+        if best is None or res.cost < best.cost:
+            best = res
+    p = best.x
+    cov, rms = _sigmas(best, len(p))
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return ToeFit(side=side, position_u_mm=float(p[0]), position_sigma_mm=float(sd[0]),
+                  flank_angle_deg=Measured(math.degrees(p[1]), math.degrees(sd[1])),
+                  radius=Measured(float(p[2]), float(sd[2])),
+                  undercut_depth=Measured(float(p[4]), float(sd[4])) if undercut else Measured(0.0, 0.0),
+                  groove=None, rms_mm=rms, n_points=len(w))
+
+
+def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+    return np.hypot(v - p[0], z - p[1]) - p[2]
+
+
+def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
+    """A treated toe: the groove's circle on its lower part (points deeper than a quarter of its
+    depth, around its deepest point), the flank above it by a parabola extended to the plate.
+    ``v``, ``h`` as in ``fit_toe``. None: no groove deeper than ``groove_min_depth_mm``."""
+    flank_mm, plate_mm = settings.toe_window_mm
+    region = (v > toe_guess_v - flank_mm) & (v < toe_guess_v + plate_mm + 8.0)
+    if region.sum() < settings.min_points or h[region].min() > -settings.groove_min_depth_mm:
+        return None
+    order = np.argsort(v[region])
+    vv, hh = v[region][order], h[region][order]
+    k = int(np.argmin(hh))
+    depth0 = -float(hh[k])
+    deep = hh < -0.25 * depth0
+    lo_k = k
+    while lo_k > 0 and deep[lo_k - 1]:
+        lo_k -= 1
+    hi_k = k
+    while hi_k < len(vv) - 1 and deep[hi_k + 1]:
+        hi_k += 1
+    gv, gz = vv[lo_k:hi_k + 1], hh[lo_k:hi_k + 1]
+    if len(gv) < max(settings.min_points, 4):
+        return None
+    span = max(gv[-1] - gv[0], 1e-3)
+    r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
+    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
+    x0 = np.clip([float(vv[k]), r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
+    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
+    p = res.x
+    cov, rms = _sigmas(res, 3)
+
+    def depth(q):
+        return q[2] - q[1]
+
+    def width(q):
+        return 2 * math.sqrt(max(q[2] ** 2 - q[1] ** 2, 0.0))
+
+    D, W = depth(p), width(p)
+    g_depth = Measured(D, propagate(depth, p, cov))
+    g_width = Measured(W, propagate(width, p, cov))
+    g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
+    # the groove's inner edge: inward from its deepest point, the last point on the circle (three
+    # off it in a row end the walk); the flank is the points inward of that edge
+    on_circle_z = p[1] - np.sqrt(np.maximum(p[2] ** 2 - (v - p[0]) ** 2, 0.0))
+    on = (np.abs(v - p[0]) < p[2]) & (np.abs(h - on_circle_z) <= max(3 * rms, 0.02))
+    inner = np.flatnonzero(v <= vv[k])
+    inner = inner[np.argsort(-v[inner])]
+    v_meet, misses = float(vv[k]), 0
+    for i in inner:
+        if on[i]:
+            v_meet, misses = float(v[i]), 0
+        else:
+            misses += 1
+            if misses >= 3:
+                break
+    flank = (v < v_meet - 0.05) & (v > v_meet - flank_mm) & (h > 0)
+    # the toe is within the groove when the groove's wall runs straight up into the weld's flank:
+    # no stretch of plate (|h| < groove_min_depth_mm) longer than groove_plate_gap_mm between them
+    inward = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W)])
+    level = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W) & (np.abs(h) < settings.groove_min_depth_mm)])
+    up = v[(v < vv[k]) & (h > settings.toe_threshold_mm)]
+    flat = level[level > up.max()] if len(up) else level
+    toe_within = bool(len(up) and len(inward) and (len(flat) < 2 or flat.max() - flat.min() <= settings.groove_plate_gap_mm))
+    note = ""
+    angle, toe_v = Measured.none(), v_meet
+    if flank.sum() >= 3:
+        fv, fz = v[flank], h[flank]
+        if len(fv) >= 3 and np.ptp(fv) > 0.1:
+            A = np.stack([fv, np.ones(len(fv))], 1)
+            coef, *_ = np.linalg.lstsq(A, fz, rcond=None)
+            r = fz - A @ coef
+            c_cov = np.linalg.pinv(A.T @ A) * float(r @ r) / max(len(r) - 2, 1)
+            if coef[0] < 0:
+                angle = Measured(math.degrees(math.atan(-coef[0])),
+                                 math.degrees(math.sqrt(max(c_cov[0, 0], 0.0)) / (1 + coef[0] ** 2)))
+            else:
+                note = "the flank above the groove does not fall toward the plate"
+        else:
+            note = "too few flank points above the groove"
+    else:
+        note = "too few flank points above the groove"
+    groove = GrooveFit(depth=g_depth, width=g_width, radius=g_radius, centre_v_mm=float(p[0]),
+                       toe_within=toe_within, rms_mm=rms, n_points=len(gv))
+    # where the groove leaves its circle is known to the points' spacing there (uniform: /sqrt 12)
+    spacing = float(np.median(np.diff(np.sort(v[np.abs(v - v_meet) < 1.0])))) if np.count_nonzero(np.abs(v - v_meet) < 1.0) > 2 else _NAN
+    return ToeFit(side=side, position_u_mm=toe_v, position_sigma_mm=spacing / math.sqrt(12), flank_angle_deg=angle, radius=g_radius,
+                  undercut_depth=Measured(0.0, 0.0), groove=groove, rms_mm=rms, n_points=len(gv), note=note)
