@@ -10,14 +10,13 @@ rotation convention. The format is described in ``docs/cell-logs.md``.
 from __future__ import annotations
 
 import re
-from datetime import datetime
 from pathlib import PurePosixPath
 from typing import Literal
 
 from pydantic import AfterValidator, Field, field_validator, model_validator
 from typing_extensions import Annotated
 
-from schemas.common import Pose4x4, StrictModel
+from schemas.common import AwareDatetime, Pose4x4, StrictModel
 from schemas.manifest import _ID_PATTERN, ScannerSettings, SpecimenGeometry, WeldDescription
 
 __all__ = ["ROTATION_CONVENTIONS", "EULER_PATTERN", "orientation_columns", "scipy_euler_sequence", "XGrid",
@@ -179,7 +178,7 @@ class CellDescription(StrictModel):
     pose (``T_world_flange = T_world_tcp @ inv(T_flange_tcp)``)."""
 
     sample_id: str = Field(pattern=_ID_PATTERN)
-    created: datetime
+    created: AwareDatetime
     material: str = "S355"
     specimen: SpecimenGeometry
     weld: WeldDescription
@@ -190,13 +189,6 @@ class CellDescription(StrictModel):
     time_offset_s: float = 0.0
     T_flange_tcp: Pose4x4 | None = None
     setups: list[CellSetup] = Field(min_length=1)
-
-    @field_validator("created")
-    @classmethod
-    def _timezone_aware(cls, value: datetime) -> datetime:
-        if value.tzinfo is None:
-            raise ValueError("created must carry a timezone (e.g. 2026-11-22T10:00:00+00:00)")
-        return value
 
     @model_validator(mode="after")
     def _consistent(self) -> "CellDescription":

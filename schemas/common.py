@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
+from datetime import datetime
 from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict
 
-__all__ = ["StrictModel", "Pose4x4", "Vector3", "FloatRange", "check_rigid_pose"]
+__all__ = ["StrictModel", "Pose4x4", "Vector3", "FloatRange", "AwareDatetime", "check_rigid_pose"]
 
 _ROTATION_TOLERANCE = 1e-6
 
@@ -64,3 +65,13 @@ Vector3 = Annotated[tuple[float, float, float], AfterValidator(_check_finite_vec
 
 FloatRange = Annotated[tuple[float, float], AfterValidator(_check_range)]
 """A closed interval ``(low, high)`` from which the simulator draws a value."""
+
+
+def _timezone_aware(value: datetime) -> datetime:
+    if value.tzinfo is None:
+        raise ValueError("must carry a timezone (e.g. 2026-11-22T10:00:00+00:00)")
+    return value
+
+
+# a time that says which time it is: a naive one is refused
+AwareDatetime = Annotated[datetime, AfterValidator(_timezone_aware)]

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from datetime import datetime
 from pathlib import PurePosixPath
 from typing import Any, ClassVar, Literal, Union
 
@@ -23,7 +22,7 @@ from pydantic import (AfterValidator, Field, SerializerFunctionWrapHandler, Vali
                       WrapValidator, field_validator, model_serializer, model_validator)
 from typing_extensions import Annotated
 
-from schemas.common import Pose4x4, StrictModel, Vector3
+from schemas.common import AwareDatetime, Pose4x4, StrictModel, Vector3
 
 __all__ = [
     "MANIFEST_SCHEMA_VERSION",
@@ -437,7 +436,7 @@ class SampleManifest(StrictModel):
     schema_version: Literal["1.0", "1.1"]  # required: a file of another version is told apart, never guessed
     units: Literal["mm"]
     sample_id: str = Field(pattern=_ID_PATTERN)
-    created: datetime
+    created: AwareDatetime
     material: str = "S355"
     registration: Literal["targets", "surfaces"] = Field(default="targets", description=(
         "targets: the passes are registered on their sticker targets (the paper's method; specimen, "
@@ -449,13 +448,6 @@ class SampleManifest(StrictModel):
     sticker_diameter_mm: float | None = Field(default=None, gt=0, le=100)
     scanner: ScannerSettings | None = None
     setups: list[Setup] = Field(min_length=1)
-
-    @field_validator("created")
-    @classmethod
-    def _timezone_aware(cls, value: datetime) -> datetime:
-        if value.tzinfo is None:
-            raise ValueError("created must carry a timezone (e.g. 2026-11-22T10:00:00+00:00)")
-        return value
 
     @field_validator("weld", mode="wrap")
     @classmethod
