@@ -60,7 +60,7 @@ def _versions(code_root: Path) -> dict[str, str]:
 @pytest.mark.parametrize(("path", "old", "new", "changed"), [
     (*HELPER_EDIT, {"denoise"}),
     ("tasks/ingest.py", "    out += T[:, None, :3, 3]", "    out += 1.0 * T[:, None, :3, 3]", {"denoise", "targets"}),
-    ("tasks/checks.py", "", "# edited\n", {"refine", "merge", "segment", "mesh", "export", "volume"}),
+    ("tasks/checks.py", "", "# edited\n", {"denoise", "refine", "merge", "segment", "mesh", "export", "volume"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
                                                       "weld", "mesh", "export", "volume", "report"}),
     ("tasks/weld_fits.py", "", "# edited\n", {"weld"}),
