@@ -222,13 +222,17 @@ class WeldGeometryConfig(StrictModel):
 
 class VolumeConfig(StrictModel):
     """The FE model: tetrahedra filling the mesh (gmsh), graded toward the weld (``tasks.volume_mesh``).
-    Element size ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines (the cap, its toes and
-    an HFMI groove), growing by ``growth`` mm per mm beyond, ``size_mm`` at most."""
+    Surface elements of ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines (the cap, its
+    toes and an HFMI groove), growing by ``growth`` mm per mm beyond, ``size_mm`` at most; inside,
+    the sizes grow from the surface's."""
 
     size_mm: float = Field(default=3.0, gt=0, le=100, description="largest element edge, away from the weld")
-    weld_size_mm: float = Field(default=0.5, gt=0, le=100, description="element edge within the weld zone")
-    weld_zone_mm: float = Field(default=8.0, ge=0, le=1000, description=(
-        "distance from a weld line kept at weld_size_mm: at least half the cap's width plus the groove"))
+    weld_size_mm: float = Field(default=1.0, gt=0, le=100, description=(
+        "element edge on the surface within the weld zone (the global model; finer toe models are "
+        "sub-models of the WELD_ZONE_SURFACE set)"))
+    weld_zone_mm: float = Field(default=14.0, ge=0, le=1000, description=(
+        "distance from a weld line kept at weld_size_mm: half the cap's width plus most of an HFMI "
+        "groove (the demo's 20 mm cap and 6 mm groove: 10 + 4.5)"))
     growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm beyond the weld zone")
     max_surface_triangles: int = Field(default=150_000, ge=1000, le=50_000_000, description=(
         "the Poisson surface is simplified to at most this many triangles before gmsh reparametrises it "

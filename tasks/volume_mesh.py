@@ -3,8 +3,9 @@ gmsh, with its element quality and the checks that it is one solid.
 
 gmsh (``classifySurfaces`` + ``createGeometry``, as in its tutorial t13 for STL input) turns the
 Poisson triangles into patches it can remesh, then meshes the surface and the volume with an
-element size that is ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines and grows by
-``growth`` per mm beyond, up to ``size_mm`` (gmsh's Distance and Threshold fields). One thread
+element size on the surface that is ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines and
+grows by ``growth`` per mm beyond, up to ``size_mm`` (gmsh's Distance and Threshold fields,
+restricted to the surface; inside, the sizes grow from the surface's). One thread
 and a fixed seed: the same surface gives the same tetrahedra, in every process.
 
 The files for FE programs (Abaqus ``.inp``, VTU) are written by ``data_catalog.volume_meshes``.
@@ -92,7 +93,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
         gmsh.initialize(readConfigFiles=False, interruptible=False)
         try:
             for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
-                                ("Mesh.MeshSizeExtendFromBoundary", 0), ("Mesh.MeshSizeFromPoints", 0),
+                                ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
                                 ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
                                 ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", 1), ("Mesh.Optimize", 1),
                                 ("Mesh.OptimizeNetgen", 1 if optimize else 0)):
@@ -119,7 +120,11 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                                     ("DistMin", weld_zone_mm),
                                     ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
                     gmsh.model.mesh.field.setNumber(ramp, name, value)
-                gmsh.model.mesh.field.setAsBackgroundMesh(ramp)
+                # on the surface only: inside, sizes grow from the surface's (extended from the boundary)
+                surface_only = gmsh.model.mesh.field.add("Restrict")
+                gmsh.model.mesh.field.setNumber(surface_only, "InField", ramp)
+                gmsh.model.mesh.field.setNumbers(surface_only, "SurfacesList", patches)
+                gmsh.model.mesh.field.setAsBackgroundMesh(surface_only)
             gmsh.model.geo.synchronize()
             gmsh.model.mesh.generate(3)
             node_tags, coords, _ = gmsh.model.mesh.getNodes()

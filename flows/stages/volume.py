@@ -32,7 +32,10 @@ def volume(ctx) -> dict[str, Any]:
         VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
         return {"made": False, "why": why}
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
+    # the weld lines where the first placed setup puts them: each setup's lines are all of the
+    # part's, and the other setups' placements (by hand, within their tolerance) would only widen the zone
     lines = [points for points, _ in weld_lines_common(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass)]
+    lines = lines[:len(ctx.manifest.weld_lines())]
     solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                            weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
                            feature_angle_deg=s.feature_angle_deg,
