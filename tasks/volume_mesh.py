@@ -44,6 +44,7 @@ class VolumeMesh:
     boundary_element: np.ndarray  # (f,) int64: the tetrahedron each boundary face belongs to
     boundary_face: np.ndarray  # (f,) int64: which of its faces, Abaqus numbering 1-4
     weld_zone_face: np.ndarray  # (f,) bool: the face's centroid within the weld zone
+    surface_remeshed: bool = True  # False: gmsh could not reparametrise; the surface's own triangles kept
 
     def boundary_triangles(self) -> np.ndarray:
         """(f, 3) int64, the boundary faces' nodes, counter-clockwise seen from outside."""
@@ -79,60 +80,28 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                    feature_angle_deg: float, optimize: bool,
                    seed: int = 1) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
-    triangles (t, 3)); sizes as in the module's description. Raises VolumeMeshError when gmsh
-    cannot (an open or self-intersecting surface) or what it made is not one solid."""
-    import gmsh
-
+    triangles (t, 3)); sizes as in the module's description. Where gmsh cannot reparametrise the
+    surface's patches (a patch of a topology it cannot flatten), the surface's own triangles are
+    kept as the boundary and only the inside is meshed (``VolumeMesh.surface_remeshed`` False).
+    Raises VolumeMeshError when gmsh cannot mesh it either way (an open or self-intersecting
+    surface) or made no tetrahedra."""
     vertices = np.ascontiguousarray(vertices, np.float64)
     triangles = np.ascontiguousarray(triangles, np.int64)
     if len(triangles) == 0:
         raise VolumeMeshError("the surface has no triangles")
     weld = polyline_samples(weld_lines_mm, step_mm=max(weld_size_mm, 0.05) / 2) if weld_lines_mm else None
     tree = cKDTree(weld) if weld is not None and len(weld) else None
-    with _GMSH:
-        gmsh.initialize(readConfigFiles=False, interruptible=False)
+    sizes = dict(size_mm=size_mm, weld_size_mm=weld_size_mm, weld_zone_mm=weld_zone_mm, growth=growth,
+                 feature_angle_deg=feature_angle_deg, optimize=optimize, seed=seed)
+    remeshed = True
+    try:
+        node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, **sizes)
+    except VolumeMeshError as first:
+        remeshed = False
         try:
-            for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
-                                ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
-                                ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
-                                ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", 1), ("Mesh.Optimize", 1),
-                                ("Mesh.OptimizeNetgen", 1 if optimize else 0)):
-                gmsh.option.setNumber(name, value)
-            gmsh.model.add("part")
-            surface = gmsh.model.addDiscreteEntity(2)
-            gmsh.model.mesh.addNodes(2, surface, np.arange(1, len(vertices) + 1), vertices.ravel())
-            gmsh.model.mesh.addElementsByType(surface, 2, [], (triangles + 1).ravel())
-            angle = np.radians(feature_angle_deg)
-            gmsh.model.mesh.classifySurfaces(angle, True, True, np.pi)
-            gmsh.model.mesh.createGeometry()
-            patches = [tag for _, tag in gmsh.model.getEntities(2)]
-            loop = gmsh.model.geo.addSurfaceLoop(patches)
-            gmsh.model.geo.addVolume([loop])
-            if tree is not None:
-                # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
-                # growing linearly by `growth` per mm up to size_mm
-                points = [gmsh.model.geo.addPoint(*map(float, p)) for p in weld]
-                gmsh.model.geo.synchronize()
-                distance = gmsh.model.mesh.field.add("Distance")
-                gmsh.model.mesh.field.setNumbers(distance, "PointsList", points)
-                ramp = gmsh.model.mesh.field.add("Threshold")
-                for name, value in (("InField", distance), ("SizeMin", weld_size_mm), ("SizeMax", size_mm),
-                                    ("DistMin", weld_zone_mm),
-                                    ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
-                    gmsh.model.mesh.field.setNumber(ramp, name, value)
-                # on the surface only: inside, sizes grow from the surface's (extended from the boundary)
-                surface_only = gmsh.model.mesh.field.add("Restrict")
-                gmsh.model.mesh.field.setNumber(surface_only, "InField", ramp)
-                gmsh.model.mesh.field.setNumbers(surface_only, "SurfacesList", patches)
-                gmsh.model.mesh.field.setAsBackgroundMesh(surface_only)
-            gmsh.model.geo.synchronize()
-            gmsh.model.mesh.generate(3)
-            node_tags, coords, _ = gmsh.model.mesh.getNodes()
-            _, element_nodes = gmsh.model.mesh.getElementsByType(4)
-        except Exception as exc:  # gmsh raises a bare Exception with its last error
-            raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
-        finally:
-            gmsh.finalize()
+            node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False, **sizes)
+        except VolumeMeshError as second:
+            raise VolumeMeshError(f"{first}; keeping the surface's own triangles: {second}") from second
     if len(element_nodes) == 0:
         raise VolumeMeshError("gmsh made no tetrahedra: the surface does not enclose one volume (open, or "
                               "more than one body)")
@@ -153,7 +122,61 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     in_zone = (tree.query(centroids, distance_upper_bound=weld_zone_mm)[0] <= weld_zone_mm if tree is not None
                else np.zeros(len(element), bool))
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
-                      weld_zone_face=in_zone)
+                      weld_zone_face=in_zone, surface_remeshed=remeshed)
+
+
+def _gmsh_volume(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
+                 feature_angle_deg, optimize, seed):
+    """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
+    or kept as it is, the inside meshed."""
+    import gmsh
+
+    with _GMSH:
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
+        try:
+            for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
+                                ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
+                                ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
+                                ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", 1), ("Mesh.Optimize", 1),
+                                ("Mesh.OptimizeNetgen", 1 if optimize else 0)):
+                gmsh.option.setNumber(name, value)
+            gmsh.model.add("part")
+            surface = gmsh.model.addDiscreteEntity(2)
+            gmsh.model.mesh.addNodes(2, surface, np.arange(1, len(vertices) + 1), vertices.ravel())
+            gmsh.model.mesh.addElementsByType(surface, 2, [], (triangles + 1).ravel())
+            if remesh:
+                gmsh.model.mesh.classifySurfaces(np.radians(feature_angle_deg), True, True, np.pi)
+                gmsh.model.mesh.createGeometry()
+            # remeshed: the reparametrised patches; else the discrete surface, its triangles kept
+            patches = [tag for _, tag in gmsh.model.getEntities(2)]
+            gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(patches)])
+            if weld is not None and len(weld):
+                # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
+                # growing linearly by `growth` per mm up to size_mm
+                points = [gmsh.model.geo.addPoint(*map(float, p)) for p in weld]
+                gmsh.model.geo.synchronize()
+                distance = gmsh.model.mesh.field.add("Distance")
+                gmsh.model.mesh.field.setNumbers(distance, "PointsList", points)
+                ramp = gmsh.model.mesh.field.add("Threshold")
+                for name, value in (("InField", distance), ("SizeMin", weld_size_mm), ("SizeMax", size_mm),
+                                    ("DistMin", weld_zone_mm),
+                                    ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
+                    gmsh.model.mesh.field.setNumber(ramp, name, value)
+                field = ramp
+                if remesh:  # on the surface only: inside, sizes grow from the surface's
+                    field = gmsh.model.mesh.field.add("Restrict")
+                    gmsh.model.mesh.field.setNumber(field, "InField", ramp)
+                    gmsh.model.mesh.field.setNumbers(field, "SurfacesList", patches)
+                gmsh.model.mesh.field.setAsBackgroundMesh(field)
+            gmsh.model.geo.synchronize()
+            gmsh.model.mesh.generate(3)
+            node_tags, coords, _ = gmsh.model.mesh.getNodes()
+            _, element_nodes = gmsh.model.mesh.getElementsByType(4)
+        except Exception as exc:  # gmsh raises a bare Exception with its last error
+            raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
+        finally:
+            gmsh.finalize()
+    return node_tags, coords, element_nodes
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from flows.stages.outputs import (PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REP
                                   VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
 
-__all__ = ["report", "report_view", "publish", "checks", "weld_summary", "RESULTS", "CONFIG_NAME"]
+__all__ = ["report", "report_view", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
@@ -93,6 +93,21 @@ def weld_summary(geometry: dict[str, Any]) -> dict[str, Any]:
             "lines": geometry["lines"], "statistics": geometry["statistics"]}
 
 
+def fe_model_check(volume: StageRef) -> dict[str, Any]:
+    """The FE model's check: made as one solid of the mesh's volume, or why not."""
+    summary = VOLUME_SUMMARY.read(volume)
+    if not summary["made"]:
+        return {"check": "FE model", "pass": "all", "result": "flagged", "what": f"not made: {summary['why']}",
+                "measured": {}}
+    solid = summary["solid"]
+    return {"check": "FE model", "pass": "all", "result": "ok",
+            "what": (f"one solid of {solid['tetrahedra']} tetrahedra, volume {100 * solid['volume_difference']:+.2f} % "
+                     f"of the mesh's" + ("" if summary["surface_remeshed"] else
+                                         "; the surface's own triangles kept (gmsh could not reparametrise it)")),
+            "measured": {"volume_difference": solid["volume_difference"],
+                         "min_dihedral_deg": summary["quality"]["min_dihedral_deg"]["worst"]}}
+
+
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     registration = REGISTRATION_SUMMARY.read(inputs["registration"])
@@ -108,7 +123,7 @@ def report(ctx) -> dict[str, Any]:
         "mesh": _metrics(inputs["mesh"]),
         "volume_mesh": VOLUME_SUMMARY.read(inputs["volume"]),
         "weld": weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
-        "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]),
+        "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(inputs["volume"])],
         "deliverables": {name: inputs[stage].outputs[source]
                          for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
                          if source in inputs[stage].outputs},

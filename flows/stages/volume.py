@@ -3,8 +3,9 @@ weld lines (where the setups' nominal placements and the refined poses put them)
 surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse), checked to be
 one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU with
 the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
-unclosed) has no solid: ``volume.json`` says so and the model files are left out; a closed one
-that gmsh cannot fill, or fills into anything but one solid of its volume, fails the stage."""
+unclosed), one gmsh cannot fill, or a fill that is not one solid of the surface's volume makes no
+model: ``volume.json`` says why, the report flags it, the model files are left out and the run
+publishes the rest (the STL is the deliverable a fatigue model cannot do without)."""
 
 from __future__ import annotations
 
@@ -26,20 +27,19 @@ def volume(ctx) -> dict[str, Any]:
     surface = MESH.read(ctx.inputs["mesh"])
     closed = mesh_report(surface.vertices, surface.triangles)
     if not (closed.watertight and closed.consistently_oriented):
-        # no solid to fill: said in volume.json and the report, the model files left out
-        why = (f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
-               f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
-        VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
-        return {"made": False, "why": why}
+        return _not_made(ctx, f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
+                              f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
     # the weld lines where the first placed setup puts them: each setup's lines are all of the
     # part's, and the other setups' placements (by hand, within their tolerance) would only widen the zone
     lines = [points for points, _ in weld_lines_common(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass)]
     lines = lines[:len(ctx.manifest.weld_lines())]
-    solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
-                           weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
-                           feature_angle_deg=s.feature_angle_deg,
-                           optimize=s.optimize)
+    try:
+        solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
+                               weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
+                               feature_angle_deg=s.feature_angle_deg, optimize=s.optimize)
+    except VolumeMeshError as exc:
+        return _not_made(ctx, str(exc))
     checks = solid_checks(solid, closed.volume_mm3)
     difference = checks["volume_difference"]  # None: a surface of no volume (refused as off)
     problems = [what for what, bad in (
@@ -52,7 +52,7 @@ def volume(ctx) -> dict[str, Any]:
          f"{100 * s.max_volume_difference:.2f} %", difference is None or abs(difference) > s.max_volume_difference),
     ) if bad]
     if problems:
-        raise VolumeMeshError("the volume mesh is not one valid solid: " + "; ".join(problems))
+        return _not_made(ctx, "the volume mesh is not one valid solid: " + "; ".join(problems))
     min_dihedral, aspect = element_quality(solid.points, solid.tetrahedra)
     zone_faces = solid.weld_zone_faces()
     write_abaqus(ctx.out / VOLUME_INP.name, solid.points, solid.tetrahedra, zone_faces=zone_faces,
@@ -64,6 +64,7 @@ def volume(ctx) -> dict[str, Any]:
                "weld_zone_boundary": in_zone})
     rounded = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.items()}
     summary = {"made": True, "surface_triangles": int(len(surface.triangles)), "meshed_triangles": int(len(triangles)),
+               "surface_remeshed": solid.surface_remeshed,
                "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
                "sets": {"elements": "ALL", "weld_zone_nodes": WELD_ZONE_NODES, "weld_zone_surface": WELD_ZONE_SURFACE}}
     VOLUME_SUMMARY.write(ctx.out, summary)
@@ -71,3 +72,10 @@ def volume(ctx) -> dict[str, Any]:
             "volume_difference": rounded["volume_difference"], "weld_zone_faces": rounded["weld_zone_faces"],
             "min_dihedral_deg": summary["quality"]["min_dihedral_deg"]["worst"],
             "aspect_ratio_worst": summary["quality"]["aspect_ratio"]["worst"]}
+
+
+def _not_made(ctx, why: str) -> dict[str, Any]:
+    """No FE model: why, in volume.json (the report's check and the terminal say it); the model
+    files left out, the run goes on and publishes the rest."""
+    VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
+    return {"made": False, "why": why}

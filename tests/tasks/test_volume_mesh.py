@@ -200,3 +200,24 @@ def test_a_large_surface_is_simplified_first_keeping_its_volume_and_closure():
     assert np.array_equal(again[0], v) and np.array_equal(again[1], t)  # the same bytes
     same = simplify_surface(vertices, triangles, max_triangles=len(triangles))
     assert same[0] is vertices and same[1] is triangles  # nothing to do: untouched
+
+
+def test_a_surface_gmsh_cannot_reparametrise_keeps_its_own_triangles(monkeypatch):
+    """The fallback: where remeshing fails, the inside is meshed on the surface's own triangles."""
+    import tasks.volume_mesh as vm
+
+    real = vm._gmsh_volume
+
+    def no_remesh(*args, remesh, **kwargs):
+        if remesh:
+            raise VolumeMeshError("gmsh could not mesh the surface's volume: Wrong topology of boundary mesh")
+        return real(*args, remesh=remesh, **kwargs)
+
+    monkeypatch.setattr(vm, "_gmsh_volume", no_remesh)
+    vertices, triangles = box_surface()
+    solid = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, **SIZES)
+    assert not solid.surface_remeshed
+    checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
+    assert checks["components"] == 1 and checks["negative_or_flat"] == 0 and abs(checks["volume_difference"]) < 1e-9
+    # the boundary is the input surface itself
+    assert checks["boundary_faces"] == len(triangles)
