@@ -4,6 +4,7 @@ reads these; tests and benchmarks compare against them.
 ``truth/passes/<pass_id>.zarr``: T_world_sensor (n, 4, 4) float64 true sensor pose per profile;
 label (n, m) uint8 (schemas.truth.PointLabel); material (n, m) uint8 (schemas.truth.Material);
 sticker_id (n, m) int16 (-1 for none). ``truth/truth.json``: schemas.truth.GroundTruth.
+``truth/toes.json`` (fillet-welded parts): schemas.truth.TrueToeLines.
 """
 
 from __future__ import annotations
@@ -17,9 +18,10 @@ import zarr
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.passes import check_complete, create_chunked_array
-from schemas.truth import GroundTruth
+from schemas.truth import GroundTruth, TrueToeLines
 
-__all__ = ["TRUTH_DIR", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth"]
+__all__ = ["TRUTH_DIR", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth",
+           "read_true_toes"]
 
 TRUTH_DIR = "truth"
 
@@ -65,3 +67,8 @@ def write_truth(path: Path, truth: GroundTruth) -> None:
 
 def read_truth(path: Path) -> GroundTruth:
     return GroundTruth.model_validate(json.loads(Path(path).read_text()))
+
+
+def read_true_toes(path: Path) -> TrueToeLines:
+    """``truth/toes.json``: the true toe lines of a fillet-welded part."""
+    return TrueToeLines.model_validate(json.loads(Path(path).read_text()))
