@@ -7,7 +7,9 @@ distance between where the reconstruction puts its measured specimen points and 
 are, after one rigid fit of the whole; for the target registration alone (the paper's method) and
 after the refinement. Mesh to the true surface: every STL vertex, in the specimen frame (fitted on
 the registered targets against the true stickers), its distance to the true specimen mesh; over
-the scanned length, and within 15 mm of the weld's lines (the manifest's, ``weld_lines()``).
+the scanned length, and within 15 mm of the weld's lines (the manifest's, ``weld_lines()``); for a
+part with fillet welds (``truth/toes.json``, the T-joint presets), within 5 mm of the true toe lines
+(median, 95 % and max).
 """
 
 from __future__ import annotations
@@ -51,6 +53,8 @@ def evaluate(sample: Path, run: Path) -> dict:
     result["mesh to truth, within 15 mm of the weld"] = accuracy["within 15 mm of the weld"]
     result["mesh to truth, measured surface"] = accuracy["measured surface"]
     result["mesh to truth, measured, within 15 mm of the weld"] = accuracy["measured, within 15 mm of the weld"]
+    if "within 5 mm of the toes" in accuracy:
+        result["mesh to truth, within 5 mm of the toes"] = accuracy["within 5 mm of the toes"]
     result["gauge targets"] = accuracy["gauge targets"]
     result["sample"] = read_truth(sample / TRUTH_DIR / "truth.json").sample_id
     return result
@@ -96,11 +100,36 @@ def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
     def stats(d):
         return {"vertices": int(len(d)), "median_um": round(1000 * float(np.median(d)), 1),
                 "rms_um": round(1000 * float(np.sqrt(np.mean(d**2))), 1),
-                "p95_um": round(1000 * float(np.quantile(d, 0.95)), 1)}
+                "p95_um": round(1000 * float(np.quantile(d, 0.95)), 1),
+                "max_um": round(1000 * float(np.max(d)), 1)}
 
-    return {"scanned length": stats(dist[scanned]), "within 15 mm of the weld": stats(dist[weld]),
-            "measured surface": stats(dist[measured]), "measured, within 15 mm of the weld": stats(dist[measured & weld]),
-            "gauge targets": gauge.n_targets}
+    out = {"scanned length": stats(dist[scanned]), "within 15 mm of the weld": stats(dist[weld]),
+           "measured surface": stats(dist[measured]), "measured, within 15 mm of the weld": stats(dist[measured & weld]),
+           "gauge targets": gauge.n_targets}
+    near_toes = near_true_toes(sample, v, TOE_ZONE_MM)
+    if near_toes is not None:
+        out["within 5 mm of the toes"] = stats(dist[near_toes])
+    return out
+
+
+TOE_ZONE_MM = 5.0
+
+
+def near_true_toes(sample: Path, vertices_specimen: np.ndarray, radius_mm: float) -> np.ndarray | None:
+    """(n,) bool: the vertices (n, 3) (specimen frame, mm) within ``radius_mm`` of a true toe line
+    (``truth/toes.json``); None for a part without one (the dog-bone presets)."""
+    from data_catalog.truth import TRUTH_DIR, read_true_toes
+    from simulator.run import TOES_NAME
+    from tasks.merge import PolylineZone
+
+    path = Path(sample) / TRUTH_DIR / TOES_NAME
+    if not path.is_file():
+        return None
+    near = np.zeros(len(vertices_specimen), bool)
+    for toe in read_true_toes(path).toes:
+        points = toe.points_mm[::8] + toe.points_mm[-1:]  # every 2 mm: the toes are straight over that
+        near |= PolylineZone(tuple(points), radius_mm).contains(vertices_specimen)
+    return near
 
 
 def emit(result: dict, json_path: Path | None) -> None:

@@ -4,7 +4,8 @@ reads these; tests and benchmarks compare against them.
 ``truth/passes/<pass_id>.zarr``: T_world_sensor (n, 4, 4) float64 true sensor pose per profile;
 label (n, m) uint8 (schemas.truth.PointLabel); material (n, m) uint8 (schemas.truth.Material);
 sticker_id (n, m) int16 (-1 for none). ``truth/truth.json``: schemas.truth.GroundTruth;
-``truth/weld_sections.json``: schemas.truth.WeldTruth.
+``truth/weld_sections.json``: schemas.truth.WeldTruth; ``truth/toes.json`` (fillet-welded parts):
+schemas.truth.TrueToeLines.
 """
 
 from __future__ import annotations
@@ -18,10 +19,10 @@ import zarr
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.passes import check_complete, create_chunked_array
-from schemas.truth import GroundTruth, WeldTruth
+from schemas.truth import GroundTruth, TrueToeLines, WeldTruth
 
 __all__ = ["TRUTH_DIR", "WELD_TRUTH_NAME", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth",
-           "write_weld_truth", "read_weld_truth"]
+           "write_weld_truth", "read_weld_truth", "read_true_toes"]
 
 TRUTH_DIR = "truth"
 WELD_TRUTH_NAME = "weld_sections.json"  # schemas.truth.WeldTruth: the drawn weld every 1 mm
@@ -76,3 +77,8 @@ def write_weld_truth(path: Path, truth: WeldTruth) -> None:
 
 def read_weld_truth(path: Path) -> WeldTruth:
     return WeldTruth.model_validate_json(Path(path).read_text(encoding="utf-8"))
+
+
+def read_true_toes(path: Path) -> TrueToeLines:
+    """``truth/toes.json``: the true toe lines of a fillet-welded part."""
+    return TrueToeLines.model_validate(json.loads(Path(path).read_text()))

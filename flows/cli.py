@@ -491,7 +491,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="simulate a scanning cell's output for one sample")
     sim.add_argument("out_dir", metavar="OUT_DIR", help="new folder for the sample (must not exist)")
-    sim.add_argument("--preset", default="demo", help="ci, demo or paper (default: demo)")
+    sim.add_argument("--preset", default="demo", help="ci, demo, paper, tjoint or tjoint-single (default: demo)")
     sim.add_argument("--config", metavar="FILE", help="YAML file of fields that override the preset")
     sim.add_argument("--seed", type=int, help="override the preset's seed")
     sim.add_argument("--sample-id", help="override the preset's sample id")

@@ -21,6 +21,7 @@ __all__ = [
     "ScanPlanConfig",
     "PlacementConfig",
     "MeshConfig",
+    "TJointConfig",
     "SimulationConfig",
 ]
 
@@ -229,6 +230,42 @@ class MeshConfig(StrictModel):
     wall_rows: int = Field(default=21, ge=2, le=1000)
 
 
+class TJointConfig(StrictModel):
+    """A T-joint (``simulator.tjoint``): a stem plate welded upright across a base plate by two
+    convex fillet welds, one on each side of the stem. Specimen frame as the manifest's
+    ``TJointSpecimen``: origin at the base plate's centre (mid-thickness), x across the stem, y along
+    it and its welds, z toward the stem. The weld's toe radius, ripples, bead wander and variation
+    length come from ``weld``; the scan plan's setups and margin from ``plan``."""
+
+    base_length_mm: float = Field(default=260.0, gt=0, le=1000)
+    base_width_mm: float = Field(default=120.0, gt=0, le=1000)
+    base_thickness_mm: float = Field(default=12.0, gt=0, le=100)
+    stem_height_mm: float = Field(default=60.0, gt=0, le=500)
+    stem_thickness_mm: float = Field(default=10.0, gt=0, le=100)
+    leg_mm: FloatRange = Field(default=(6.0, 8.0), description="fillet legs, along the base and up the stem")
+    convexity_mm: FloatRange = Field(default=(0.4, 1.2), description="the fillet face's rise above its legs' chord")
+    shape_exponent: float = Field(default=2.5, ge=1.2, le=10, description="of the convex face, as the butt cap's")
+    along_weld_dx_mm: float = Field(default=0.25, gt=0, le=5, description="mesh stations along the weld (y)")
+    wall_stickers: bool = Field(default=True, description=(
+        "stickers on the base plate's walls (its four 12 mm sides): the only surfaces both setups see"))
+    wall_sticker_pitch_mm: float = Field(default=20.0, gt=0, description="along each wall")
+    fillet_rolls_deg: tuple[float, float] = Field(default=(40.0, 65.0), description=(
+        "the two passes along each weld, rolled toward it from the vertical: both toes seen"))
+    base_roll_deg: float = Field(default=35.0, ge=0, lt=85, description="outer passes, rolled out to see the ends")
+    wall_roll_deg: float = Field(default=50.0, gt=0, lt=85, description="passes along the base's long walls")
+
+    @model_validator(mode="after")
+    def _possible(self) -> "TJointConfig":
+        if self.leg_mm[0] <= 0 or self.convexity_mm[0] < 0:
+            raise ValueError("leg_mm must be positive and convexity_mm not negative")
+        if self.convexity_mm[1] * 4 > self.leg_mm[0]:
+            raise ValueError("convexity_mm must stay under a quarter of leg_mm")
+        if self.leg_mm[1] * 2 >= self.stem_height_mm or self.stem_thickness_mm / 2 + self.leg_mm[1] + 20 > \
+                self.base_length_mm / 2:
+            raise ValueError("the fillet legs do not fit on the stem and the base plate")
+        return self
+
+
 class SimulationConfig(StrictModel):
     preset: str = "custom"
     seed: int = Field(default=0, ge=0)
@@ -242,6 +279,8 @@ class SimulationConfig(StrictModel):
     plan: ScanPlanConfig = ScanPlanConfig()
     placement: PlacementConfig = PlacementConfig()
     mesh: MeshConfig = MeshConfig()
+    tjoint: TJointConfig | None = Field(default=None, description=(
+        "simulate a T-joint (simulator.tjoint) instead of the dog-bone of ``specimen``"))
     chunk_profiles: int = Field(default=256, ge=1, le=100000, description="profiles per zarr chunk and per render batch")
 
     @model_validator(mode="after")
@@ -253,6 +292,17 @@ class SimulationConfig(StrictModel):
         if weld.cap_height_mm[1] >= spec.thickness_mm:
             raise ValueError("weld.cap_height_mm must be smaller than specimen.thickness_mm")
         blocks = self.fixture.block_centres_x_mm
+        if self.tjoint is not None:
+            tj = self.tjoint
+            if max(abs(b) for b in blocks) + self.fixture.block_size_mm[0] / 2 > tj.base_length_mm / 2 or \
+                    min(abs(b) for b in blocks) - self.fixture.block_size_mm[0] / 2 < \
+                    tj.stem_thickness_mm / 2 + tj.leg_mm[1] + 2:
+                raise ValueError("fixture.block_centres_x_mm must put the support blocks under the base plate, "
+                                 "clear of the stem and its welds")
+            if self.fixture.block_size_mm[2] < tj.stem_height_mm + 10:
+                raise ValueError("fixture.block_size_mm: the blocks must be taller than the stem (turned over, "
+                                 "it hangs between them)")
+            return self
         if max(abs(b) for b in blocks) + self.fixture.block_size_mm[0] / 2 > spec.length_mm / 2:
             raise ValueError("fixture.block_centres_x_mm put a support block beyond the specimen's ends")
         if self.fixture.block_size_mm[1] >= spec.grip_width_mm:

@@ -9,7 +9,7 @@ from pydantic import Field
 from schemas.common import Pose4x4, StrictModel, Vector3
 
 __all__ = ["TRUTH_SCHEMA_VERSION", "PointLabel", "Material", "TrueSticker", "WeldSection",
-           "TruePass", "GroundTruth", "WeldSectionDetail", "WeldTruth"]
+           "TruePass", "GroundTruth", "WeldSectionDetail", "WeldTruth", "TrueToeLine", "TrueToeLines"]
 
 TRUTH_SCHEMA_VERSION = "1.0"
 
@@ -114,3 +114,21 @@ class WeldTruth(StrictModel):
     axial_misalignment_mm: float
     angular_misalignment_deg: float
     sections: list[WeldSectionDetail]
+
+
+class TrueToeLine(StrictModel):
+    """One weld toe as it was drawn: a polyline along the weld (specimen frame, mm), where the weld's
+    face meets the plate (the middle of the toe's rounding)."""
+
+    name: str
+    weld: str = Field(description="the manifest's weld line the toe belongs to")
+    plate: Literal["base", "stem"]
+    points_mm: list[Vector3] = Field(min_length=2)
+
+
+class TrueToeLines(StrictModel):
+    """``truth/toes.json``: the true toe lines of a simulated fillet-welded part."""
+
+    schema_version: Literal["1.0"] = "1.0"
+    sample_id: str
+    toes: list[TrueToeLine]

@@ -1,6 +1,7 @@
 """Which parts of the specimen's surface a pass sees, as cells of a 2-D grid on each face.
 
-Face parameters: top/bottom (x, y); side walls (x, z); ends (y, z); specimen frame, mm.
+Face parameters: top/bottom and a stem's end (x, y); side walls (x, z); ends and stem faces (y, z);
+specimen frame, mm.
 Used to decide which passes overlap and which stickers a pass sees whole.
 """
 
@@ -18,8 +19,8 @@ _OFFSET = 1 << 19
 def face_params(face: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(a, b) parameters (n, 2) of specimen-frame points (n, 3) on faces (n,)."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    a = np.where(np.isin(face, (Face.END_POS, Face.END_NEG)), y, x)
-    b = np.where(np.isin(face, (Face.TOP, Face.BOTTOM)), y, z)
+    a = np.where(np.isin(face, (Face.END_POS, Face.END_NEG, Face.STEM_NEG, Face.STEM_POS)), y, x)
+    b = np.where(np.isin(face, (Face.TOP, Face.BOTTOM, Face.STEM_TOP)), y, z)
     return np.stack([a, b], axis=1)
 
 

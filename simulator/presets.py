@@ -3,6 +3,10 @@
 - ``ci``: a short coupon, coarse sensor, 14 passes, both setups: seconds; for tests.
 - ``demo``: the paper's specimen and Table I scan plan (32 passes) at a coarser sensor
   resolution: a few million points, well under a minute.
+- ``tjoint``: a T-joint (260 x 120 x 12 mm base, 10 x 60 mm stem, two convex fillet welds), two
+  setups (stem up; turned over, the stem between the support blocks) whose only shared surfaces are
+  the base plate's 12 mm walls: 17 passes, about 2.3 M points.
+- ``tjoint-single``: the same T-joint in one setup (stem up): 10 passes.
 - ``paper``: Table I at full resolution (2048 points per profile at 0.02 mm, 0.1 mm between
   profiles at 15 mm/s): hundreds of millions of points, written pass by pass.
 """
@@ -10,8 +14,8 @@
 from __future__ import annotations
 
 from schemas.simulation import (FixtureConfig, MeshConfig, PlacementConfig, RobotConfig, ScanPlanConfig,
-                                ScannerConfig, SimulationConfig, SpecimenConfig, StickerConfig, WeldConfig,
-                                WidthPass)
+                                ScannerConfig, SimulationConfig, SpecimenConfig, StickerConfig, TJointConfig,
+                                WeldConfig, WidthPass)
 
 __all__ = ["PRESETS", "preset_config", "UnknownPresetError"]
 
@@ -56,7 +60,26 @@ def _ci() -> SimulationConfig:
     )
 
 
-PRESETS = {"ci": _ci, "demo": _demo, "paper": _paper}
+def _tjoint(setups: list[str], sample_id: str, preset: str) -> SimulationConfig:
+    return SimulationConfig(
+        preset=preset, seed=41, sample_id=sample_id,
+        tjoint=TJointConfig(),
+        weld=WeldConfig(treatment="as-welded", toe_radius_mm=(0.5, 2.0), undercut_probability=0.0),
+        stickers=StickerConfig(diameter_mm=5.0, n_fixture=8),
+        fixture=FixtureConfig(plate_size_mm=(420.0, 320.0, 10.0), block_size_mm=(30.0, 60.0, 80.0),
+                              block_centres_x_mm=(-105.0, 105.0)),
+        scanner=ScannerConfig(points_per_profile=256, x_spacing_mm=0.32),
+        robot=RobotConfig(profile_spacing_mm=0.32),
+        plan=ScanPlanConfig(setups=setups, margin_mm=40.0),
+        placement=PlacementConfig(translation_mm=5.0, yaw_deg=2.0),
+        mesh=MeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.1, toe_dx_mm=0.05, wall_rows=13),
+        chunk_profiles=128,
+    )
+
+
+PRESETS = {"ci": _ci, "demo": _demo, "paper": _paper,
+           "tjoint": lambda: _tjoint(["top", "bottom"], "sim-tjoint-0041", "tjoint"),
+           "tjoint-single": lambda: _tjoint(["top"], "sim-tjoint-single-0041", "tjoint-single")}
 
 
 def preset_config(name: str) -> SimulationConfig:

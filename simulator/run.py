@@ -32,7 +32,8 @@ from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, writ
 from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
                               ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
 from schemas.simulation import SimulationConfig
-from schemas.truth import GroundTruth, PointLabel, TruePass, TrueSticker, WeldSection, WeldSectionDetail, WeldTruth
+from schemas.truth import (GroundTruth, PointLabel, TruePass, TrueSticker, TrueToeLines, WeldSection, WeldSectionDetail,
+                           WeldTruth)
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
 from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
@@ -41,9 +42,13 @@ from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
 from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
 from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
+from simulator.tjoint import (build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
+                              tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
 from simulator.transforms import invert
 
-__all__ = ["SimulationSummary", "simulate", "COVERAGE_CELL_MM", "SCAN_DATE"]
+__all__ = ["SimulationSummary", "simulate", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
+
+TOES_NAME = "toes.json"
 
 log = logging.getLogger(__name__)
 
@@ -180,19 +185,33 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
                 pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction,
                 n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
                 has_profile_poses=robot.log_profile_poses, content_sha256=hashes.get(p.pass_id)))
-        description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
-        nominal = nominal_placement(config.fixture, sp.thickness_mm, flipped=(setup == "bottom"))
+        tj = config.tjoint
+        if tj is None:
+            description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
+        else:
+            description = "stem up, the base plate on the support blocks" if setup == "top" else \
+                "turned over by hand about the base plate's length: the stem hangs between the support blocks"
+        thickness, half_width = (sp.thickness_mm, sp.grip_width_mm / 2) if tj is None else \
+            (tj.base_thickness_mm, tj.base_width_mm / 2)
+        nominal = nominal_placement(config.fixture, thickness, flipped=(setup == "bottom"))
         setups.append(Setup(name=setup, description=description, passes=entries,
                             T_world_specimen_nominal=nominal.tolist(),
-                            placement_tolerance_mm=round(placement_tolerance_mm(config.placement, sp.grip_width_mm / 2), 3)))
-    specimen = DogBoneSpecimen(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
-                               gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
-                               transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm)
+                            placement_tolerance_mm=round(placement_tolerance_mm(config.placement, half_width), 3)))
+    if config.tjoint is not None:
+        specimen = tjoint_specimen(config.tjoint)
+        weld = WeldDescription(joint="double fillet", weld_lines=tjoint_weld_lines(config.tjoint),
+                               treatment=config.weld.treatment)
+    else:
+        specimen = DogBoneSpecimen(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
+                                   gauge_width_mm=sp.gauge_width_mm, gauge_length_mm=sp.gauge_length_mm,
+                                   transition_radius_mm=sp.transition_radius_mm, thickness_mm=sp.thickness_mm)
+        # the simulated weld is drawn about x = 0
+        weld = WeldDescription(joint="double-sided butt", weld_lines=dog_bone_weld_lines(specimen, 0.0),
+                               treatment=config.weld.treatment)
     return SampleManifest(
         schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=config.sample_id, created=SCAN_DATE, material="S355",
         specimen=specimen,
-        weld=WeldDescription(joint="double-sided butt", weld_lines=dog_bone_weld_lines(specimen, 0.0),
-                             treatment=config.weld.treatment),  # the simulated weld is drawn about x = 0
+        weld=weld,
         sticker_diameter_mm=config.stickers.diameter_mm,
         scanner=ScannerSettings(model=sc.model, points_per_profile=sc.points_per_profile,
                                 x_spacing_mm=sc.x_spacing_mm, z_resolution_mm=sc.z_resolution_mm,
@@ -234,13 +253,21 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     rng_specimen, rng_place, rng_stickers, rng_fixture = (np.random.default_rng(s) for s in seeds[:4])
 
-    specimen = build_specimen(config.specimen, config.weld, config.mesh, rng_specimen)
+    tj = config.tjoint
+    if tj is None:
+        specimen = build_specimen(config.specimen, config.weld, config.mesh, rng_specimen)
+    else:
+        specimen = build_tjoint(tj, config.weld, config.mesh, rng_specimen)
     fixture_mesh = build_fixture(config.fixture)
     T_world_specimen = {setup: place_on_fixture(specimen, config.fixture, config.placement, rng_place,
                                                 flipped=(setup == "bottom")) for setup in ("top", "bottom")}
-    z_top = config.fixture.block_size_mm[2] + config.specimen.thickness_mm
-    planned = plan_passes(config.plan, config.specimen, config.robot, z_top_mm=z_top,
-                          standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
+    if tj is None:
+        z_top = config.fixture.block_size_mm[2] + config.specimen.thickness_mm
+        planned = plan_passes(config.plan, config.specimen, config.robot, z_top_mm=z_top,
+                              standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
+    else:
+        planned = plan_tjoint_passes(config, z_top_mm=config.fixture.block_size_mm[2] + tj.base_thickness_mm,
+                                     setups=tuple(config.plan.setups))
     pass_seeds = seeds[4].spawn(len(planned))
     motions, render_rngs = [], []
     for p, s in zip(planned, pass_seeds):
@@ -253,7 +280,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     planning_scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, _empty_stickers(radius),
                                 _empty_stickers(radius)) for s in config.plan.setups}
     coverage = _planning_coverage(config, planned, motions, planning_scenes)
-    candidates = sticker_candidates(specimen, config)
+    candidates = sticker_candidates(specimen, config) if tj is None else tjoint_sticker_candidates(specimen, config)
     # Plan for more pairs than the final check will call overlapping: the coarse planning
     # renders see a little less than the real passes.
     pairs = _overlapping_pairs(coverage, candidates, config)
@@ -261,9 +288,16 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     for index, p in enumerate(planned):
         if index not in paired:
             log.warning("pass %s overlaps no other pass with room for stickers: it cannot be registered", p.pass_id)
+    first: tuple[int, ...] = ()
+    if tj is not None and tj.wall_stickers:
+        seen = coverage.disc_masks(candidates.faces, candidates.params(), radius + PLANNING_MARGIN_MM)
+        first = wall_sticker_picks(candidates, seen, specimen, rng_stickers)
     specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
-                                       margin_mm=PLANNING_MARGIN_MM)
-    fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
+                                       margin_mm=PLANNING_MARGIN_MM, first=first)
+    if tj is None:
+        fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
+    else:
+        fixture_stickers = place_tjoint_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
     say(f"stickers placed: {len(specimen_stickers.ids)} on the specimen, {len(fixture_stickers.ids)} on the "
         f"fixture; {len(pairs)} overlapping pass pairs")
     scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, specimen_stickers, fixture_stickers)
@@ -340,16 +374,22 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
             sample_id=config.sample_id, seed=config.seed, preset=config.preset,
             T_world_specimen={s: T_world_specimen[s].tolist() for s in config.plan.setups},
             stickers=_true_stickers(specimen_stickers, fixture_stickers, config.stickers.diameter_mm),
-            weld_sections=_weld_sections(specimen),
-            misalignment={"axial_mm": specimen.axial_misalignment_mm,
-                          "angular_deg": specimen.angular_misalignment_deg},
+            weld_sections=_weld_sections(specimen) if tj is None else [],
+            misalignment={} if tj is not None else {"axial_mm": specimen.axial_misalignment_mm,
+                                                    "angular_deg": specimen.angular_misalignment_deg},
             passes=true_passes,
             overlapping_pairs=[(planned[i].pass_id, planned[j].pass_id) for i, j in final_pairs],
             common_stickers=common,
         )
         write_truth(tmp / TRUTH_DIR / "truth.json", truth)
-        write_weld_truth(tmp / TRUTH_DIR / WELD_TRUTH_NAME, _weld_truth(specimen, config.weld.treatment))
-        atomic_write_text(tmp / TRUTH_DIR / "simulation.json", config.model_dump_json(indent=2) + "\n")
+        if tj is None:  # the drawn butt weld, section by section
+            write_weld_truth(tmp / TRUTH_DIR / WELD_TRUTH_NAME, _weld_truth(specimen, config.weld.treatment))
+        else:  # the true toe lines
+            atomic_write_text(tmp / TRUTH_DIR / TOES_NAME, TrueToeLines(
+                sample_id=config.sample_id, toes=specimen.toes).model_dump_json(indent=1) + "\n")
+        # a dog-bone's config is written as before T-joints existed (no "tjoint": null)
+        atomic_write_text(tmp / TRUTH_DIR / "simulation.json",
+                          config.model_dump_json(indent=2, exclude={"tjoint"} if tj is None else None) + "\n")
         _write_mesh(tmp / TRUTH_DIR / "specimen.ply", specimen.mesh)
         _write_mesh(tmp / TRUTH_DIR / "fixture.ply", fixture_mesh)
         if previews:

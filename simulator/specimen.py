@@ -21,7 +21,9 @@ __all__ = ["Face", "SurfaceMesh", "Specimen", "build_specimen"]
 
 class Face:
     TOP, BOTTOM, SIDE_NEG, SIDE_POS, END_POS, END_NEG, FIXTURE = range(7)
-    NAMES = ("top", "bottom", "side_neg", "side_pos", "end_pos", "end_neg", "fixture")
+    STEM_NEG, STEM_POS, STEM_TOP, WELD = range(7, 11)  # a T-joint's stem (faces x < 0, x > 0, its end), its welds
+    NAMES = ("top", "bottom", "side_neg", "side_pos", "end_pos", "end_neg", "fixture",
+             "stem_neg", "stem_pos", "stem_top", "weld")
 
 
 @dataclass(frozen=True)

@@ -83,10 +83,12 @@ def _bits(mask: np.uint64) -> set[int]:
 
 
 def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tuple[int, int]],
-                   cfg: SimulationConfig, rng: np.random.Generator, *, margin_mm: float = 0.0) -> StickerSet:
+                   cfg: SimulationConfig, rng: np.random.Generator, *, margin_mm: float = 0.0,
+                   first: tuple[int, ...] = ()) -> StickerSet:
     """Greedy semi-random placement on the specimen (specimen frame). A pass counts as seeing a
     candidate when it sees the disc grown by ``margin_mm`` whole; the common stickers of a pair
-    must lie ``min_spread_mm + 2 * margin_mm`` off their best line."""
+    must lie ``min_spread_mm + 2 * margin_mm`` off their best line. ``first``: candidates placed
+    before any (a T-joint's wall stickers)."""
     sc = cfg.stickers
     r = sc.diameter_mm / 2
     masks = coverage.disc_masks(candidates.faces, candidates.params(), r + margin_mm)
@@ -103,6 +105,8 @@ def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tu
         both = (np.uint64(1) << np.uint64(pair[0])) | (np.uint64(1) << np.uint64(pair[1]))
         return int(np.count_nonzero((masks & both) == both))
 
+    for k in first:
+        add(int(k))
     # The pairs with the least room choose first; random extra stickers come last.
     pairs = sorted(pairs, key=room)
     for _ in range(4):

@@ -39,7 +39,7 @@ from tasks.checks import check_points
 from tasks.segment import keep_specimen_components
 
 __all__ = ["FixturePlane", "PartNotFound", "SingleSetupResult", "Underside", "find_fixture_plane",
-           "keep_part_single_setup", "fill_underside", "principal_extents_mm"]
+           "keep_part_single_setup", "fill_underside", "principal_extents_mm", "inside_drawing_box"]
 
 
 class PartNotFound(ValueError):
@@ -139,6 +139,20 @@ def _principal_extents(points: np.ndarray) -> np.ndarray:
     return np.sort(along.max(axis=0) - along.min(axis=0))[::-1]
 
 
+def inside_drawing_box(points_mm: np.ndarray, *, T_frame_part, part_bounds_mm: tuple, grow_lo_mm,
+                       grow_hi_mm) -> np.ndarray:
+    """(n,) bool: the points (n, 3) mm inside the part's drawing box ``part_bounds_mm`` ((x0, y0, z0),
+    (x1, y1, z1)) mm, specimen frame, placed by ``T_frame_part`` (4, 4) into the points' frame and
+    grown by ``grow_lo_mm`` (3,) below its min corner and ``grow_hi_mm`` (3,) beyond its max corner."""
+    points = check_points("points_mm", points_mm)
+    T = np.asarray(T_frame_part, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f"T_frame_part must be a finite (4, 4) pose, got shape {T.shape}")
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in part_bounds_mm)
+    local = (points - T[:3, 3]) @ T[:3, :3]
+    return np.all((local >= lo - np.asarray(grow_lo_mm, float)) & (local <= hi + np.asarray(grow_hi_mm, float)), axis=1)
+
+
 def keep_part_single_setup(points_mm: np.ndarray, normals: np.ndarray, *, up, link_mm: float,
                            part_bounds_mm: tuple, T_frame_part: np.ndarray | None = None,
                            placement_tolerance_mm: float = 0.0, box_margin_mm: float = 2.0,
@@ -172,7 +186,6 @@ def keep_part_single_setup(points_mm: np.ndarray, normals: np.ndarray, *, up, li
     outside = 0
     if T_frame_part is not None:
         T = np.asarray(T_frame_part, dtype=np.float64)
-        local = (points - T[:3, 3]) @ T[:3, :3]
         grow_lo = np.full(3, placement_tolerance_mm + box_margin_mm)
         grow_hi = grow_lo.copy()
         # the part rests on the fixture: the face toward it is where the fixture puts it, whatever
@@ -180,7 +193,8 @@ def keep_part_single_setup(points_mm: np.ndarray, normals: np.ndarray, *, up, li
         up_part = T[:3, :3].T @ up
         k = int(np.argmax(np.abs(up_part)))
         (grow_lo if up_part[k] > 0 else grow_hi)[k] = plane_clearance_mm
-        inside = np.all((local >= lo - grow_lo) & (local <= hi + grow_hi), axis=1)
+        inside = inside_drawing_box(points, T_frame_part=T, part_bounds_mm=(lo, hi), grow_lo_mm=grow_lo,
+                                    grow_hi_mm=grow_hi)
         outside = int(np.count_nonzero(candidate & ~inside))
         candidate &= inside
     where = f"plane {'none found' if plane is None else f'{plane.offset_mm:.2f} mm along up'}"

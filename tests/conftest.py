@@ -42,6 +42,50 @@ def _reconstructed(sample: Path, out: Path):
     return out, reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest")
 
 
+def tjoint_test_config(*, wall_stickers: bool = True):
+    """The ``tjoint`` preset (two setups), or without the base plate's wall stickers."""
+    config = preset_config("tjoint")
+    if wall_stickers:
+        return config
+    return config.model_copy(update={"sample_id": "sim-tjoint-no-walls",
+                                     "tjoint": config.tjoint.model_copy(update={"wall_stickers": False})})
+
+
+# the T-joint's top setup: what the tjoint-single preset scans
+TJOINT_TOP = ["top-Y01", "top-Y02", "top-Y03", "top-Y04", "top-Y05", "top-Y06", "top-Y07", "top-Y08", "top-X01",
+              "top-X02"]
+
+
+@pytest.fixture(scope="session")
+def tjoint_sample(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("tjoint") / "sample"
+    simulate(tjoint_test_config(), out, previews=False)
+    return out
+
+
+@pytest.fixture(scope="session")
+def tjoint_run(tjoint_sample, tmp_path_factory):
+    """The T-joint, both setups, reconstructed once with the ci settings: (run folder, report)."""
+    return _reconstructed(tjoint_sample, tmp_path_factory.mktemp("recon-tjoint") / "run")
+
+
+@pytest.fixture(scope="session")
+def tjoint_single_sample(tjoint_sample, tmp_path_factory) -> Path:
+    """The T-joint's top setup alone (the tjoint-single preset's passes), truth included."""
+    import shutil
+
+    from tests.flows.samples import copy_sample
+
+    sample = copy_sample(tjoint_sample, tmp_path_factory.mktemp("tjoint-single") / "sample", TJOINT_TOP)
+    shutil.copytree(tjoint_sample / "truth", sample / "truth")
+    return sample
+
+
+@pytest.fixture(scope="session")
+def tjoint_single_run(tjoint_single_sample, tmp_path_factory):
+    return _reconstructed(tjoint_single_sample, tmp_path_factory.mktemp("recon-tjoint-single") / "run")
+
+
 @pytest.fixture(scope="session")
 def ci_run(ci_sample, tmp_path_factory):
     """The ``ci`` sample reconstructed once: (run folder, report)."""

@@ -2,7 +2,11 @@
 
 Two or more setups: the connected components that carry the specimen's targets (the stickers seen
 in more than one setup: the part moved, the fixture did not). Components come from the occupied
-cells of a grid (``tasks.segment``): memory follows the merged points, not pairs of them.
+cells of a grid (``tasks.segment``): memory follows the merged points, not pairs of them. Where the
+first setup states the part's nominal placement, only the points inside the part's drawing box
+placed there (grown by the setup's placement tolerance and 2 mm) take part: supports that touch
+the part (a T-joint's blocks, under its base plate in one setup and beside its stem in the other)
+are not linked to it.
 
 One setup (the part never turned): the fixture's plane, the part's drawing where the setup puts
 it, and one body of the part's size (``tasks.single_setup``); a body that is not of the part's size
@@ -19,25 +23,39 @@ from flows.stages.contracts import zarr_array
 from flows.stages.outputs import MERGED, REFINED, SPECIMEN
 from schemas.manifest import SampleManifest
 from tasks.segment import keep_specimen_components
-from tasks.single_setup import Underside, fill_underside, keep_part_single_setup, principal_extents_mm
+from tasks.single_setup import (Underside, fill_underside, inside_drawing_box, keep_part_single_setup,
+                                principal_extents_mm)
 
 __all__ = ["segment", "segment_view"]
 
 _ROWS = 1 << 20  # merged points per block written
+_BOX_MARGIN_MM = 2.0  # the drawing box grown beyond the placement tolerance
 
 
 def segment_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
     """What the segment reads of the manifest: the passes (in order), the part's drawing box, and
-    for a single setup the setup's nominal placement and tolerance."""
+    the first setup's nominal placement and tolerance (one setup: ``single_setup``; more:
+    ``first_setup``, the drawing box's placement)."""
     view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()],
                             "bounds_mm": None if manifest.specimen is None else [list(b) for b in manifest.specimen.bounds_mm()]}
     if manifest.surfaces:
         view["registration"] = manifest.registration
-    elif len(manifest.setups) == 1:
+    else:
         setup = manifest.setups[0]
-        view["single_setup"] = {"T_world_specimen_nominal": setup.T_world_specimen_nominal,
-                                "placement_tolerance_mm": setup.placement_tolerance_mm}
+        placement = {"T_world_specimen_nominal": setup.T_world_specimen_nominal,
+                     "placement_tolerance_mm": setup.placement_tolerance_mm}
+        view["single_setup" if len(manifest.setups) == 1 else "first_setup"] = placement
     return view
+
+
+def _first_setup_part(ctx, T_common_pass: np.ndarray) -> np.ndarray | None:
+    """The part's nominal placement in the common frame (the first setup's robot frame through its
+    first pass's pose), or None where the first setup states none."""
+    setup = ctx.manifest.setups[0]
+    if setup.T_world_specimen_nominal is None:
+        return None
+    first = [e.pass_id for _, e in ctx.manifest.passes()].index(setup.passes[0].pass_id)
+    return np.asarray(T_common_pass[first]) @ np.asarray(setup.T_world_specimen_nominal)
 
 
 def _single_setup(ctx, T_common_pass: np.ndarray, points: np.ndarray,
@@ -104,9 +122,18 @@ def segment(ctx) -> dict[str, Any]:
         metrics = {"method": "surfaces sample (imported scans): every merged point kept, no fixture to remove",
                    "components": None, "kept_components": None}
     elif len(anchors):
-        result = keep_specimen_components(all_points, link_mm=ctx.settings.link_mm, target_points_mm=anchors)
-        keep = result.keep
+        T_part = _first_setup_part(ctx, reg.T_common_pass)
+        boxed = np.ones(len(all_points), bool)
+        if T_part is not None:
+            grow = np.full(3, ctx.manifest.setups[0].placement_tolerance_mm + _BOX_MARGIN_MM)
+            boxed = inside_drawing_box(all_points, T_frame_part=T_part, part_bounds_mm=ctx.manifest.specimen.bounds_mm(),
+                                       grow_lo_mm=grow, grow_hi_mm=grow)
+        rows = np.flatnonzero(boxed)
+        result = keep_specimen_components(all_points[rows], link_mm=ctx.settings.link_mm, target_points_mm=anchors)
+        keep = np.zeros(len(all_points), bool)
+        keep[rows[result.keep]] = True
         metrics = {"method": "components holding the targets seen in more than one setup",
+                   "points_outside_drawing_box": int(len(all_points) - len(rows)),
                    "components": int(result.n_components), "kept_components": int(len(result.kept_labels)),
                    **_one_body_of_the_parts_size(ctx, all_points[keep])}
     elif len(ctx.manifest.setups) == 1:

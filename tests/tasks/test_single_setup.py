@@ -169,3 +169,19 @@ def test_two_setups_matched_wrongly_make_a_body_larger_than_the_part_and_are_ref
     with pytest.raises(ValueError, match=r"the part kept is 160\.0 x 85\.0 mm along its two longest axes, its drawing "
                                          r"160\.0 x 40\.0 mm .*not registered as one body"):
         _one_body_of_the_parts_size(ctx, twice)
+
+
+def test_inside_drawing_box_places_and_grows_the_box():
+    from tasks.single_setup import inside_drawing_box
+
+    T = np.eye(4)
+    T[:3, 3] = (100.0, 0.0, 50.0)
+    T[:3, :3] = np.diag([1.0, -1.0, -1.0])  # turned over
+    box = ((-10.0, -5.0, -2.0), (10.0, 5.0, 2.0))
+    points = np.array([[100.0, 0.0, 50.0], [110.5, 0.0, 50.0], [100.0, 0.0, 47.5], [100.0, 0.0, 52.5]])
+    inside = inside_drawing_box(points, T_frame_part=T, part_bounds_mm=box, grow_lo_mm=np.zeros(3),
+                                grow_hi_mm=(1.0, 0.0, 1.0))
+    # x grown by 1 beyond the max; z = 47.5 is local +2.5 (turned over): grown by 1 beyond the max
+    assert inside.tolist() == [True, True, True, False]
+    with pytest.raises(ValueError, match=r"T_frame_part must be a finite \(4, 4\) pose"):
+        inside_drawing_box(points, T_frame_part=np.eye(3), part_bounds_mm=box, grow_lo_mm=0, grow_hi_mm=0)

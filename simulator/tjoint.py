@@ -1,0 +1,376 @@
+"""A T-joint: a stem plate welded upright across a base plate by two convex fillet welds.
+
+Specimen frame (the manifest's ``TJointSpecimen``): origin at the base plate's centre
+(mid-thickness), x across the stem, y along the stem and its welds, z toward the stem. The part
+is one cross-section outline in x-z swept along y (the welds' legs, convexity, toe radii and
+ripples vary along y as the butt cap's do: ``simulator.weld``), closed at y = +-width/2 by two
+planar end faces; the base plate's four 12 mm walls are the only surfaces that the two setups
+(stem up; turned over, the stem hanging between the support blocks) both see.
+
+Fillet weld profile (the weld on the x > 0 side; the other mirrored): legs ``a`` along the base
+and ``b`` up the stem from the corner (x0, z0) = (stem_thickness/2, base_thickness/2); the face
+runs from the base toe B = (x0 + a, z0) to the stem toe S = (x0, z0 + b), risen above the chord
+B-S by ``h (1 - |2s - 1|^p)`` plus ripples; each toe is rounded by a circle of the toe radius
+tangent to the plate and to the weld face. The true toe lines (``truth/toes.json``) are the
+middles of those roundings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from schemas.manifest import TJointSpecimen, WeldLine
+from schemas.simulation import MeshConfig, SimulationConfig, TJointConfig, WeldConfig
+from schemas.truth import TrueToeLine
+from simulator.robot import PlannedPass, _sensor_frame
+from simulator.scene import StickerSet
+from simulator.specimen import Face, SurfaceMesh
+from simulator.stickers import Candidates
+from simulator.weld import _smooth
+
+__all__ = ["TJoint", "build_tjoint", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes",
+           "tjoint_sticker_candidates", "wall_sticker_picks", "place_tjoint_fixture_stickers"]
+
+_N_ARC = 8  # interior nodes of each toe's rounding
+
+
+@dataclass(frozen=True)
+class _Fillet:
+    """One fillet weld's drawn parameters, functions of y (mm)."""
+
+    leg_base: object
+    leg_stem: object
+    convexity: object
+    toe_radius_base: object
+    toe_radius_stem: object
+    ripple_amplitude_mm: float
+    ripple_wavelength_mm: float
+    ripple_phase: float
+
+
+@dataclass(frozen=True)
+class TJoint:
+    config: TJointConfig
+    mesh: SurfaceMesh
+    toes: list[TrueToeLine]
+
+    def weld_zone_half_mm(self) -> float:
+        return float(self.config.leg_mm[1]) + 1.5
+
+
+def _draw_fillet(tj: TJointConfig, weld: WeldConfig, rng: np.random.Generator) -> _Fillet:
+    half = tj.base_width_mm / 2
+    ys = np.linspace(-half, half, max(4, int(np.ceil(2 * half / weld.variation_length_mm)) + 1))
+    return _Fillet(leg_base=_smooth(rng, ys, *tj.leg_mm), leg_stem=_smooth(rng, ys, *tj.leg_mm),
+                   convexity=_smooth(rng, ys, *tj.convexity_mm),
+                   toe_radius_base=_smooth(rng, ys, *weld.toe_radius_mm),
+                   toe_radius_stem=_smooth(rng, ys, *weld.toe_radius_mm),
+                   ripple_amplitude_mm=float(rng.uniform(*weld.ripple_amplitude_mm)),
+                   ripple_wavelength_mm=float(rng.uniform(*weld.ripple_wavelength_mm)),
+                   ripple_phase=float(rng.uniform(0, 2 * np.pi)))
+
+
+def _graded(length: float, fine: float, coarse: float) -> np.ndarray:
+    """Fractions in [0, 1) of nodes along a segment of ``length``, ``fine`` apart at its start,
+    growing away from it to ``coarse``."""
+    pos = [0.0]
+    while pos[-1] < length:
+        pos.append(pos[-1] + min(coarse, fine + 0.2 * pos[-1]))
+    pos = np.array(pos[:-1])
+    return pos / length
+
+
+def _both_ends(fine: float, coarse: float, length: float) -> np.ndarray:
+    """Fractions in [0, 1] (both ends included), fine at both ends."""
+    half = _graded(length / 2, fine, coarse) * 0.5
+    return np.concatenate([half, [0.5], 1 - half[::-1]])
+
+
+def _arc(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Round the corner (2,) where a path heading ``e1`` turns to ``e2`` (unit) by a circle of
+    radius ``r`` tangent to both: (its start on the e1 line, interior points (_N_ARC, 2), its middle)."""
+    turn = float(np.arccos(np.clip(e1 @ e2, -1, 1)))
+    d = r * np.tan(turn / 2)
+    start = corner - d * e1
+    cross = e1[0] * e2[1] - e1[1] * e2[0]
+    normal = np.sign(cross) * np.array([-e1[1], e1[0]])
+    centre = start + r * normal
+    a0 = np.arctan2(*(start - centre)[::-1])
+    end = corner + d * e2
+    a1 = np.arctan2(*(end - centre)[::-1])
+    sweep = (a1 - a0 + np.pi) % (2 * np.pi) - np.pi
+    t = a0 + sweep * (np.arange(1, _N_ARC + 1) / (_N_ARC + 1))
+    pts = centre + r * np.stack([np.cos(t), np.sin(t)], 1)
+    mid = centre + r * np.array([np.cos(a0 + sweep / 2), np.sin(a0 + sweep / 2)])
+    return start, pts, mid
+
+
+def _half_outline(tj: TJointConfig, f: _Fillet, y: float, fr: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int],
+                                                                                                 np.ndarray, np.ndarray]:
+    """The x > 0 half of the outline at station y, from (L/2, z0) to the last stem node below
+    the stem's end: nodes (k, 2) in (x, z), each node's following edge's face, and the two toe
+    points (base, stem)."""
+    x0, z0 = tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
+    top = z0 + tj.stem_height_mm
+    ya = np.array([y])
+    a, b = float(f.leg_base(ya)[0]), float(f.leg_stem(ya)[0])
+    h, p = float(f.convexity(ya)[0]), tj.shape_exponent
+    r_base, r_stem = float(f.toe_radius_base(ya)[0]), float(f.toe_radius_stem(ya)[0])
+    B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
+    chord = S - B
+    length = float(np.linalg.norm(chord))
+    n = np.array([b, a]) / length
+
+    def face(s: np.ndarray) -> np.ndarray:
+        w = np.abs(2 * s - 1)
+        u = (s - 0.5) * length
+        phase = 2 * np.pi * (y + 0.15 * u**2) / f.ripple_wavelength_mm + f.ripple_phase
+        rise = h * (1 - w**p) + f.ripple_amplitude_mm * (1 - w**2) * np.cos(phase)
+        return B + s[:, None] * chord + rise[:, None] * n
+
+    tangent_b = chord + 2 * h * p * n
+    tangent_s = chord - 2 * h * p * n
+    e_b = tangent_b / np.linalg.norm(tangent_b)
+    e_s = tangent_s / np.linalg.norm(tangent_s)
+    start_b, arc_b, toe_b = _arc(B, np.array([-1.0, 0.0]), e_b, r_base)
+    start_s, arc_s, toe_s = _arc(S, e_s, np.array([0.0, 1.0]), r_stem)
+    d_b = float(np.linalg.norm(B - start_b))
+    d_s = float(np.linalg.norm(start_s - S))
+    s0 = d_b / float(np.linalg.norm(tangent_b))
+    s1 = 1 - d_s / float(np.linalg.norm(tangent_s))
+    weld = face(s0 + (s1 - s0) * fr["weld"])
+    stem_start = S[1] + d_s
+    base_x = tj.base_length_mm / 2 - (tj.base_length_mm / 2 - start_b[0]) * fr["base"]
+    base = np.stack([base_x, np.full_like(base_x, z0)], 1)
+    stem_z = stem_start + (top - stem_start) * fr["stem"]
+    stem = np.stack([np.full_like(stem_z, x0), stem_z], 1)
+    nodes = np.concatenate([base, [start_b], arc_b, weld, arc_s, stem])
+    faces = ([Face.TOP] * len(base) + [Face.WELD] * (1 + len(arc_b) + len(weld) + len(arc_s))
+             + [Face.STEM_POS] * len(stem))
+    return nodes, faces, toe_b, toe_s
+
+
+def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: MeshConfig, rng: np.random.Generator) -> TJoint:
+    """Draw both fillet welds and mesh the closed T-joint surface."""
+    fillets = {+1: _draw_fillet(tj, weld, rng), -1: _draw_fillet(tj, weld, rng)}
+    L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm
+    x0, z0 = tj.stem_thickness_mm / 2, t / 2
+    top = z0 + tj.stem_height_mm
+    leg = float(np.mean(tj.leg_mm))
+    fr = {"weld": _both_ends(mesh_cfg.toe_dx_mm, mesh_cfg.weld_dx_mm, leg * np.sqrt(2)),
+          "stem": _graded(tj.stem_height_mm - leg, mesh_cfg.toe_dx_mm, mesh_cfg.plate_dx_mm)}
+    # the base plate's face from its far end (0) toward the toe (1, left out), fine at the toe
+    fr["base"] = np.concatenate([[0.0], np.sort(1 - _graded(L / 2 - x0 - leg, mesh_cfg.toe_dx_mm,
+                                                            mesh_cfg.plate_dx_mm)[1:])])
+    n_bottom = max(2, int(np.ceil(L / mesh_cfg.plate_dx_mm)))
+    bottom_x = -L / 2 + L * (np.arange(n_bottom) + 0.0) / n_bottom
+    rows = mesh_cfg.wall_rows
+    wall_z = -z0 + t * np.arange(rows - 1) / (rows - 1)  # from the bottom up, the top corner left out
+    n_top = max(2, int(np.ceil(tj.stem_thickness_mm / mesh_cfg.plate_dx_mm)))
+    top_x = x0 - 2 * x0 * np.arange(n_top + 1) / n_top  # both corners
+    ys = np.linspace(-W / 2, W / 2, max(3, int(np.ceil(W / tj.along_weld_dx_mm)) + 1))
+    outlines, toes = [], {(s, k): [] for s in (1, -1) for k in ("base", "stem")}
+    faces = None
+    for y in ys:
+        right, f_right, tb, ts = _half_outline(tj, fillets[+1], float(y), fr)
+        left, f_left, lb, ls = _half_outline(tj, fillets[-1], float(y), fr)
+        left = left[::-1] * np.array([-1.0, 1.0])
+        f_left = [Face.STEM_NEG if f == Face.STEM_POS else f for f in f_left[::-1]]
+        # each node's following edge: the reversed left half's edges run from node k to k + 1
+        f_left = f_left[1:] + [Face.END_NEG]
+        poly = np.concatenate([np.stack([bottom_x, np.full(n_bottom, -z0)], 1),
+                               np.stack([np.full(rows - 1, L / 2), wall_z], 1), right,
+                               np.stack([top_x, np.full(n_top + 1, top)], 1), left,
+                               np.stack([np.full(rows - 2, -L / 2), -wall_z[1:]], 1)])
+        if faces is None:
+            faces = np.array([Face.BOTTOM] * n_bottom + [Face.END_POS] * (rows - 1) + f_right
+                             + [Face.STEM_TOP] * n_top + [Face.STEM_NEG] + f_left + [Face.END_NEG] * (rows - 2),
+                             np.uint8)
+        outlines.append(poly)
+        for s, tb_, ts_ in ((1, tb, ts), (-1, lb * np.array([-1.0, 1.0]), ls * np.array([-1.0, 1.0]))):
+            toes[(s, "base")].append((tb_[0], y, tb_[1]))
+            toes[(s, "stem")].append((ts_[0], y, ts_[1]))
+    outline = np.stack(outlines)  # (ny, k, 2)
+    ny, k, _ = outline.shape
+    angle = np.unwrap(np.arctan2(outline[0, :, 1], outline[0, :, 0]))
+    if not np.all(np.diff(angle) > 0) and not np.all(np.diff(angle) < 0):
+        raise ValueError("T-joint outline is not star-shaped about the base plate's centre: the end faces "
+                         "cannot be closed (legs too long for the plates?)")
+    vertices = np.stack([outline[..., 0], np.repeat(ys[:, None], k, 1), outline[..., 1]], -1).reshape(-1, 3)
+    j, i = np.meshgrid(np.arange(ny - 1), np.arange(k), indexing="ij")
+    a, b = j * k + i, j * k + (i + 1) % k
+    c, d = (j + 1) * k + (i + 1) % k, (j + 1) * k + i
+    sweep = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    sweep_face = np.concatenate([np.tile(faces, ny - 1), np.tile(faces, ny - 1)])
+    centres = np.array([[0.0, -W / 2, 0.0], [0.0, W / 2, 0.0]])
+    c0, c1 = len(vertices), len(vertices) + 1
+    ring = np.arange(k)
+    cap0 = np.stack([np.full(k, c0), ring, (ring + 1) % k], 1)
+    cap1 = np.stack([np.full(k, c1), (ny - 1) * k + (ring + 1) % k, (ny - 1) * k + ring], 1)
+    vertices = np.concatenate([vertices, centres])
+    triangles = np.concatenate([sweep, cap0, cap1]).astype(np.int32)
+    face_id = np.concatenate([sweep_face, np.full(k, Face.SIDE_NEG), np.full(k, Face.SIDE_POS)]).astype(np.uint8)
+    mesh = SurfaceMesh(vertices=vertices, triangles=triangles, face_id=face_id,
+                       reflective=np.zeros(len(triangles), bool))
+    if mesh.signed_volume_mm3() < 0:
+        mesh = SurfaceMesh(vertices=vertices, triangles=triangles[:, ::-1].copy(), face_id=face_id,
+                           reflective=mesh.reflective)
+    names = {1: "fillet-pos", -1: "fillet-neg"}
+    toe_lines = [TrueToeLine(name=f"{names[s]}-{plate}-toe", weld=names[s], plate=plate,
+                             points_mm=[tuple(float(v) for v in p) for p in toes[(s, plate)]])
+                 for s in (-1, 1) for plate in ("base", "stem")]
+    return TJoint(config=tj, mesh=mesh, toes=toe_lines)
+
+
+def tjoint_specimen(tj: TJointConfig) -> TJointSpecimen:
+    return TJointSpecimen(kind="t-joint", base_length_mm=tj.base_length_mm, base_width_mm=tj.base_width_mm,
+                          base_thickness_mm=tj.base_thickness_mm, stem_height_mm=tj.stem_height_mm,
+                          stem_thickness_mm=tj.stem_thickness_mm, stem_x_mm=0.0)
+
+
+def tjoint_weld_lines(tj: TJointConfig) -> list[WeldLine]:
+    """The two fillets' roots: the stem's faces on the base plate, across the whole width."""
+    y, x0, z0 = tj.base_width_mm / 2, tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
+    return [WeldLine(name=name, label=f"fillet weld root, x {side} side",
+                     points_mm=[(sign * x0, -y, z0), (sign * x0, y, z0)])
+            for name, side, sign in (("fillet-neg", "< 0", -1.0), ("fillet-pos", "> 0", 1.0))]
+
+
+def plan_tjoint_passes(cfg: SimulationConfig, *, z_top_mm: float, setups: tuple[str, ...]) -> list[PlannedPass]:
+    """The robot program, relative to the nominal placement (the base plate's upward face at
+    ``z_top_mm``, centred at the origin). Stem up ("top"): four passes along the welds over the
+    base plate (the outer two rolled outward onto its ends), two along each weld rolled toward it
+    (``fillet_rolls_deg``: both toes), one along each long wall. Turned over ("bottom"): four along
+    y over the underside, one along x down its middle, one along each long wall."""
+    tj, robot, plan = cfg.tjoint, cfg.robot, cfg.plan
+    standoff = cfg.scanner.reference_distance_mm
+    rate = robot.profile_rate_hz()
+    L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm
+    x0 = tj.stem_thickness_mm / 2
+    leg = float(np.mean(tj.leg_mm))
+    m = plan.margin_mm
+    along_y, along_x = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    passes: list[PlannedPass] = []
+
+    def view(dx: float, dy: float) -> np.ndarray:  # tilted dx deg about y (toward +x), dy deg about x (toward +y)
+        v = np.array([np.sin(np.radians(dx)), np.sin(np.radians(dy)), -np.cos(np.radians(dx)) * np.cos(np.radians(dy))])
+        return v / np.linalg.norm(v)
+
+    def add(setup: str, label: str, x: float, z: float, v: np.ndarray) -> None:
+        count = sum(1 for p in passes if p.setup == setup and p.direction.startswith("along-weld")) + 1
+        aim = np.array([x, -W / 2 - m, z])
+        passes.append(PlannedPass(f"{setup}-Y{count:02d}", setup, label, _sensor_frame(along_y, v, aim, standoff),
+                                  along_y, W + 2 * m, robot.speed_mm_s, rate))
+
+    def add_x(setup: str, label: str, y: float, z: float, v: np.ndarray) -> None:
+        count = sum(1 for p in passes if p.setup == setup and p.direction.startswith("along-base")) + 1
+        aim = np.array([-L / 2 - m, y, z])
+        passes.append(PlannedPass(f"{setup}-X{count:02d}", setup, label, _sensor_frame(along_x, v, aim, standoff),
+                                  along_x, L + 2 * m, robot.speed_mm_s, rate))
+
+    br, wr = tj.base_roll_deg, tj.wall_roll_deg
+    for setup in setups:
+        if setup == "top":
+            add(setup, f"along-weld, base, rolled {br:g} out", -0.365 * L, z_top_mm, view(br, 0))
+            add(setup, "along-weld, base", -0.17 * L, z_top_mm, view(0, 15))
+            add(setup, "along-weld, base", 0.17 * L, z_top_mm, view(0, -15))
+            add(setup, f"along-weld, base, rolled {br:g} out", 0.365 * L, z_top_mm, view(-br, 0))
+            for side in (-1.0, 1.0):
+                for roll in tj.fillet_rolls_deg:
+                    reach = leg / 2 if roll < 55 else leg / 4
+                    rise = leg / 2 if roll < 55 else leg * 1.5
+                    add(setup, f"along-weld, fillet, rolled {roll:g}", side * (x0 + reach), z_top_mm + rise,
+                        view(-side * roll, 0))
+        else:
+            add(setup, f"along-weld, base, rolled {br:g} out", -0.365 * L, z_top_mm, view(br, 0))
+            add(setup, "along-weld, base", -0.115 * L, z_top_mm, view(0, 15))
+            add(setup, "along-weld, base", 0.115 * L, z_top_mm, view(0, -15))
+            add(setup, f"along-weld, base, rolled {br:g} out", 0.365 * L, z_top_mm, view(-br, 0))
+            add_x(setup, "along-base, middle", 0.0, z_top_mm, view(15, 0))
+        add_x(setup, f"along-base, wall, rolled {wr:g}", -W / 2, z_top_mm - t / 2, view(0, wr))
+        add_x(setup, f"along-base, wall, rolled {wr:g}", W / 2, z_top_mm - t / 2, view(0, -wr))
+    return passes
+
+
+def _grid(lo: float, hi: float, step: float) -> np.ndarray:
+    return np.arange(lo, hi + 1e-9, step) if hi > lo else np.zeros(0)
+
+
+def tjoint_sticker_candidates(part: TJoint, cfg: SimulationConfig, step_mm: float = 1.0) -> Candidates:
+    """Where a sticker may go: the base plate's faces clear of the welds, the stem's faces above
+    them, and (``wall_stickers``) the base plate's four walls; clear of every edge."""
+    tj, sc = part.config, cfg.stickers
+    r, clear = sc.diameter_mm / 2, sc.edge_clearance_mm
+    L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm
+    x0, z0 = tj.stem_thickness_mm / 2, t / 2
+    weld = part.weld_zone_half_mm() + sc.weld_clearance_mm + r
+    ys = _grid(-W / 2 + r + clear, W / 2 - r - clear, step_mm)
+    xs = _grid(-L / 2 + r + clear, L / 2 - r - clear, step_mm)
+    xs_top = xs[np.abs(xs) > x0 + weld]
+    zs_stem = _grid(z0 + weld, z0 + tj.stem_height_mm - r - clear, step_mm)
+    zs_wall = _grid(-z0 + r + clear, z0 - r - clear, step_mm)
+    if zs_wall.size == 0 and r + clear <= z0:
+        zs_wall = np.zeros(1)
+    blocks = []
+
+    def add(face: int, pts: np.ndarray, normal) -> None:
+        if len(pts):
+            blocks.append((face, pts, np.repeat(np.asarray(normal, float)[None], len(pts), 0)))
+
+    def plane(a: np.ndarray, b: np.ndarray, build) -> np.ndarray:
+        A, B = np.meshgrid(a, b, indexing="ij")
+        return build(A.ravel(), B.ravel())
+
+    add(Face.TOP, plane(xs_top, ys, lambda x, y: np.stack([x, y, np.full_like(x, z0)], 1)), (0, 0, 1))
+    add(Face.BOTTOM, plane(xs, ys, lambda x, y: np.stack([x, y, np.full_like(x, -z0)], 1)), (0, 0, -1))
+    for face, s in ((Face.STEM_NEG, -1.0), (Face.STEM_POS, 1.0)):
+        add(face, plane(ys, zs_stem, lambda y, z: np.stack([np.full_like(y, s * x0), y, z], 1)), (s, 0, 0))
+    if tj.wall_stickers:
+        for face, s in ((Face.SIDE_NEG, -1.0), (Face.SIDE_POS, 1.0)):
+            add(face, plane(xs, zs_wall, lambda x, z: np.stack([x, np.full_like(x, s * W / 2), z], 1)), (0, s, 0))
+        for face, s in ((Face.END_NEG, -1.0), (Face.END_POS, 1.0)):
+            add(face, plane(ys, zs_wall, lambda y, z: np.stack([np.full_like(y, s * L / 2), y, z], 1)), (s, 0, 0))
+    faces = np.concatenate([np.full(len(p), f, np.uint8) for f, p, _ in blocks])
+    return Candidates(np.concatenate([p for _, p, _ in blocks]), np.concatenate([n for _, _, n in blocks]),
+                      faces, step_mm)
+
+
+def wall_sticker_picks(candidates: Candidates, masks: np.ndarray, part: TJoint,
+                       rng: np.random.Generator) -> tuple[int, ...]:
+    """Candidates (indices) for stickers every ``wall_sticker_pitch_mm`` along each of the base
+    plate's walls, at a random height and offset, among those some pass sees."""
+    tj = part.config
+    picks = []
+    for face in (Face.SIDE_NEG, Face.SIDE_POS, Face.END_NEG, Face.END_POS):
+        on = np.flatnonzero((candidates.faces == face) & (masks != 0))
+        if on.size == 0:
+            continue
+        along = candidates.centres[on, 1 if face in (Face.END_NEG, Face.END_POS) else 0]
+        z = candidates.centres[on, 2]
+        lo, hi = along.min(), along.max()
+        for s in np.arange(lo + rng.uniform(0, tj.wall_sticker_pitch_mm / 2), hi, tj.wall_sticker_pitch_mm):
+            target_z = rng.uniform(z.min(), z.max())
+            picks.append(int(on[np.argmin(np.abs(along - s) + np.abs(z - target_z))]))
+    return tuple(picks)
+
+
+def place_tjoint_fixture_stickers(cfg: SimulationConfig, rng: np.random.Generator, first_id: int) -> StickerSet:
+    """Stickers on the table beside the part (world frame): seen from both setups, they never move."""
+    sc, tj = cfg.stickers, cfg.tjoint
+    r = sc.diameter_mm / 2
+    gap = cfg.placement.translation_mm + 2 * r + 3
+    centres: list[np.ndarray] = []
+    tries = 0
+    while len(centres) < sc.n_fixture and tries < 10000:
+        tries += 1
+        x = rng.uniform(-tj.base_length_mm / 2 + 20, tj.base_length_mm / 2 - 20)
+        y = rng.choice([-1.0, 1.0]) * (tj.base_width_mm / 2 + gap + rng.uniform(0, 12))
+        c = np.array([x, y, 0.0])
+        if all(np.linalg.norm(c - o) > sc.spacing_factor * sc.diameter_mm for o in centres):
+            centres.append(c)
+    pts = np.array(centres).reshape(-1, 3)
+    return StickerSet(centres=pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)),
+                      ids=first_id + np.arange(len(pts)), faces=np.full(len(pts), Face.FIXTURE, np.uint8),
+                      radius_mm=r, thickness_mm=sc.thickness_mm)
