@@ -13,6 +13,10 @@ The files for FE programs (Abaqus ``.inp``, VTU) are written by ``data_catalog.v
 
 from __future__ import annotations
 
+import os
+import pickle
+import subprocess
+import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,8 +129,44 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                       weld_zone_face=in_zone, surface_remeshed=remeshed)
 
 
-def _gmsh_volume(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
-                 feature_angle_deg, optimize, seed):
+# gmsh carries its own OpenBLAS and OpenMP, sized at load from the environment (OPENBLAS_NUM_THREADS,
+# OMP_NUM_THREADS) and out of threadpoolctl's reach: a Dask worker (which sets them to 1) and a
+# 2-core process made node coordinates differing in the 10th digit. So gmsh runs in a child
+# process of its own, always with one thread of each: the same surface, the same bytes, from any
+# caller.
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+_RESULT = b"\n--weldrecon-gmsh-result--\n"
+
+
+def _gmsh_volume(vertices, triangles, weld, **settings):
+    """``_gmsh_volume_here`` in a fresh child process with one thread (see ``_ONE_THREAD``)."""
+    root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, **_ONE_THREAD,
+           "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
+                          input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env)
+    if done.returncode != 0 or _RESULT not in done.stdout:
+        tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
+        raise VolumeMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
+    kind, value = pickle.loads(done.stdout.rsplit(_RESULT, 1)[1])
+    if kind == "error":
+        raise VolumeMeshError(value)
+    return value
+
+
+def _child() -> None:
+    """The child's side: the arguments pickled on stdin, the result (or the error) on stdout."""
+    vertices, triangles, weld, settings = pickle.loads(sys.stdin.buffer.read())
+    try:
+        result = ("ok", _gmsh_volume_here(vertices, triangles, weld, **settings))
+    except VolumeMeshError as exc:
+        result = ("error", str(exc))
+    sys.stdout.buffer.write(_RESULT + pickle.dumps(result))
+    sys.stdout.flush()
+
+
+def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
+                      feature_angle_deg, optimize, seed):
     """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
     or kept as it is, the inside meshed."""
     import gmsh
@@ -176,7 +216,7 @@ def _gmsh_volume(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_
             raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
         finally:
             gmsh.finalize()
-    return node_tags, coords, element_nodes
+    return np.asarray(node_tags), np.asarray(coords), np.asarray(element_nodes)
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

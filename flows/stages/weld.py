@@ -35,7 +35,7 @@ def weld_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
     weld = manifest.weld
     return {"passes": [e.pass_id for _, e in manifest.passes()],
             "weld_lines_mm": {line.name: [list(p) for p in line.points_mm] for line in manifest.weld_lines()},
-            "joint": getattr(weld, "joint", "double-sided butt"), "treatment": weld.treatment,
+            "joint": getattr(weld, "joint", "double-sided butt"), "treatment": None if weld is None else weld.treatment,
             "setups": [{"name": s.name, "first_pass": s.passes[0].pass_id,
                         "T_world_specimen_nominal": s.T_world_specimen_nominal} for s in manifest.setups],
             "default_acceptance_sha256": sha256_file(DEFAULT_ACCEPTANCE_FILE)}
@@ -110,6 +110,11 @@ def _T_common_specimen(ctx) -> np.ndarray | None:
 def weld(ctx) -> dict[str, Any]:
     s = ctx.settings
     manifest = ctx.manifest
+    if manifest.weld is None:  # imported scans of a part the manifest says nothing of
+        why = "the manifest describes no weld (a sample of imported scans): nothing to measure"
+        WELD_GEOMETRY.write(ctx.out, {"joint": None, "treatment": None, "measured": False, "why_not": why,
+                                      "lines": [], "sections": []})
+        return {"measured": False, "why_not": why}
     joint = getattr(manifest.weld, "joint", "double-sided butt")
     treatment = manifest.weld.treatment
     limits = s.acceptance if s.acceptance is not None else load_acceptance_limits(None)
