@@ -13,7 +13,8 @@ from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.scene import StickerSet
 from simulator.specimen import Face, Specimen
 
-__all__ = ["StickerPlacementError", "Candidates", "sticker_candidates", "place_stickers", "place_fixture_stickers"]
+__all__ = ["StickerPlacementError", "Candidates", "sticker_candidates", "place_stickers", "place_fixture_stickers",
+           "fixture_stickers_beside"]
 
 
 class StickerPlacementError(ValueError):
@@ -154,15 +155,25 @@ def place_stickers(candidates: Candidates, coverage: CoverageMap, pairs: list[tu
 
 def place_fixture_stickers(cfg: SimulationConfig, rng: np.random.Generator, first_id: int) -> StickerSet:
     """Stickers on the base plate beside the specimen (world frame)."""
-    sc, spec = cfg.stickers, cfg.specimen
+    spec = cfg.specimen
+    return fixture_stickers_beside(cfg, rng, first_id, length_mm=spec.length_mm, half_width_mm=spec.grip_width_mm / 2,
+                                   spread_mm=10.0)
+
+
+def fixture_stickers_beside(cfg: SimulationConfig, rng: np.random.Generator, first_id: int, *, length_mm: float,
+                            half_width_mm: float, spread_mm: float) -> StickerSet:
+    """``cfg.stickers.n_fixture`` stickers on the table (world frame, z = 0) beside a part of
+    ``length_mm`` along x and ``half_width_mm`` either side of x: clear of where the placement may
+    put it, within ``spread_mm`` more, never closer than the stickers' spacing."""
+    sc = cfg.stickers
     r = sc.diameter_mm / 2
     centres: list[np.ndarray] = []
     gap = cfg.placement.translation_mm + 2 * r + 3
     tries = 0
     while len(centres) < sc.n_fixture and tries < 10000:
         tries += 1
-        x = rng.uniform(-spec.length_mm / 2 + 20, spec.length_mm / 2 - 20)
-        y = rng.choice([-1.0, 1.0]) * (spec.grip_width_mm / 2 + gap + rng.uniform(0, 10))
+        x = rng.uniform(-length_mm / 2 + 20, length_mm / 2 - 20)
+        y = rng.choice([-1.0, 1.0]) * (half_width_mm + gap + rng.uniform(0, spread_mm))
         c = np.array([x, y, 0.0])
         if all(np.linalg.norm(c - o) > sc.spacing_factor * sc.diameter_mm for o in centres):
             centres.append(c)

@@ -27,7 +27,7 @@ from schemas.truth import TrueToeLine
 from simulator.robot import PlannedPass, _sensor_frame
 from simulator.scene import StickerSet
 from simulator.specimen import Face, SurfaceMesh
-from simulator.stickers import Candidates
+from simulator.stickers import Candidates, fixture_stickers_beside
 from simulator.weld import _smooth
 
 __all__ = ["TJoint", "build_tjoint", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes",
@@ -358,19 +358,6 @@ def wall_sticker_picks(candidates: Candidates, masks: np.ndarray, part: TJoint,
 
 def place_tjoint_fixture_stickers(cfg: SimulationConfig, rng: np.random.Generator, first_id: int) -> StickerSet:
     """Stickers on the table beside the part (world frame): seen from both setups, they never move."""
-    sc, tj = cfg.stickers, cfg.tjoint
-    r = sc.diameter_mm / 2
-    gap = cfg.placement.translation_mm + 2 * r + 3
-    centres: list[np.ndarray] = []
-    tries = 0
-    while len(centres) < sc.n_fixture and tries < 10000:
-        tries += 1
-        x = rng.uniform(-tj.base_length_mm / 2 + 20, tj.base_length_mm / 2 - 20)
-        y = rng.choice([-1.0, 1.0]) * (tj.base_width_mm / 2 + gap + rng.uniform(0, 12))
-        c = np.array([x, y, 0.0])
-        if all(np.linalg.norm(c - o) > sc.spacing_factor * sc.diameter_mm for o in centres):
-            centres.append(c)
-    pts = np.array(centres).reshape(-1, 3)
-    return StickerSet(centres=pts, normals=np.tile([0.0, 0.0, 1.0], (len(pts), 1)),
-                      ids=first_id + np.arange(len(pts)), faces=np.full(len(pts), Face.FIXTURE, np.uint8),
-                      radius_mm=r, thickness_mm=sc.thickness_mm)
+    tj = cfg.tjoint
+    return fixture_stickers_beside(cfg, rng, first_id, length_mm=tj.base_length_mm, half_width_mm=tj.base_width_mm / 2,
+                                   spread_mm=12.0)
