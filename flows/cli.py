@@ -154,6 +154,14 @@ def _print_report(report: dict, out: Path) -> None:
           f"{'watertight' if mesh['watertight'] else 'NOT watertight'}"
           + (f"; target residual median {residual * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um"
              if residual is not None else ""))
+    weld = report.get("weld", {})
+    if weld.get("measured"):
+        failing = weld.get("failing_sections", [])
+        print(f"weld: {weld['sections_measured']} of {weld['sections']} sections measured, {weld['verdict']} against "
+              f"the acceptance limits" + (f" ({len(failing)} findings in {weld['failing']} sections: report.json, "
+                                          f"'weld')" if failing else ""))
+    elif weld:
+        print(f"weld: not measured: {weld['why_not']}")
     volume = report.get("volume_mesh", {})
     if volume.get("made"):
         solid, quality = volume["solid"], volume["quality"]
