@@ -5,9 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import ValidationError
-
-from data_catalog.textfiles import read_yaml_mapping
+from data_catalog.textfiles import read_yaml_model
 from schemas.acceptance import AcceptanceLimits
 
 __all__ = ["DEFAULT_ACCEPTANCE_FILE", "load_acceptance_limits"]
@@ -19,9 +17,4 @@ def load_acceptance_limits(path: str | Path | None) -> AcceptanceLimits:
     """The limits in ``path`` (None: the project's defaults). A bad file is refused with the file
     and each wrong field named (``rules.0.groove_depth_mm.min: ...``)."""
     path = DEFAULT_ACCEPTANCE_FILE if path is None else Path(path)
-    raw = read_yaml_mapping(path, "weld acceptance limits")
-    try:
-        return AcceptanceLimits.model_validate(raw)
-    except ValidationError as exc:
-        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
-        raise ValueError(f"{path}: invalid weld acceptance limits:\n{lines}") from None
+    return read_yaml_model(path, AcceptanceLimits, "weld acceptance limits")

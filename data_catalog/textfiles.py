@@ -4,11 +4,14 @@ one line: the file, what is wrong with it and what was expected."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
+from pydantic import BaseModel, ValidationError
 
-__all__ = ["read_text_file", "read_yaml_mapping"]
+__all__ = ["read_text_file", "read_yaml_mapping", "read_yaml_model"]
+
+M = TypeVar("M", bound=BaseModel)
 
 
 def read_text_file(path: str | Path, expected: str, error: type[Exception] = ValueError,
@@ -60,3 +63,15 @@ def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
         raise ValueError(f"{path}: the {what} must be a mapping of fields (section: field: value), "
                          f"not a {type(raw).__name__}")
     return raw
+
+
+def read_yaml_model(path: str | Path, model: type[M], what: str) -> M:
+    """``model`` validated from the YAML file ``path`` (``read_yaml_mapping``). ValueError naming
+    the file and ``what`` it should hold, then one indented line per wrong field (its dotted path
+    and what is wrong)."""
+    raw = read_yaml_mapping(path, what)
+    try:
+        return model.model_validate(raw)
+    except ValidationError as exc:
+        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
+        raise ValueError(f"{path}: invalid {what}:\n{lines}") from None

@@ -8,12 +8,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from data_catalog import audit
 from data_catalog.atomic import check_can_create
 from data_catalog.manifests import MANIFEST_NAME
-from data_catalog.textfiles import read_yaml_mapping
+from data_catalog.textfiles import read_yaml_model
 from schemas.reconstruction import ReconstructionConfig
 
 __all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
@@ -26,12 +24,7 @@ def load_config(path: str | Path | None) -> ReconstructionConfig:
     """The reconstruction config: defaults, overridden by a YAML file's fields."""
     if path is None:
         return ReconstructionConfig()
-    raw = read_yaml_mapping(path, "reconstruction config")
-    try:
-        return ReconstructionConfig.model_validate(raw)
-    except ValidationError as exc:
-        lines = "\n".join(f"  {'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors())
-        raise ValueError(f"{path}: invalid reconstruction config:\n{lines}") from None
+    return read_yaml_model(path, ReconstructionConfig, "reconstruction config")
 
 
 def check_out_dir(sample: Path, out: Path) -> None:

@@ -17,7 +17,6 @@ import os
 import pickle
 import subprocess
 import sys
-import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,7 +28,6 @@ from scipy.spatial import cKDTree
 __all__ = ["VolumeMesh", "VolumeMeshError", "tetrahedralize", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes"]
 
-_GMSH = threading.Lock()  # gmsh is one global model per process: one mesher at a time
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
 # S3 (2,4,3) node 1, S4 (3,4,1) node 2 (0-based below), each face's nodes here wound outward
 # (counter-clockwise seen from outside a positively oriented element)
@@ -171,51 +169,50 @@ def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_
     or kept as it is, the inside meshed."""
     import gmsh
 
-    with _GMSH:
-        gmsh.initialize(readConfigFiles=False, interruptible=False)
-        try:
-            for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
-                                ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
-                                ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
-                                ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", 1), ("Mesh.Optimize", 1),
-                                ("Mesh.OptimizeNetgen", 1 if optimize else 0)):
-                gmsh.option.setNumber(name, value)
-            gmsh.model.add("part")
-            surface = gmsh.model.addDiscreteEntity(2)
-            gmsh.model.mesh.addNodes(2, surface, np.arange(1, len(vertices) + 1), vertices.ravel())
-            gmsh.model.mesh.addElementsByType(surface, 2, [], (triangles + 1).ravel())
-            if remesh:
-                gmsh.model.mesh.classifySurfaces(np.radians(feature_angle_deg), True, True, np.pi)
-                gmsh.model.mesh.createGeometry()
-            # remeshed: the reparametrised patches; else the discrete surface, its triangles kept
-            patches = [tag for _, tag in gmsh.model.getEntities(2)]
-            gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(patches)])
-            if weld is not None and len(weld):
-                # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
-                # growing linearly by `growth` per mm up to size_mm
-                points = [gmsh.model.geo.addPoint(*map(float, p)) for p in weld]
-                gmsh.model.geo.synchronize()
-                distance = gmsh.model.mesh.field.add("Distance")
-                gmsh.model.mesh.field.setNumbers(distance, "PointsList", points)
-                ramp = gmsh.model.mesh.field.add("Threshold")
-                for name, value in (("InField", distance), ("SizeMin", weld_size_mm), ("SizeMax", size_mm),
-                                    ("DistMin", weld_zone_mm),
-                                    ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
-                    gmsh.model.mesh.field.setNumber(ramp, name, value)
-                field = ramp
-                if remesh:  # on the surface only: inside, sizes grow from the surface's
-                    field = gmsh.model.mesh.field.add("Restrict")
-                    gmsh.model.mesh.field.setNumber(field, "InField", ramp)
-                    gmsh.model.mesh.field.setNumbers(field, "SurfacesList", patches)
-                gmsh.model.mesh.field.setAsBackgroundMesh(field)
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
+                            ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
+                            ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
+                            ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", 1), ("Mesh.Optimize", 1),
+                            ("Mesh.OptimizeNetgen", 1 if optimize else 0)):
+            gmsh.option.setNumber(name, value)
+        gmsh.model.add("part")
+        surface = gmsh.model.addDiscreteEntity(2)
+        gmsh.model.mesh.addNodes(2, surface, np.arange(1, len(vertices) + 1), vertices.ravel())
+        gmsh.model.mesh.addElementsByType(surface, 2, [], (triangles + 1).ravel())
+        if remesh:
+            gmsh.model.mesh.classifySurfaces(np.radians(feature_angle_deg), True, True, np.pi)
+            gmsh.model.mesh.createGeometry()
+        # remeshed: the reparametrised patches; else the discrete surface, its triangles kept
+        patches = [tag for _, tag in gmsh.model.getEntities(2)]
+        gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(patches)])
+        if weld is not None and len(weld):
+            # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
+            # growing linearly by `growth` per mm up to size_mm
+            points = [gmsh.model.geo.addPoint(*map(float, p)) for p in weld]
             gmsh.model.geo.synchronize()
-            gmsh.model.mesh.generate(3)
-            node_tags, coords, _ = gmsh.model.mesh.getNodes()
-            _, element_nodes = gmsh.model.mesh.getElementsByType(4)
-        except Exception as exc:  # gmsh raises a bare Exception with its last error
-            raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
-        finally:
-            gmsh.finalize()
+            distance = gmsh.model.mesh.field.add("Distance")
+            gmsh.model.mesh.field.setNumbers(distance, "PointsList", points)
+            ramp = gmsh.model.mesh.field.add("Threshold")
+            for name, value in (("InField", distance), ("SizeMin", weld_size_mm), ("SizeMax", size_mm),
+                                ("DistMin", weld_zone_mm),
+                                ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
+                gmsh.model.mesh.field.setNumber(ramp, name, value)
+            field = ramp
+            if remesh:  # on the surface only: inside, sizes grow from the surface's
+                field = gmsh.model.mesh.field.add("Restrict")
+                gmsh.model.mesh.field.setNumber(field, "InField", ramp)
+                gmsh.model.mesh.field.setNumbers(field, "SurfacesList", patches)
+            gmsh.model.mesh.field.setAsBackgroundMesh(field)
+        gmsh.model.geo.synchronize()
+        gmsh.model.mesh.generate(3)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        _, element_nodes = gmsh.model.mesh.getElementsByType(4)
+    except Exception as exc:  # gmsh raises a bare Exception with its last error
+        raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
+    finally:
+        gmsh.finalize()
     return np.asarray(node_tags), np.asarray(coords), np.asarray(element_nodes)
 
 

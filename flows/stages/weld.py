@@ -19,6 +19,7 @@ import numpy as np
 from data_catalog.acceptance import DEFAULT_ACCEPTANCE_FILE, load_acceptance_limits
 from data_catalog.hashing import sha256_file
 from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY
+from flows.stages.weld_lines import T_common_specimen
 from schemas.manifest import SampleManifest
 from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import SectionSettings
@@ -98,13 +99,9 @@ def _statistics(sections: list[SectionMeasurement]) -> dict[str, Any]:
 
 
 def _T_common_specimen(ctx) -> np.ndarray | None:
-    refined = REFINED.open(ctx.inputs["refine"])
-    T_common_pass = np.asarray(refined.T_common_pass[...])
-    names = ctx.names
-    for setup in ctx.manifest.setups:
-        if setup.T_world_specimen_nominal is not None:
-            return T_common_pass[names.index(setup.passes[0].pass_id)] @ np.asarray(setup.T_world_specimen_nominal)
-    return None
+    """Specimen frame -> common frame by the first setup that states its nominal placement."""
+    placed = T_common_specimen(ctx.manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
+    return placed[0][1] if placed else None
 
 
 def weld(ctx) -> dict[str, Any]:

@@ -10,21 +10,23 @@ import numpy as np
 
 from schemas.manifest import SampleManifest
 
-__all__ = ["weld_lines_common", "weld_lines_view"]
+__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen"]
 
 
 def weld_lines_common(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[np.ndarray, float]]:
     """Per setup that states its nominal placement and per weld line: the line's (k, 3) points in
     the common frame, mm, and the setup's placement tolerance, mm (how far the line may be off)."""
-    index = {e.pass_id: k for k, (_, e) in enumerate(manifest.passes())}
     lines = [np.asarray(line.points_mm, np.float64) for line in manifest.weld_lines()]
-    out = []
-    for setup in manifest.setups:
-        if setup.T_world_specimen_nominal is None:
-            continue
-        T = np.asarray(T_common_pass[index[setup.passes[0].pass_id]]) @ np.asarray(setup.T_world_specimen_nominal)
-        out.extend((points @ T[:3, :3].T + T[:3, 3], float(setup.placement_tolerance_mm)) for points in lines)
-    return out
+    return [(points @ T[:3, :3].T + T[:3, 3], float(setup.placement_tolerance_mm))
+            for setup, T in T_common_specimen(manifest, T_common_pass) for points in lines]
+
+
+def T_common_specimen(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[Any, np.ndarray]]:
+    """(setup, specimen frame -> common frame) for each setup that states its nominal placement:
+    the placement through its first pass's pose."""
+    index = {e.pass_id: k for k, (_, e) in enumerate(manifest.passes())}
+    return [(setup, np.asarray(T_common_pass[index[setup.passes[0].pass_id]]) @ np.asarray(setup.T_world_specimen_nominal))
+            for setup in manifest.setups if setup.T_world_specimen_nominal is not None]
 
 
 def weld_lines_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
