@@ -19,6 +19,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 
 from data_catalog import audit
 from data_catalog.catalog import Catalog, SampleRecord
+from flows.qa_index import write_index
 from flows.reconstruct import reconstruct_sample
 
 __all__ = ["reconstruct_batch", "reconstruct_one"]
@@ -127,4 +128,9 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
         log.error("sample %s failed at %s: %s", sample_id, why["stage"], why["error"])
     log.info("batch: %d done, %d failed, %d up to date", len(summary["done"]), len(summary["failed"]),
              len(summary["up_to_date"]))
+    try:
+        summary["index"] = str(write_index(Path(workspace)))
+    except Exception as exc:  # noqa: BLE001 - the samples are done; the index is a view of them
+        log.warning("could not write the batch index page: %s", exc)
+        summary["index"] = None
     return summary

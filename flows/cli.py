@@ -172,6 +172,8 @@ def _print_report(report: dict, out: Path) -> None:
         print(f"FE model: not made: {volume['why']}")
     for item in report["outputs"].values():
         print(f"  {item['path']}")
+    if "report.html" in report["outputs"]:
+        print(f"QA report: {report['outputs']['report.html']['path']} (one file, opens offline in a browser)")
     head = report.get("trail_head")
     if head:  # the anchor: keep it outside the run folder; `audit verify --head` checks the trail still holds it
         print(f"audit trail head: seq {head['seq']} sha256 {head['hash']} "
@@ -369,6 +371,11 @@ def _cmd_catalog(args: argparse.Namespace) -> int:
                 print(f"not registered: {line}", file=sys.stderr)
                 status = 2
         return status
+    if args.action == "index":
+        from flows.qa_index import write_index
+
+        print(f"index: {write_index(catalog.workspace)}")
+        return 0
     if args.action == "list":
         records = catalog.list()
         if not records:
@@ -491,6 +498,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     for line in summary["not_registered"]:
         print(f"NOT REGISTERED {line}")
     print(f"up to date: {', '.join(summary['up_to_date']) or 'none'}")
+    if summary.get("index"):
+        print(f"index: {summary['index']}")
     return 1 if summary["failed"] or summary["not_registered"] else 0
 
 
@@ -525,13 +534,15 @@ def _parser() -> argparse.ArgumentParser:
     ws = argparse.ArgumentParser(add_help=False)
     ws.add_argument("--workspace", metavar="DIR", help="catalog and run folders (default: $WELDRECON_WORKSPACE "
                                                        "or ./workspace)")
-    cat = sub.add_parser("catalog", help="the sample catalog: register, list, show")
+    cat = sub.add_parser("catalog", help="the sample catalog: register, list, show, index")
     cat_sub = cat.add_subparsers(dest="action", required=True)
     reg = cat_sub.add_parser("register", parents=[ws], help="register sample folders, or every sample under a folder")
     reg.add_argument("paths", nargs="+", metavar="PATH")
     cat_sub.add_parser("list", parents=[ws], help="every sample and its state")
     show = cat_sub.add_parser("show", parents=[ws], help="one sample: state, run folder, artefacts and hashes")
     show.add_argument("sample", metavar="SAMPLE")
+    cat_sub.add_parser("index", parents=[ws], help="write WORKSPACE/index.html: every sample, its verdicts and a "
+                                                   "link to its QA report (a batch writes it too)")
     cat.set_defaults(func=_cmd_catalog)
     batch = sub.add_parser("batch", parents=[ws], help="reconstruct every new, failed or changed sample")
     batch.add_argument("--samples", metavar="DIR", help="register the sample folders under DIR first")

@@ -219,6 +219,48 @@ def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
         server.stop()
 
 
+def audit_status(out: Path) -> dict[str, Any]:
+    """The run folder's trail as the QA report states it when published: the chain verified (not
+    the artefacts' contents: the run has just recorded its own), this run's own missing end aside."""
+    problems = [p for p in audit.verify_trail(out, artefacts=False) if p.kind != "unfinished-run"]
+    entries = audit.read_trail(out)
+    last = entries[-1] if entries else {}
+    return {"intact": not problems, "entries": len(entries), "head_seq": last.get("seq"), "head_hash": last.get("hash"),
+            "problems": [str(p) for p in problems]}
+
+
+def _link_the_reports(sample_id: str, published: dict[str, dict[str, str]], log) -> None:
+    """Prefect artifacts on this flow run: a link to the sample's QA report and a summary table,
+    so the Prefect UI leads from each run to its report. Best effort: a run is not failed for it."""
+    import re
+
+    from prefect.artifacts import create_link_artifact, create_markdown_artifact
+
+    if "report.html" not in published:
+        return
+    key = re.sub(r"[^a-z0-9-]+", "-", f"qa-report-{sample_id}".lower()).strip("-")[:100]
+    path = Path(published["report.html"]["path"])
+    report = json.loads(Path(published[REPORT.name]["path"]).read_text())
+    weld = report.get("weld", {})
+    checks = report.get("checks", [])
+    flagged = [c for c in checks if c.get("result") != "ok"]
+    volume = report.get("volume_mesh", {})
+    rows = [("checks", f"{len(checks) - len(flagged)} of {len(checks)} ok"),
+            ("weld", f"{weld.get('verdict')}, {weld.get('sections')} sections, {weld.get('failing') or 0} failing"
+             if weld.get("measured") else f"not measured: {weld.get('why_not')}"),
+            ("FE model", f"{volume.get('solid', {}).get('tetrahedra')} tetrahedra" if volume.get("made")
+             else f"not made: {volume.get('why')}"),
+            ("QA report", f"[{path.name}]({path.as_uri()})"), ("report.html sha256", published["report.html"]["sha256"])]
+    table = "\n".join(f"| {k} | {v} |" for k, v in rows)
+    try:
+        create_link_artifact(key=key, link=path.as_uri(), link_text=f"QA report {sample_id}",
+                             description=f"The QA report of sample {sample_id} (self-contained HTML).")
+        create_markdown_artifact(key=f"{key}-summary"[:100], markdown=f"## Sample {sample_id}\n\n| | |\n|---|---|\n{table}\n",
+                                 description=f"QA summary of sample {sample_id}")
+    except Exception as exc:  # noqa: BLE001 - the results are published; the link is a convenience
+        log.warning("could not create the Prefect artifacts linking the QA report: %s", exc)
+
+
 def _on_dask() -> bool:
     from prefect.context import FlowRunContext
 
@@ -326,7 +368,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         cached = {n: all(r.cached for r in each(v)) for n, v in refs.items()}
         with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
             published = publish(out, manifest.sample_id, refs["report"], refs,
-                                config.model_dump_json(indent=2) + "\n")
+                                config.model_dump_json(indent=2) + "\n", audit_status(out))
             finished = audit.append(out, "run-finished", sample_id=manifest.sample_id,
                                     artefacts={f"{RESULTS}/{name}": item["sha256"] for name, item in published.items()},
                                     cached=cached)
@@ -334,6 +376,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         audit.append(out, "run-failed", sample_id=manifest.sample_id, stage=getattr(exc, "stage", None),
                      error=f"{type(exc).__name__}: {exc}")
         raise
+    _link_the_reports(manifest.sample_id, published, log)
     result = dict(json.loads(Path(published[REPORT.name]["path"]).read_text()))
     result["outputs"] = published
     result["refs"] = refs

@@ -11,7 +11,7 @@ from schemas.acceptance import AcceptanceLimits
 from schemas.common import StrictModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
-           "MergeConfig", "SegmentConfig", "MeshConfig", "WeldGeometryConfig", "VolumeConfig", "ReconstructionConfig"]
+           "MergeConfig", "SegmentConfig", "MeshConfig", "WeldGeometryConfig", "VolumeConfig", "QaReportConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -244,6 +244,20 @@ class VolumeConfig(StrictModel):
         "the solid's volume against the surface mesh's, relative: beyond it the stage fails"))
 
 
+class QaReportConfig(StrictModel):
+    """The sample's QA report (``report.html``, ``flows.stages.qa_report``): how finely its maps
+    are gridded and how much of the data its pictures show."""
+
+    cell_mm: float = Field(default=1.0, gt=0, le=50, description=(
+        "cell of the coverage and disagreement maps on the part's faces"))
+    points_per_pass: int = Field(default=200_000, ge=1000, le=50_000_000, description=(
+        "each pass's points read for the maps, evenly thinned along its profiles and columns"))
+    sections_per_line: int = Field(default=4, ge=0, le=100, description=(
+        "weld cross-sections drawn per weld line: the failing ones first (worst first), then evenly along it"))
+    mesh_triangles: int = Field(default=60_000, ge=1000, le=2_000_000, description=(
+        "the mesh is simplified to at most this many triangles for its renderings (quadric edge collapse)"))
+
+
 class ReconstructionConfig(StrictModel):
     schema_version: Literal["1.0"] = "1.0"
     denoise: DenoiseConfig = DenoiseConfig()
@@ -255,3 +269,4 @@ class ReconstructionConfig(StrictModel):
     mesh: MeshConfig = MeshConfig()
     weld: WeldGeometryConfig = WeldGeometryConfig()
     volume: VolumeConfig = VolumeConfig()
+    qa_report: QaReportConfig = QaReportConfig()

@@ -16,7 +16,7 @@ PROJECT = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 RULES = {
     "schemas": ({"schemas"}, {"pydantic", "typing_extensions"}),
     "tasks": ({"tasks", "schemas"}, {"numpy", "scipy", "cv2", "open3d", "pymeshlab", "numba", "threadpoolctl",
-                                     "gmsh"}),
+                                     "gmsh", "matplotlib"}),
     "data_catalog": ({"data_catalog", "schemas"}, {"numpy", "zarr", "numcodecs", "yaml", "pydantic", "plyfile",
                                                    "pypcd4", "pye57", "laspy", "scipy", "meshio"}),
     "simulator": ({"simulator", "schemas", "data_catalog", "tasks"}, {"numpy", "scipy", "open3d", "cv2", "pydantic",

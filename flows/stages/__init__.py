@@ -8,8 +8,8 @@ description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs
 
 from __future__ import annotations
 
-from flows.stages import (denoise, export, merge, mesh, outputs, refine, registration, report, segment, targets,
-                          volume, weld)
+from flows.stages import (denoise, export, merge, mesh, outputs, qa_report, refine, registration, report, segment,
+                          targets, volume, weld)
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.passes import pass_view
 from flows.stages.weld_lines import weld_lines_view
@@ -59,6 +59,10 @@ STAGES: tuple[Stage, ...] = (
     Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
                             "export", "volume"), "*",
           (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
+    Stage("qa_report", False, ("denoise", "targets", "registration", "refine", "segment", "weld", "mesh", "volume",
+                               "report"), "qa_report", (outputs.QA_REPORT,), qa_report.qa_report, qa_report.qa_report_view,
+          "the QA report people read: one self-contained HTML page (coverage, stickers, registration graph, "
+          "disagreement of overlapping passes, mesh renderings, weld sections and figures, FE model, provenance)"),
 )
 
 STAGE_NAMES: tuple[str, ...] = tuple(s.name for s in STAGES)

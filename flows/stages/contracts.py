@@ -161,4 +161,17 @@ class MeshFile:
     optional: bool = False
 
 
-OutputFile = ArrayFile | JsonFile | MeshFile
+@dataclass(frozen=True)
+class TextFile:
+    """A text document (UTF-8) in the stage's folder, e.g. an HTML page."""
+
+    name: str
+
+    def write_text(self, out: Path, text: str) -> None:
+        atomic_write_text(Path(out) / self.name, text)
+
+    def read_text(self, ref: StageRef) -> str:
+        return ref.file(self.name).read_text(encoding="utf-8")
+
+
+OutputFile = ArrayFile | JsonFile | MeshFile | TextFile

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flows.stages.contracts import ArrayFile, JsonFile, MeshFile
+from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, TextFile
 
 
 # --- stage denoise ---
@@ -31,6 +31,9 @@ class PassTargets:
     rms_mm: np.ndarray  # (k,) float64, rim fit RMS
     rim_coverage: np.ndarray  # (k,) float64, share of the rim seen
     pixel: np.ndarray  # (k, 2) float64, (profile, column) of the Hough circle
+    preview: np.ndarray  # (rows, cols) uint8: the image searched (intensity / 4), area-averaged to at most 640 rows
+    grid_spacing_mm: np.ndarray  # (2,) float64: the pass's points apart (between profiles, between columns); NaN: none
+    grid_shape: np.ndarray  # (2,) int64: (profiles, columns) of the pass
 
 TARGETS = ArrayFile("targets.zarr", PassTargets)
 
@@ -114,3 +117,7 @@ VOLUME_SUMMARY = JsonFile("volume.json")  # whether it was made, the solid check
 
 # --- stage report ---
 REPORT = JsonFile("report.json")
+
+
+# --- stage qa_report ---
+QA_REPORT = TextFile("report.html")  # self-contained (pictures inline); AUDIT_MARK filled in when published

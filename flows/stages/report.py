@@ -6,6 +6,7 @@ cache flags: those are in the audit trail), so the same inputs give the same byt
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import tempfile
 from pathlib import Path
@@ -13,9 +14,10 @@ from typing import Any
 
 from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
-from flows.stages.outputs import (PLY, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, VOLUME_INP, VOLUME_SUMMARY,
+from flows.stages.outputs import (PLY, QA_REPORT, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, VOLUME_INP, VOLUME_SUMMARY,
                                   VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
+from flows.stages.qa_audit import UNVERIFIED, fill_audit
 
 __all__ = ["report", "report_view", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
@@ -134,9 +136,11 @@ def report(ctx) -> dict[str, Any]:
 
 
 def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str, StageRef],
-            config_json: str) -> dict[str, dict[str, str]]:
+            config_json: str, audit_status: dict[str, Any] | None = None) -> dict[str, dict[str, str]]:
     """Publish the deliverables, the report and the settings they were made with (``config.json``)
-    into ``out_dir/results/`` as one unit: the folder is built complete beside it, each copy checked
+    into ``out_dir/results/`` as one unit, with the QA report (``report.html``, when the run made
+    one) whose audit section is filled with ``audit_status`` (``qa_report.fill_audit``): the folder
+    is built complete beside it, each copy checked
     against its stage record, flushed to disk, then swapped in whole
     (``data_catalog.atomic.replace_directory``). Readers see the previous results whole or these
     whole, never a mix, even after a kill; files of an earlier publication that this one does not
@@ -156,6 +160,14 @@ def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str,
                 raise OSError(f"{ref.file(source)} changed while it was published (sha256 differs from its record)")
         (staging / CONFIG_NAME).write_text(config_json, encoding="utf-8")
         digests[CONFIG_NAME] = sha256_file(staging / CONFIG_NAME)
+        if "qa_report" in refs:
+            source = refs["qa_report"].file(QA_REPORT.name)
+            page = source.read_bytes()
+            if hashlib.sha256(page).hexdigest() != refs["qa_report"].outputs[QA_REPORT.name]:
+                raise OSError(f"{refs['qa_report'].file(QA_REPORT.name)} changed while it was published "
+                              "(sha256 differs from its record)")
+            (staging / QA_REPORT.name).write_bytes(fill_audit(page.decode("utf-8"), audit_status or UNVERIFIED).encode())
+            digests[QA_REPORT.name] = sha256_file(staging / QA_REPORT.name)
         default_mode(staging)
         fsync_tree(staging)
         replace_directory(staging, results)

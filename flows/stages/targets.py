@@ -72,22 +72,47 @@ def _refine(ctx, reader: PassReader, grid: SearchGrid, circles: np.ndarray) -> l
     return refined  # type: ignore[return-value]
 
 
-def _detect(ctx) -> TargetDetection:
+PREVIEW_ROWS = 640  # the report's picture of the pass: the searched image, area-averaged to at most this many rows
+
+
+def preview_image(image: np.ndarray, max_rows: int = PREVIEW_ROWS) -> np.ndarray:
+    """``image`` (uint8) averaged over square blocks of f x f pixels, f the least whole number that
+    brings it to ``max_rows`` rows or fewer (the last partial blocks averaged over what they hold)."""
+    rows, cols = image.shape
+    f = max(1, -(-rows // max_rows))
+    if f == 1:
+        return image.copy()
+    out_r, out_c = -(-rows // f), -(-cols // f)
+    total = np.zeros((out_r, out_c))
+    count = np.zeros((out_r, out_c))
+    r, c = np.arange(rows) // f, np.arange(cols) // f
+    np.add.at(total, (r[:, None], c[None, :]), image.astype(np.float64))
+    np.add.at(count, (r[:, None], c[None, :]), 1.0)
+    return np.rint(total / count).astype(np.uint8)
+
+
+def _detect(ctx) -> tuple[TargetDetection, np.ndarray, tuple[float, float], tuple[int, int]]:
+    """The targets, the preview of the searched image, the grid's spacing and shape."""
     reader = open_entry(ctx.sample_dir, ctx.entry)
     grid = _search_grid(ctx, reader)
+    shape = (reader.n_profiles, reader.n_columns)
     if grid is None:
-        return TargetDetection.from_refinements([], pixel_mm=float("nan"))
-    circles = find_circles(_hough_image(ctx, reader, grid), radius_px=grid.radius_px)
-    return TargetDetection.from_refinements(_refine(ctx, reader, grid, circles), pixel_mm=grid.pixel_mm)
+        return (TargetDetection.from_refinements([], pixel_mm=float("nan")), np.zeros((0, 0), np.uint8),
+                (float("nan"), float("nan")), shape)
+    image = _hough_image(ctx, reader, grid)
+    circles = find_circles(image, radius_px=grid.radius_px)
+    return (TargetDetection.from_refinements(_refine(ctx, reader, grid, circles), pixel_mm=grid.pixel_mm),
+            preview_image(image), grid.spacing_mm, shape)
 
 
 def targets(ctx) -> dict[str, Any]:
     if isinstance(ctx.entry, ScanEntry):  # a sample registered on its surfaces: no stickers to look for
         empty = np.zeros((0, 3))
         TARGETS.write(ctx.out, PassTargets(centres=empty, normals=empty, rms_mm=np.zeros(0), rim_coverage=np.zeros(0),
-                                           pixel=np.zeros((0, 2))))
+                                           pixel=np.zeros((0, 2)), preview=np.zeros((0, 0), np.uint8),
+                                           grid_spacing_mm=np.full(2, np.nan), grid_shape=np.zeros(2, np.int64)))
         return {"targets": 0, "skipped": "an imported scan (registration: surfaces): no sticker targets sought"}
-    found = _detect(ctx)
+    found, preview, spacing, shape = _detect(ctx)
     if not found.targets:
         raise ValueError(f"pass {ctx.entry.pass_id}: no sticker targets found ({found.n_circles} circle candidates, "
                          f"rejected {found.rejected}); the pass cannot be registered")
@@ -95,7 +120,9 @@ def targets(ctx) -> dict[str, Any]:
     TARGETS.write(ctx.out, PassTargets(centres=np.array([x.centre_mm for x in t]), normals=np.array([x.normal for x in t]),
                                        rms_mm=np.array([x.rms_mm for x in t]),
                                        rim_coverage=np.array([x.rim_coverage for x in t]),
-                                       pixel=np.array([x.pixel for x in t], dtype=np.float64)))
+                                       pixel=np.array([x.pixel for x in t], dtype=np.float64), preview=preview,
+                                       grid_spacing_mm=np.array(spacing, np.float64),
+                                       grid_shape=np.array(shape, np.int64)))
     return {"targets": len(t), "circles": found.n_circles, "rejected": found.rejected,
             "median_rms_mm": float(np.median([x.rms_mm for x in t])),
             "median_edge_height_mm": float(np.median([x.edge_height_mm for x in t]))}

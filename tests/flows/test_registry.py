@@ -29,11 +29,13 @@ def test_array_outputs_name_their_arrays():
 
 
 def test_downstream_and_lookup():
-    assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "report"]
-    assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "report"]
-    assert downstream_of("weld") == ["report"]
-    assert downstream_of("mesh") == ["export", "volume", "report"]
-    assert downstream_of("report") == []
+    assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "report",
+                                        "qa_report"]
+    assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "report", "qa_report"]
+    assert downstream_of("weld") == ["report", "qa_report"]
+    assert downstream_of("mesh") == ["export", "volume", "report", "qa_report"]
+    assert downstream_of("report") == ["qa_report"]
+    assert downstream_of("qa_report") == []
     with pytest.raises(KeyError, match="no stage 'surface'"):
         stage("surface")
 

@@ -60,9 +60,11 @@ def _versions(code_root: Path) -> dict[str, str]:
 @pytest.mark.parametrize(("path", "old", "new", "changed"), [
     (*HELPER_EDIT, {"denoise"}),
     ("tasks/ingest.py", "    out += T[:, None, :3, 3]", "    out += 1.0 * T[:, None, :3, 3]", {"denoise", "targets"}),
-    ("tasks/checks.py", "", "# edited\n", {"denoise", "refine", "merge", "segment", "mesh", "export", "volume"}),
+    ("tasks/checks.py", "", "# edited\n", {"denoise", "refine", "merge", "segment", "mesh", "export", "volume",
+                                           "qa_report"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
-                                                      "weld", "mesh", "export", "volume", "report"}),
+                                                      "weld", "mesh", "export", "volume", "report", "qa_report"}),
+    ("tasks/report_figures.py", "", "# edited\n", {"qa_report"}),
     ("tasks/weld_fits.py", "", "# edited\n", {"weld"}),
 ])
 def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(tmp_path, path, old, new, changed):

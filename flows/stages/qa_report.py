@@ -1,0 +1,408 @@
+"""Stage ``qa_report``: the sample's QA report, one self-contained HTML file (``report.html``) that
+opens offline: every picture is inside it (PNG, base64), no script, no link out.
+
+What it shows, in the order a person checks a sample: the verdicts (checks, weld, FE model); the
+scan plan over the passes' coverage of each face; each pass's intensity image with the stickers
+found on it; the registration graph with its residuals; how far overlapping passes disagree, as a
+colour map on the faces; renderings of the mesh, the weld zone coloured; the weld's cross-sections
+measured over the drawing's plates and its figures along the weld with the acceptance limits; the
+FE model's element quality; the provenance (settings, inputs, code, every stage's key).
+
+The file is a function of the stages' outputs and records (same inputs, same bytes). The audit
+trail's state belongs to the moment of publication, not to the stage: the stage leaves a marked
+place (``AUDIT_MARK``) that ``flows.stages.report.publish`` fills with the trail's verification.
+"""
+
+from __future__ import annotations
+
+import base64
+import importlib.metadata
+import json
+import math
+from collections import Counter
+from typing import Any
+
+import numpy as np
+from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+
+from flows.stages.contracts import zarr_array
+from flows.stages.qa_audit import AUDIT_MARK
+from flows.stages.outputs import (CLOUD, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY,
+                                  REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY)
+from flows.stages.weld_lines import T_common_specimen, weld_lines_common
+from schemas.manifest import SampleManifest
+from tasks.coverage import FaceAccumulator
+from tasks.mesh import simplify_surface
+from tasks.report_figures import (AlongWeldSeries, ViewedFace, along_weld, face_map, histogram, intensity_image,
+                                  mesh_view, registration_graph, weld_section)
+
+__all__ = ["qa_report", "qa_report_view"]
+
+_ENV = Environment(loader=PackageLoader("flows", "templates"), autoescape=select_autoescape(["html", "j2"]),
+                   undefined=StrictUndefined, keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
+
+
+def qa_report_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
+    """What the report reads of the manifest: the passes by setup, the part, the weld, the stickers."""
+    return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()],
+            "specimen": manifest.specimen.model_dump(mode="json") if manifest.specimen is not None else None,
+            "weld": None if manifest.weld is None else manifest.weld.model_dump(mode="json"),
+            "weld_lines_mm": [[list(p) for p in line.points_mm] for line in manifest.weld_lines()],
+            "setups": [{"name": s.name, "first_pass": s.passes[0].pass_id,
+                        "T_world_specimen_nominal": s.T_world_specimen_nominal} for s in manifest.setups],
+            "sticker_diameter_mm": manifest.sticker_diameter_mm}
+
+
+def _uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _picture(png: bytes, alt: str, caption: str = "") -> dict[str, str]:
+    return {"src": _uri(png), "alt": alt, "caption": caption}
+
+
+def _apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def _view_frame(manifest: SampleManifest, T_common_pass: np.ndarray, specimen_points: np.ndarray) -> tuple[np.ndarray, str]:
+    """common frame -> the frame the maps are drawn in: the specimen's (its nominal placement
+    through the first placed setup's pose) or, for parts placed nowhere, the points' principal axes
+    (z the least spread, signs fixed by the third moments)."""
+    placed = T_common_specimen(manifest, T_common_pass)
+    if placed:
+        return np.linalg.inv(placed[0][1]), "the specimen frame (the drawing's)"
+    centre = specimen_points.mean(axis=0)
+    d = specimen_points - centre
+    _, vectors = np.linalg.eigh(d.T @ d)
+    axes = vectors[:, ::-1].T.copy()  # largest spread first: x, y, z
+    for k in range(3):
+        if np.mean((d @ axes[k]) ** 3) < 0:
+            axes[k] = -axes[k]
+    if np.linalg.det(axes) < 0:
+        axes[2] = -axes[2]
+    T = np.eye(4)
+    T[:3, :3] = axes
+    T[:3, 3] = -axes @ centre
+    return T, "the points' principal axes (no nominal placement)"
+
+
+def _thinned(shape: tuple[int, ...], budget: int) -> int:
+    n = int(np.prod(shape[:-1])) if len(shape) > 1 else 1
+    return max(1, int(math.ceil(math.sqrt(n / max(budget, 1)))))
+
+
+def _maps(ctx, T_view_common: np.ndarray, T_common_pass: np.ndarray, surface: np.ndarray, surface_normals: np.ndarray,
+          lines_view: list[np.ndarray]) -> tuple[list[dict[str, str]], dict[str, Any]]:
+    """The scan plan over the coverage, and the passes' disagreement, on the part's two faces."""
+    s = ctx.settings
+    lo = surface[:, :2].min(axis=0) - 2 * s.cell_mm
+    hi = surface[:, :2].max(axis=0) + 2 * s.cell_mm
+    faces = FaceAccumulator(surface, surface_normals, lo_mm=tuple(lo), hi_mm=tuple(hi), cell_mm=s.cell_mm)
+    paths: dict[str, list[tuple[str, np.ndarray]]] = {"top": [], "bottom": []}
+    for k, (name, ref) in enumerate(zip(ctx.names, ctx.inputs["denoise"])):
+        stored_points, stored_normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
+        T = T_view_common @ T_common_pass[k]
+        shape = stored_points.shape
+        if len(shape) == 3:  # a pass's grid: thinned along profiles and columns alike
+            step = _thinned(shape, s.points_per_pass)
+            points, normals = stored_points[::step, ::step], stored_normals[::step, ::step]
+        else:  # an imported scan: (n, 3)
+            step = max(1, shape[0] // s.points_per_pass)
+            points, normals = stored_points[::step], stored_normals[::step]
+        points = _apply(T, np.asarray(points, np.float64).reshape(-1, 3))
+        normals = np.asarray(normals, np.float64).reshape(-1, 3) @ T[:3, :3].T
+        faces.add(points, normals)
+        origins = np.asarray(zarr_array(ref, CLOUD, "sensor_origins")[...], np.float64)
+        if len(origins) >= 2 and np.isfinite(origins[[0, -1]]).all():
+            ends = _apply(T, origins[[0, -1]])
+            face = "top" if np.nanmean(normals[:, 2]) >= 0 else "bottom"  # normals face the sensor
+            paths[face].append((name, ends[:, :2]))
+    grids = faces.faces()
+    coverage = [ViewedFace(f"{g.name} face: passes that measured each {s.cell_mm:g} mm cell",
+                           np.where(g.passes > 0, g.passes, np.nan).astype(float), g.origin_mm, g.cell_mm) for g in grids]
+    spread = [ViewedFace(f"{g.name} face", g.spread_mm * 1000, g.origin_mm, g.cell_mm) for g in grids]
+    most = max(int(max(g.passes.max() for g in grids)), 1)
+    pictures = [_picture(face_map(coverage, title="Scan plan and coverage", unit="passes", cmap="viridis", discrete=True, vmax=most,
+                                  paths=[paths[g.name] for g in grids], lines=lines_view),
+                         "scan plan and coverage", "Arrows: each pass's sweep, start to end, over the number of passes that "
+                         "measured each cell; dashed: the weld lines.")]
+    values = np.concatenate([g.spread_mm[np.isfinite(g.spread_mm)] for g in grids])
+    top = float(np.percentile(values, 99) * 1000) if len(values) else 1.0
+    pictures.append(_picture(face_map(spread, title="Disagreement of overlapping passes", unit="um", cmap="magma",
+                                      vmax=max(top, 1.0), lines=lines_view),
+                             "disagreement of overlapping passes", "Where two or more passes measured a cell: the largest minus the "
+                             "smallest of their mean distances to the merged surface (colour scale to the 99th percentile)."))
+    figures = {"cells_seen": int(sum((g.passes > 0).sum() for g in grids)),
+               "cells_two_or_more": int(sum((g.passes >= 2).sum() for g in grids)),
+               "disagreement_median_um": round(float(np.median(values)) * 1000, 1) if len(values) else None,
+               "disagreement_p95_um": round(float(np.percentile(values, 95)) * 1000, 1) if len(values) else None,
+               "disagreement_max_um": round(float(values.max()) * 1000, 1) if len(values) else None}
+    return pictures, figures
+
+
+def _pass_images(ctx) -> list[dict[str, str]]:
+    """Each pass's searched intensity image with the stickers found on it."""
+    out = []
+    radius = (ctx.manifest.sticker_diameter_mm or 0) / 2
+    for name, ref in zip(ctx.names, ctx.inputs["targets"]):
+        found = TARGETS.read(ref)
+        if found.preview.size == 0:
+            continue
+        row_mm, col_mm = (float(v) for v in found.grid_spacing_mm)
+        profiles, columns = (int(v) for v in found.grid_shape)
+        extent = (0.0, columns * col_mm, 0.0, profiles * row_mm)
+        stickers = np.c_[(found.pixel[:, 1] + 0.5) * col_mm, (found.pixel[:, 0] + 0.5) * row_mm]
+        median_rms = f", rim fit RMS median {np.median(found.rms_mm) * 1000:.0f} um" if len(found.rms_mm) else ""
+        out.append(_picture(intensity_image(found.preview, extent_mm=extent, title=f"{name}: {len(found.pixel)} stickers",
+                                            stickers_mm=stickers, radius_mm=radius),
+                            f"pass {name} intensity", f"{name}: {len(found.pixel)} stickers{median_rms}"))
+    return out
+
+
+def _graph(ctx) -> tuple[list[dict[str, str]], list[dict[str, Any]]]:
+    """The registration graph: pass pairs by their common targets' residuals; per-pass rows."""
+    reg = REGISTRATION.open(ctx.inputs["registration"])
+    summary = REGISTRATION_SUMMARY.read(ctx.inputs["registration"])
+    refine = REFINE_SUMMARY.read(ctx.inputs["refine"])
+    pairs = np.asarray(reg.edge_passes[...], np.int64).reshape(-1, 2)
+    residual = np.asarray(reg.residual_mm[...], np.float64)
+    inlier = np.asarray(reg.inlier[...], bool)
+    edges = []
+    for a, b in sorted({(int(min(p)), int(max(p))) for p in pairs[inlier]}):
+        sel = inlier & (pairs.min(axis=1) == a) & (pairs.max(axis=1) == b)
+        edges.append((a, b, int(sel.sum()), float(np.median(residual[sel]))))
+    index = {n: k for k, n in enumerate(ctx.names)}
+    surface = [(index[p["a"]], index[p["b"]], float(p["rms_mm"])) for p in refine.get("surface_pairs", [])
+               if p.get("a") in index and p.get("b") in index]
+    groups = [setup for setup, _ in ctx.manifest.passes()]
+    picture = _picture(registration_graph(ctx.names, groups, edges, surface,
+                                          title="Registration graph: pass pairs joined by common stickers"),
+                       "registration graph", "Passes around the circle in scan order, coloured by setup; a line per "
+                       "pass pair with common stickers, coloured by their median residual after the solve, wider for "
+                       "more stickers; grey: surface overlaps the refinement used.")
+    degree = {n: 0 for n in ctx.names}
+    for a, b, *_ in edges:
+        degree[ctx.names[a]] += 1
+        degree[ctx.names[b]] += 1
+    rows = [{"pass": n, "setup": g, "pairs": degree[n],
+             "rms_um": None if summary["pass_rms_mm"].get(n) is None else round(summary["pass_rms_mm"][n] * 1000, 1)}
+            for n, g in zip(ctx.names, groups)]
+    return ([picture] if edges or surface else []), rows
+
+
+def _mesh_pictures(ctx, T_view_common: np.ndarray, lines_common: list[tuple[np.ndarray, float]]) -> list[dict[str, str]]:
+    mesh = MESH.read(ctx.inputs["mesh"])
+    vertices, triangles = simplify_surface(mesh.vertices, mesh.triangles, max_triangles=ctx.settings.mesh_triangles)
+    zone = ctx.config.volume.weld_zone_mm
+    centroids = vertices[triangles].mean(axis=1)
+    near = np.zeros(len(triangles), bool)
+    for line, _ in lines_common:
+        for p, q in zip(line[:-1], line[1:]):
+            t = (q - p) / max(np.linalg.norm(q - p), 1e-12)
+            rel = centroids - p
+            along = np.clip(rel @ t, 0, np.linalg.norm(q - p))
+            near |= np.linalg.norm(rel - along[:, None] * t, axis=1) < zone
+    v = _apply(T_view_common, vertices)
+    caption = (f"The Poisson mesh ({len(mesh.triangles):,} triangles) simplified to {len(triangles):,} for the picture; "
+               f"orange: the weld zone ({zone:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
+    lines_view = [_apply(T_view_common, line) for line, _ in lines_common]
+    out = [_picture(mesh_view(v, triangles, azimuth_deg=-60, elevation_deg=35, title="The mesh from above",
+                              highlight=near), "mesh from above", caption),
+           _picture(mesh_view(v, triangles, azimuth_deg=120, elevation_deg=-35, title="The mesh from below",
+                              highlight=near), "mesh from below", caption)]
+    corners = v[triangles]
+    normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    up = normal[:, 2] > 0.5 * np.linalg.norm(normal, axis=1)
+    keep = near & up & (corners[:, :, 2].mean(axis=1) > np.median(v[:, 2]))  # the upper face's weld
+    if keep.sum() > 10 and lines_view:
+        used = np.unique(triangles[keep])
+        remap = np.full(len(v), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        d = lines_view[0][-1] - lines_view[0][0]
+        along = math.degrees(math.atan2(d[1], d[0]))
+        out.append(_picture(mesh_view(v[used], remap[triangles[keep]], azimuth_deg=along + 200, elevation_deg=22,
+                                      title="The weld zone, close up", highlight=np.ones(int(keep.sum()), bool),
+                                      height_in=3.0), "mesh weld zone",
+                            "The upward faces of the weld zone alone, seen low and nearly along the weld."))
+    return out
+
+
+_TOE_FIGURES = (("toe_radius_mm", "toe radius", "mm", lambda t: t["toe_radius_mm"]),
+                ("flank_angle_deg", "flank angle", "deg", lambda t: t["flank_angle_deg"]),
+                ("undercut_depth_mm", "undercut", "mm", lambda t: t["undercut_depth_mm"]),
+                ("groove_depth_mm", "groove depth", "mm", lambda t: (t.get("groove") or {}).get("depth_mm")),
+                ("groove_width_mm", "groove width", "mm", lambda t: (t.get("groove") or {}).get("width_mm")))
+_SECTION_FIGURES = (("reinforcement_height_mm", "height", "mm"),
+                    ("reinforcement_width_mm", "width", "mm"),
+                    ("axial_misalignment_mm", "axial misal.", "mm"),
+                    ("angular_misalignment_deg", "angular misal.", "deg"))
+
+
+def _value(m: dict | None) -> tuple[float, float]:
+    if not m or m.get("value") is None:
+        return math.nan, math.nan
+    return float(m["value"]), math.nan if m.get("sigma") is None else float(m["sigma"])
+
+
+def _along_weld(geometry: dict[str, Any]) -> list[dict[str, str]]:
+    rule = geometry.get("acceptance") or {}
+    sections = geometry["sections"]
+    failing = {(f["line"], f["position_mm"], f.get("figure")) for f in geometry.get("failing", [])}
+    series = []
+    treated = geometry.get("treatment") != "as-welded"
+    for figure, label, unit, get in _TOE_FIGURES:
+        if figure.startswith("groove") and not treated:
+            continue
+        curves = {}
+        for line in dict.fromkeys(s["line"] for s in sections):
+            for side in ("minus", "plus"):
+                rows = [(s["position_mm"], *_value(get(s["toes"][side]) if s["toes"].get(side) else None),
+                         (line, s["position_mm"], figure) in failing) for s in sections if s["line"] == line]
+                if not rows or all(math.isnan(r[1]) for r in rows):
+                    continue
+                arr = np.array(rows, dtype=object)
+                curves[f"{line} {side} toe"] = (arr[:, 0].astype(float), arr[:, 1].astype(float),
+                                                arr[:, 2].astype(float), arr[:, 3].astype(bool))
+        if curves:
+            limits = rule.get(figure) or {}
+            series.append(AlongWeldSeries(label, unit, curves, limits.get("min"), limits.get("max")))
+    for figure, label, unit in _SECTION_FIGURES:
+        curves = {}
+        for line in dict.fromkeys(s["line"] for s in sections):
+            rows = [(s["position_mm"], *_value(s[figure]), (line, s["position_mm"], figure) in failing)
+                    for s in sections if s["line"] == line]
+            arr = np.array(rows, dtype=object)
+            curves[line] = (arr[:, 0].astype(float), arr[:, 1].astype(float), arr[:, 2].astype(float),
+                            arr[:, 3].astype(bool))
+        limits = rule.get(figure) or {}
+        series.append(AlongWeldSeries(label, unit, curves, limits.get("min"), limits.get("max")))
+    pictures = []
+    for start in range(0, len(series), 4):  # at most four panels a picture
+        pictures.append(_picture(along_weld(series[start:start + 4], title="Along the weld (band: 1 sigma; dashed red: "
+                                            "the acceptance limits; x: a failing section)"),
+                                 "weld figures along the weld"))
+    return pictures
+
+
+def _chosen_sections(geometry: dict[str, Any], per_line: int) -> list[dict[str, Any]]:
+    """Per weld line, the failing sections first (most violations first), then evenly along it."""
+    chosen = []
+    for line in dict.fromkeys(s["line"] for s in geometry["sections"]):
+        rows = [s for s in geometry["sections"] if s["line"] == line]
+        failing = sorted((s for s in rows if s.get("passed") is False), key=lambda s: (-len(s["violations"]),
+                                                                                       s["position_mm"]))
+        picked = failing[:per_line]
+        rest = [s for s in rows if s not in picked]
+        want = per_line - len(picked)
+        if want > 0 and rest:
+            picked += [rest[int(round(k))] for k in np.linspace(0, len(rest) - 1, want + 2)[1:-1]] if len(rest) > want \
+                else rest
+        chosen += sorted({id(s): s for s in picked}.values(), key=lambda s: s["position_mm"])
+    return chosen
+
+
+def _fmt(m: dict | None, unit: str, digits: int = 2) -> str:
+    value, sigma = _value(m)
+    if math.isnan(value):
+        return "-"
+    return f"{value:.{digits}f}" + (f" +- {sigma:.{digits}f}" if not math.isnan(sigma) else "") + f" {unit}"
+
+
+def _section_pictures(ctx, geometry: dict[str, Any], points: np.ndarray) -> list[dict[str, str]]:
+    """Cross-sections measured over the drawing's plate faces."""
+    s = ctx.config.weld
+    lines = {line["name"]: line for line in geometry["lines"]}
+    lo, hi = ctx.manifest.specimen.bounds_mm() if ctx.manifest.specimen is not None else (None, None)
+    out = []
+    for sec in _chosen_sections(geometry, ctx.settings.sections_per_line):
+        line = lines[sec["line"]]
+        c = np.asarray(sec["centre_specimen_mm"], np.float64)
+        n = np.asarray(line["face_normal"], np.float64)
+        a = np.asarray(line["across"], np.float64)
+        t = np.cross(n, a)
+        d = points - c
+        sel = (np.abs(d @ t) <= s.section_half_width_mm) & (np.abs(d @ a) <= s.reach_mm) & (np.abs(d @ n) <= s.reach_mm / 2)
+        u, h = d[sel] @ a, d[sel] @ n
+        toes = [(side, sec["toes"].get(side)) for side in ("minus", "plus")]
+        marks = []
+        if all(toe is not None for _, toe in toes):
+            centre = (toes[0][1]["position_u_mm"] + toes[1][1]["position_u_mm"]) / 2
+            marks = [(toe["position_u_mm"] - centre, f"{side} toe") for side, toe in toes]
+        nominal = []
+        if lo is not None and abs(n[2]) > 0.5:
+            z0 = hi[2] if n[2] > 0 else lo[2]
+            span = np.array([-s.reach_mm, s.reach_mm])
+            nominal.append((span, (z0 - c[2] - span * a[2]) / n[2], "the drawing's plate face"))
+        notes = [f"height {_fmt(sec['reinforcement_height_mm'], 'mm')}", f"width {_fmt(sec['reinforcement_width_mm'], 'mm')}"]
+        for side, toe in toes:
+            if toe is None:
+                notes.append(f"{side}: no toe fitted")
+                continue
+            groove = toe.get("groove")
+            notes.append(f"{side}: r {_fmt(toe['toe_radius_mm'], 'mm')}, flank {_fmt(toe['flank_angle_deg'], 'deg', 1)}"
+                         + (f", groove {_fmt(groove['depth_mm'], 'mm')} deep, {_fmt(groove['width_mm'], 'mm', 1)} wide"
+                            if groove else ""))
+        failing = sec.get("passed") is False
+        title = f"{sec['line']} at {sec['position_mm']:g} mm" + (" - fails" if failing else "")
+        verdict = ("FAILS: " + "; ".join(f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec["violations"])
+                   if failing else "within the limits" if sec.get("passed") else sec.get("note", "not judged"))
+        width = _value(sec["reinforcement_width_mm"])[0]
+        span = (width / 2 if math.isfinite(width) else s.reach_mm / 2) + 6.0
+        out.append(_picture(weld_section(u, h, title=title, toes=marks, nominal=nominal, failing=failing,
+                                         half_span_mm=min(span, s.reach_mm)),
+                            f"weld section {sec['line']} {sec['position_mm']:g} mm", f"{verdict}. " + "; ".join(notes)))
+    return out
+
+
+def _quality_picture(ctx) -> list[dict[str, str]]:
+    ref = ctx.inputs["volume"]
+    if VOLUME_VTU.name not in ref.outputs:
+        return []
+    import meshio
+
+    mesh = meshio.read(ref.file(VOLUME_VTU.name))
+    angles = np.concatenate([np.asarray(block) for block in mesh.cell_data["min_dihedral_deg"]])
+    return [_picture(histogram(angles, bins=np.arange(0, 72, 2.0), title="Element quality",
+                               xlabel="min dihedral angle, deg", mark=10.0),
+                     "FE model element quality", f"The smallest dihedral angle of each of the {len(angles):,} tetrahedra; "
+                     "dashed: 10 deg")]
+
+
+def qa_report(ctx) -> dict[str, Any]:
+    inputs = ctx.inputs
+    report = REPORT.read(inputs["report"])
+    T_common_pass = np.asarray(REFINED.open(inputs["refine"]).T_common_pass[...], np.float64)
+    specimen = SPECIMEN.read(inputs["segment"])
+    keep = specimen.measured.astype(bool)
+    T_view_common, frame = _view_frame(ctx.manifest, T_common_pass, specimen.points[keep])
+    surface = _apply(T_view_common, specimen.points[keep])
+    surface_normals = specimen.normals[keep].astype(np.float64) @ T_view_common[:3, :3].T
+    lines_common = weld_lines_common(ctx.manifest, T_common_pass)
+    lines_view = [_apply(T_view_common, line)[:, :2] for line, _ in lines_common[: len(ctx.manifest.weld_lines())]]
+    maps, map_figures = _maps(ctx, T_view_common, T_common_pass, surface, surface_normals, lines_view)
+    graph, pass_rows = _graph(ctx)
+    geometry = WELD_GEOMETRY.read(inputs["weld"])
+    weld = report["weld"]
+    weld_pictures = []
+    if geometry.get("measured"):
+        weld_pictures = _section_pictures(ctx, geometry, surface) + _along_weld(geometry)
+    volume = VOLUME_SUMMARY.read(inputs["volume"])
+    checks = report["checks"]
+    try:
+        version = importlib.metadata.version("weldrecon")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    page = _ENV.get_template("qa_report.html.j2").render(
+        sample_id=ctx.manifest.sample_id, version=version, frame=frame, audit_mark=AUDIT_MARK,
+        manifest=ctx.manifest, passes=len(ctx.names), setups=len(ctx.manifest.setups),
+        checks=checks, flagged=[c for c in checks if c["result"] != "ok"], weld=weld, volume=volume,
+        method_counts=sorted(Counter(report["registration_method"].values()).items()),
+        weld_step=ctx.config.weld.section_step_mm,
+        mesh=report["mesh"], maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
+        pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, T_view_common, lines_common),
+        weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report["deliverables"],
+        stage_keys=report["stage_keys"], config=json.dumps(report["config"], indent=1, sort_keys=True),
+        report_sha256=inputs["report"].outputs[REPORT.name])
+    QA_REPORT.write_text(ctx.out, page)
+    return {"pictures": page.count('<img '), "bytes": len(page.encode()), **map_figures}
