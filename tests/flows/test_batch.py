@@ -77,12 +77,25 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     assert "batch-c" in listed.stdout and "failed at denoise" in listed.stdout
     shown = run_cli("catalog", "show", "batch-c", "--workspace", str(workspace))
     assert "bottom-L04" in shown.stdout and "state       failed at stage denoise" in shown.stdout
+    # the batch index: every sample, the done ones linked to their QA report (relative links)
+    index = Path(first["index"])
+    assert index == workspace.resolve() / "index.html"
+    page = index.read_text()
+    for sample_id in ("batch-a", "batch-b"):
+        link = f'href="runs/{sample_id}/results/report.html"'
+        assert link in page and (workspace / "runs" / sample_id / "results" / "report.html").is_file()
+    assert "batch-c" in page and "failed at denoise" in page and 'href="runs/batch-c' not in page
+    assert page.count('alt="mesh of batch-') == 2  # each done sample's mesh picture, inline
 
     chunk.write_bytes(original)  # repaired
     second = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")
     assert second["done"] == ["batch-c"] and second["failed"] == {}
     assert sorted(second["up_to_date"]) == ["batch-a", "batch-b"]
     assert catalog.get("batch-c").state == "done"
+    assert 'href="runs/batch-c/results/report.html"' in Path(second["index"]).read_text()
+    index.unlink()
+    rebuilt = run_cli("catalog", "index", "--workspace", str(workspace))
+    assert rebuilt.returncode == 0 and rebuilt.stdout.strip() == f"index: {index}" and index.is_file()
     third = reconstruct_batch(str(workspace), None, CI_CONFIG, started_by="pytest")
     assert third["done"] == [] and len(third["up_to_date"]) == 3
 
