@@ -233,6 +233,10 @@ class VolumeConfig(StrictModel):
     weld_zone_mm: float = Field(default=14.0, ge=0, le=1000, description=(
         "distance from a weld line kept at weld_size_mm: half the cap's width plus most of an HFMI "
         "groove (the demo's 20 mm cap and 6 mm groove: 10 + 4.5)"))
+    toe_size_mm: float = Field(default=0.5, gt=0, le=100, description=(
+        "element edge on the surface at the weld toes the weld stage measured (where fatigue cracks start); "
+        "no finer than weld_size_mm: off"))
+    toe_zone_mm: float = Field(default=1.0, ge=0, le=100, description="distance from a measured toe kept at toe_size_mm")
     growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm beyond the weld zone")
     max_surface_triangles: int = Field(default=150_000, ge=1000, le=50_000_000, description=(
         "the Poisson surface is simplified to at most this many triangles before gmsh reparametrises it "

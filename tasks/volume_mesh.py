@@ -79,10 +79,12 @@ def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
 
 def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm: list[np.ndarray],
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
-                   feature_angle_deg: float, optimize: bool,
-                   seed: int = 1) -> VolumeMesh:
+                   feature_angle_deg: float, optimize: bool, toe_lines_mm: list[np.ndarray] = (),
+                   toe_size_mm: float | None = None, toe_zone_mm: float = 0.0, seed: int = 1) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
-    triangles (t, 3)); sizes as in the module's description. Where gmsh cannot reparametrise the
+    triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
+    ``toe_size_mm`` within ``toe_zone_mm`` of the ``toe_lines_mm`` (polylines (k, 3), mm, where the
+    toes were measured), growing by ``growth`` per mm to the weld zone's size. Where gmsh cannot reparametrise the
     surface's patches (a patch of a topology it cannot flatten), the surface's own triangles are
     kept as the boundary and only the inside is meshed (``VolumeMesh.surface_remeshed`` False).
     Raises VolumeMeshError when gmsh cannot mesh it either way (an open or self-intersecting
@@ -93,8 +95,12 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
         raise VolumeMeshError("the surface has no triangles")
     weld = polyline_samples(weld_lines_mm, step_mm=max(weld_size_mm, 0.05) / 2) if weld_lines_mm else None
     tree = cKDTree(weld) if weld is not None and len(weld) else None
+    toes = None
+    if len(toe_lines_mm) and toe_size_mm is not None and toe_size_mm < weld_size_mm:
+        toes = polyline_samples(toe_lines_mm, step_mm=max(toe_size_mm, 0.05) / 2)
     sizes = dict(size_mm=size_mm, weld_size_mm=weld_size_mm, weld_zone_mm=weld_zone_mm, growth=growth,
-                 feature_angle_deg=feature_angle_deg, optimize=optimize, seed=seed)
+                 feature_angle_deg=feature_angle_deg, optimize=optimize, seed=seed, toes=toes,
+                 toe_size_mm=toe_size_mm, toe_zone_mm=toe_zone_mm)
     remeshed = True
     try:
         node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, **sizes)
@@ -164,7 +170,7 @@ def _child() -> None:
 
 
 def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
-                      feature_angle_deg, optimize, seed):
+                      feature_angle_deg, optimize, seed, toes=None, toe_size_mm=None, toe_zone_mm=0.0):
     """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
     or kept as it is, the inside meshed."""
     import gmsh
@@ -200,9 +206,22 @@ def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_
                                 ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
                 gmsh.model.mesh.field.setNumber(ramp, name, value)
             field = ramp
+            if toes is not None and len(toes):  # finer at the toes, the smaller of the two sizes wins
+                toe_points = [gmsh.model.geo.addPoint(*map(float, p)) for p in toes]
+                gmsh.model.geo.synchronize()
+                toe_distance = gmsh.model.mesh.field.add("Distance")
+                gmsh.model.mesh.field.setNumbers(toe_distance, "PointsList", toe_points)
+                toe_ramp = gmsh.model.mesh.field.add("Threshold")
+                for name, value in (("InField", toe_distance), ("SizeMin", toe_size_mm), ("SizeMax", weld_size_mm),
+                                    ("DistMin", toe_zone_mm),
+                                    ("DistMax", toe_zone_mm + max(weld_size_mm - toe_size_mm, 0.0) / growth)):
+                    gmsh.model.mesh.field.setNumber(toe_ramp, name, value)
+                field = gmsh.model.mesh.field.add("Min")
+                gmsh.model.mesh.field.setNumbers(field, "FieldsList", [ramp, toe_ramp])
+            sized = field
             if remesh:  # on the surface only: inside, sizes grow from the surface's
                 field = gmsh.model.mesh.field.add("Restrict")
-                gmsh.model.mesh.field.setNumber(field, "InField", ramp)
+                gmsh.model.mesh.field.setNumber(field, "InField", sized)
                 gmsh.model.mesh.field.setNumbers(field, "SurfacesList", patches)
             gmsh.model.mesh.field.setAsBackgroundMesh(field)
         gmsh.model.geo.synchronize()

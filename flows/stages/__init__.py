@@ -53,8 +53,9 @@ STAGES: tuple[Stage, ...] = (
           "screened Poisson (MeshLab) on the merged points and normals"),
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
           "binary STL and PLY"),
-    Stage("volume", False, ("refine", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY),
-          volume.volume, weld_lines_view, "the FE model: gmsh tetrahedra graded toward the weld lines, one checked solid; "
+    Stage("volume", False, ("refine", "weld", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY),
+          volume.volume, weld_lines_view, "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
+          "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
     Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
                             "export", "volume"), "*",

@@ -1,5 +1,6 @@
 """Stage ``volume``: the FE model. gmsh fills the Poisson surface with tetrahedra graded toward the
-weld lines (where the setups' nominal placements and the refined poses put them), from the
+weld lines (where the setups' nominal placements and the refined poses put them) and, finer, toward
+the weld toes the weld stage measured, from the
 surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse), checked to be
 one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU with
 the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
@@ -14,12 +15,34 @@ from typing import Any
 import numpy as np
 
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
-from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU
-from flows.stages.weld_lines import weld_lines_common
+from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY
+from flows.stages.weld_lines import T_common_specimen, weld_lines_common
 from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
 
-__all__ = ["volume"]
+__all__ = ["volume", "toe_lines"]
+
+
+def toe_lines(geometry: dict[str, Any], T_common_specimen: np.ndarray) -> list[np.ndarray]:
+    """The weld toes the weld stage measured, one polyline (k, 3) per weld line and side, in the
+    common frame, mm: each section's toe on its line's across direction from the section's centre
+    (where both toes were fitted; the centre is midway between them)."""
+    if not geometry.get("measured"):
+        return []
+    across = {line["name"]: np.asarray(line["across"], np.float64) for line in geometry["lines"]}
+    found: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
+    for sec in geometry["sections"]:
+        toes = sec.get("toes") or {}
+        if toes.get("minus") is None or toes.get("plus") is None:
+            continue
+        centre_u = (toes["minus"]["position_u_mm"] + toes["plus"]["position_u_mm"]) / 2
+        for side in ("minus", "plus"):
+            point = np.asarray(sec["centre_specimen_mm"], np.float64) + \
+                (toes[side]["position_u_mm"] - centre_u) * across[sec["line"]]
+            found.setdefault((sec["line"], side), []).append((sec["position_mm"], point))
+    T = np.asarray(T_common_specimen, np.float64)
+    return [np.array([p for _, p in sorted(rows, key=lambda r: r[0])]) @ T[:3, :3].T + T[:3, 3]
+            for _, rows in sorted(found.items()) if len(rows) >= 2]
 
 
 def volume(ctx) -> dict[str, Any]:
@@ -32,12 +55,16 @@ def volume(ctx) -> dict[str, Any]:
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
     # the weld lines where the first placed setup puts them: each setup's lines are all of the
     # part's, and the other setups' placements (by hand, within their tolerance) would only widen the zone
-    lines = [points for points, _ in weld_lines_common(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass)]
+    T_common_pass = REFINED.open(ctx.inputs["refine"]).T_common_pass
+    lines = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
     lines = lines[:len(ctx.manifest.weld_lines())]
+    placed = T_common_specimen(ctx.manifest, T_common_pass)  # the weld stage's frame: the first placed setup's
+    toes = toe_lines(WELD_GEOMETRY.read(ctx.inputs["weld"]), placed[0][1]) if placed else []
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
-                               feature_angle_deg=s.feature_angle_deg, optimize=s.optimize)
+                               feature_angle_deg=s.feature_angle_deg, optimize=s.optimize, toe_lines_mm=toes,
+                               toe_size_mm=s.toe_size_mm, toe_zone_mm=s.toe_zone_mm)
     except VolumeMeshError as exc:
         return _not_made(ctx, str(exc))
     checks = solid_checks(solid, closed.volume_mm3)
@@ -66,6 +93,7 @@ def volume(ctx) -> dict[str, Any]:
     summary = {"made": True, "surface_triangles": int(len(surface.triangles)), "meshed_triangles": int(len(triangles)),
                "surface_remeshed": solid.surface_remeshed,
                "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
+               "toe_lines": len(toes), "toe_points": int(sum(len(t) for t in toes)),
                "sets": {"elements": "ALL", "weld_zone_nodes": WELD_ZONE_NODES, "weld_zone_surface": WELD_ZONE_SURFACE}}
     VOLUME_SUMMARY.write(ctx.out, summary)
     return {"made": True, "tetrahedra": rounded["tetrahedra"], "nodes": rounded["nodes"],

@@ -97,6 +97,9 @@ def test_the_fe_model_is_one_solid_of_the_meshes_volume_graded_toward_the_weld(r
     weld_size = report["config"]["volume"]["weld_size_mm"]
     assert np.median(edge[in_zone]) < 1.15 * weld_size  # measured 1.58 mm at 1.5
     assert np.median(edge[~in_zone]) > 1.8 * np.median(edge[in_zone])  # measured 3.52 mm
+    # finer still at the toes the weld stage measured: both toes of every weld line
+    assert report["volume_mesh"]["toe_lines"] == 2 * len(report["weld"]["lines"])
+    assert report["volume_mesh"]["toe_points"] >= 2 * report["weld"]["sections"] * 0.9
 
 
 def test_every_consistency_check_is_stated_and_passes_on_a_clean_sample(run):

@@ -32,7 +32,7 @@ def test_downstream_and_lookup():
     assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "report",
                                         "qa_report"]
     assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "report", "qa_report"]
-    assert downstream_of("weld") == ["report", "qa_report"]
+    assert downstream_of("weld") == ["volume", "report", "qa_report"]
     assert downstream_of("mesh") == ["export", "volume", "report", "qa_report"]
     assert downstream_of("report") == ["qa_report"]
     assert downstream_of("qa_report") == []

@@ -89,6 +89,26 @@ def test_elements_are_finer_at_the_weld_and_the_weld_zone_is_marked(plate):
     assert not np.any(zone & outside)
 
 
+def test_elements_are_finer_still_at_the_measured_toes(plate):
+    vertices, triangles, solid = plate
+    toes = [np.array([[x, -10.0, 3.0], [x, 10.0, 3.0]]) for x in (-1.5, 1.5)]  # two toes beside the weld line
+    refined = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes, toe_size_mm=0.3,
+                             toe_zone_mm=0.3, **SIZES)
+    assert len(refined.tetrahedra) > len(solid.tetrahedra)
+
+    def edges_near(s, x0):
+        b = s.points[s.boundary_triangles()]
+        edges = np.linalg.norm(b - np.roll(b, 1, axis=1), axis=2).mean(axis=1)
+        centre = b.mean(axis=1)
+        return edges[(np.abs(centre[:, 0] - x0) < 0.3) & (centre[:, 2] > 2.9)]
+
+    for x0 in (-1.5, 1.5):
+        assert np.median(edges_near(refined, x0)) < 0.45 < 0.6 < np.median(edges_near(solid, x0))
+    # a toe size no finer than the weld's changes nothing
+    same = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes, toe_size_mm=0.8, **SIZES)
+    assert np.array_equal(same.tetrahedra, solid.tetrahedra) and np.array_equal(same.points, solid.points)
+
+
 def test_the_same_surface_gives_the_same_tetrahedra_in_another_process(plate):
     _, _, solid = plate
     here = hashlib.sha256(solid.points.tobytes() + solid.tetrahedra.tobytes()).hexdigest()
