@@ -255,7 +255,8 @@ class QaReportConfig(StrictModel):
     cell_mm: float = Field(default=1.0, gt=0, le=50, description=(
         "cell of the coverage and disagreement maps on the part's faces"))
     points_per_pass: int = Field(default=200_000, ge=1000, le=50_000_000, description=(
-        "each pass's points read for the maps, evenly thinned along its profiles and columns"))
+        "an imported scan's points read for the maps, evenly thinned (a cell's passes are thinned to "
+        "about nine points a cell)"))
     sections_per_line: int = Field(default=4, ge=0, le=100, description=(
         "weld cross-sections drawn per weld line: the failing ones first (worst first), then evenly along it"))
     mesh_triangles: int = Field(default=60_000, ge=1000, le=2_000_000, description=(

@@ -212,9 +212,11 @@ def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_
                 toe_distance = gmsh.model.mesh.field.add("Distance")
                 gmsh.model.mesh.field.setNumbers(toe_distance, "PointsList", toe_points)
                 toe_ramp = gmsh.model.mesh.field.add("Threshold")
-                for name, value in (("InField", toe_distance), ("SizeMin", toe_size_mm), ("SizeMax", weld_size_mm),
+                # growing at the same rate up to the largest size (a Threshold is SizeMax beyond
+                # DistMax: capped at the weld's size it would cap the whole part there)
+                for name, value in (("InField", toe_distance), ("SizeMin", toe_size_mm), ("SizeMax", size_mm),
                                     ("DistMin", toe_zone_mm),
-                                    ("DistMax", toe_zone_mm + max(weld_size_mm - toe_size_mm, 0.0) / growth)):
+                                    ("DistMax", toe_zone_mm + max(size_mm - toe_size_mm, 0.0) / growth)):
                     gmsh.model.mesh.field.setNumber(toe_ramp, name, value)
                 field = gmsh.model.mesh.field.add("Min")
                 gmsh.model.mesh.field.setNumbers(field, "FieldsList", [ramp, toe_ramp])

@@ -87,9 +87,14 @@ def _view_frame(manifest: SampleManifest, T_common_pass: np.ndarray, specimen_po
     return T, "the points' principal axes (no nominal placement)"
 
 
-def _thinned(shape: tuple[int, ...], budget: int) -> int:
-    n = int(np.prod(shape[:-1])) if len(shape) > 1 else 1
-    return max(1, int(math.ceil(math.sqrt(n / max(budget, 1)))))
+def _steps(manifest: SampleManifest, entry, shape: tuple[int, ...], cell_mm: float, points_per_pass: int) -> tuple[int, ...]:
+    """How a pass is thinned for the maps: a grid pass every k-th profile and column, k as large as
+    keeps its points at most a third of a cell apart (about nine to a cell, enough for a cell's
+    mean); an imported scan (n, 3) evenly to ``points_per_pass``."""
+    if len(shape) == 3 and manifest.scanner is not None:
+        pitches = manifest.grid_pitch_mm(entry)
+        return tuple(max(1, int(cell_mm / (3 * p))) for p in pitches)
+    return (max(1, shape[0] // points_per_pass),)
 
 
 def _maps(ctx, T_view_common: np.ndarray, T_common_pass: np.ndarray, surface: np.ndarray, surface_normals: np.ndarray,
@@ -100,16 +105,13 @@ def _maps(ctx, T_view_common: np.ndarray, T_common_pass: np.ndarray, surface: np
     hi = surface[:, :2].max(axis=0) + 2 * s.cell_mm
     faces = FaceAccumulator(surface, surface_normals, lo_mm=tuple(lo), hi_mm=tuple(hi), cell_mm=s.cell_mm)
     paths: dict[str, list[tuple[str, np.ndarray]]] = {"top": [], "bottom": []}
+    entries = [e for _, e in ctx.manifest.passes()]
     for k, (name, ref) in enumerate(zip(ctx.names, ctx.inputs["denoise"])):
         stored_points, stored_normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
         T = T_view_common @ T_common_pass[k]
-        shape = stored_points.shape
-        if len(shape) == 3:  # a pass's grid: thinned along profiles and columns alike
-            step = _thinned(shape, s.points_per_pass)
-            points, normals = stored_points[::step, ::step], stored_normals[::step, ::step]
-        else:  # an imported scan: (n, 3)
-            step = max(1, shape[0] // s.points_per_pass)
-            points, normals = stored_points[::step], stored_normals[::step]
+        step = tuple(slice(None, None, n) for n in _steps(ctx.manifest, entries[k], stored_points.shape, s.cell_mm,
+                                                          s.points_per_pass))
+        points, normals = stored_points[step], stored_normals[step]
         points = _apply(T, np.asarray(points, np.float64).reshape(-1, 3))
         normals = np.asarray(normals, np.float64).reshape(-1, 3) @ T[:3, :3].T
         faces.add(points, normals)
