@@ -13,7 +13,9 @@ The files for FE programs (Abaqus ``.inp``, VTU) are written by ``data_catalog.v
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 import pickle
 import subprocess
 import sys
@@ -147,8 +149,16 @@ def _gmsh_volume(vertices, triangles, weld, **settings):
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, **_ONE_THREAD,
            "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    parent = os.getpid()
+
+    def die_with_parent() -> None:  # in the child: the kernel ends it when this process dies, however
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # this process died before the line above
+            os._exit(1)
+
     done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
-                          input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env)
+                          input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
+                          preexec_fn=die_with_parent)
     if done.returncode != 0 or _RESULT not in done.stdout:
         tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
         raise VolumeMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
