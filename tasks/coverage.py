@@ -62,11 +62,14 @@ class FaceAccumulator:
         """One pass's points and normals (n, 3), view frame; NaN rows are skipped."""
         p = np.asarray(points_mm, np.float64).reshape(-1, 3)
         nz = np.asarray(normals, np.float64).reshape(-1, 3)
-        ok = np.isfinite(p).all(axis=1) & np.isfinite(nz).all(axis=1)
+        ok = np.isfinite(p).all(axis=1) & np.isfinite(nz).all(axis=1) & (np.abs(nz[:, 2]) > self.face_cos)
         p, nz = p[ok], nz[ok]
         if not len(p):
             return
-        dist, nearest = self._tree.query(p, workers=1)
+        # the nearest surface point within reach (beyond it: not the part; the bound prunes the search)
+        dist, nearest = self._tree.query(p, distance_upper_bound=self.max_distance_mm, workers=1)
+        found = np.isfinite(dist)
+        p, nz, dist, nearest = p[found], nz[found], dist[found], nearest[found]
         signed = np.einsum("ij,ij->i", p - self._surface[nearest], self._normals[nearest])
         col = np.floor((p[:, 0] - self.origin[0]) / self.cell_mm).astype(np.int64)
         row = np.floor((p[:, 1] - self.origin[1]) / self.cell_mm).astype(np.int64)
