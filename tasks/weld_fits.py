@@ -14,7 +14,10 @@ over this side's plate line).
   the flank a line over ``toe_window_mm[0]`` inward of it (the flank angle the weld has now, just
   above the groove: the original flank at the toe is cut away by the pin); the toe is within the
   groove when the groove's wall runs up into the weld's flank with no stretch of plate between them
-  longer than ``groove_plate_gap_mm``.
+  longer than ``groove_plate_gap_mm`` (points on the groove's circle are groove, not plate).
+  A groove's radius and width are only reported where its circle is held by points on both sides
+  of its bottom; otherwise they are not measured (NaN, the reason in the toe's note), never an
+  extrapolated value.
 """
 
 from __future__ import annotations
@@ -126,7 +129,9 @@ def propagate(f, p: np.ndarray, cov: np.ndarray) -> float:
 
 def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
     """A line h = slope * u + intercept through the points, trimmed of outliers (stickers, spatter)
-    by 3 robust sigmas, three rounds. ``u``, ``h``: (n,) float64, mm. None: too few points."""
+    by 3 robust sigmas, three rounds, starting from the lowest band of points parallel to the
+    least-median line that holds a fifth of them (a sticker over most of the window lies on the
+    plate: the plate is under it). ``u``, ``h``: (n,) float64, mm. None: too few points."""
     u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
     if u.shape != h.shape or u.ndim != 1:
         raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
@@ -145,7 +150,28 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
         med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
         best = int(np.argmin(med))
         r = h - (slopes[best] * u + offsets[best])
-        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
+        # the noise from neighbours along u (a sticker's 0.1 mm step inflates the median residual)
+        o = np.argsort(uk)
+        step = np.diff(hk[o] - slopes[best] * uk[o])
+        noise = 1.4826 * float(np.median(np.abs(step))) / math.sqrt(2) if len(step) else np.inf
+        # (at least 0.03 mm: layers of passes registered a few um apart are one plate; a sticker's
+        # paper, 0.1 mm, is not)
+        tol = max(3 * min(1.4826 * med[best], noise), 0.03)
+        # the plate is the lowest band of the window holding a fifth of its points (at least
+        # min_points): a sticker (0.1 mm of paper) or spatter lies on the plate, never under it,
+        # and one covering more than half of the window is the median's line, not the plate
+        rs = np.sort(r[keep])
+        need = max(int(np.ceil(0.2 * len(rs))), min_points, 3)
+        count = np.searchsorted(rs, rs + 2 * tol, side="right") - np.arange(len(rs))
+        first = np.flatnonzero(count >= need)
+        level = float(np.median(rs[first[0]:first[0] + count[first[0]]])) if len(first) else 0.0
+        band = keep & (np.abs(r - level) <= tol)
+        if band.sum() >= max(min_points, 3):  # the band's own line, the points around it (both sides)
+            coef = np.polyfit(u[band], h[band], 1)
+            r = h - np.polyval(coef, u)
+            spread = min(float(med[best]), float(np.median(np.abs(r[band]))))
+            band = keep & (np.abs(r) <= max(3 * 1.4826 * spread, 1e-3))
+        keep = band
     for _ in range(3):
         if keep.sum() < max(min_points, 3):
             return None
@@ -227,19 +253,56 @@ def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray
     return np.hypot(v - p[0], z - p[1]) - p[2]
 
 
+def _running_median(z: np.ndarray, k: int = 5) -> np.ndarray:
+    """Each value replaced by the median of the k (odd) around it (fewer at the ends)."""
+    if len(z) < k:
+        return z.copy()
+    half = k // 2
+    padded = np.concatenate([np.full(half, np.nan), z, np.full(half, np.nan)])
+    return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, k), axis=1)
+
+
+def _fit_circle(gv: np.ndarray, gz: np.ndarray, depth0: float, v_bottom: float):
+    """The groove's circle through (gv, gz), then again without the points off it by more than
+    4 robust sigmas (spatter, a stray return): (least_squares result, the points kept)."""
+    span = max(float(gv[-1] - gv[0]), 1e-3)
+    r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
+    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
+    x0 = np.clip([v_bottom, r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
+    keep = np.ones(len(gv), bool)
+    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
+    r = _circle_residuals(res.x, gv, gz)
+    new = np.abs(r) <= max(4 * 1.4826 * float(np.median(np.abs(r))), 0.01)
+    if not new.all() and new.sum() >= 4:
+        keep = new
+        res = least_squares(_circle_residuals, np.clip(res.x, lo + 1e-9, hi - 1e-9), args=(gv[keep], gz[keep]),
+                            bounds=(lo, hi), x_scale="jac")
+    return res, keep
+
+
 def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
     """A treated toe: the groove's circle on its lower part (points deeper than a quarter of its
     depth, around its deepest point), the flank above it by a parabola extended to the plate.
-    ``v``, ``h`` as in ``fit_toe``. None: no groove deeper than ``groove_min_depth_mm``."""
+    ``v``, ``h`` as in ``fit_toe``. None: no groove deeper than ``groove_min_depth_mm``.
+
+    Robust to what a real (or coarse) profile holds: the deepest point is found on a running
+    median of five points (one stray return below the groove is not its bottom); the circle is
+    refitted without points off it by more than 4 robust sigmas; a circle with fewer than
+    ``min_points // 2`` (at least 3) points on either side of its bottom does not determine its
+    radius and width (a wall seen, not a groove): those are not measured (NaN, said in ``note``),
+    the depth is read on the median profile, and the toe is still treated."""
     flank_mm, plate_mm = settings.toe_window_mm
     region = (v > toe_guess_v - flank_mm) & (v < toe_guess_v + plate_mm + 8.0)
-    if region.sum() < settings.min_points or h[region].min() > -settings.groove_min_depth_mm:
+    if region.sum() < settings.min_points:
         return None
     order = np.argsort(v[region])
     vv, hh = v[region][order], h[region][order]
-    k = int(np.argmin(hh))
-    depth0 = -float(hh[k])
-    deep = hh < -0.25 * depth0
+    smooth = _running_median(hh)
+    k = int(np.argmin(smooth))
+    depth0 = -float(smooth[k])
+    if depth0 < settings.groove_min_depth_mm:
+        return None
+    deep = smooth < -0.25 * depth0
     lo_k = k
     while lo_k > 0 and deep[lo_k - 1]:
         lo_k -= 1
@@ -249,11 +312,7 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     gv, gz = vv[lo_k:hi_k + 1], hh[lo_k:hi_k + 1]
     if len(gv) < max(settings.min_points, 4):
         return None
-    span = max(gv[-1] - gv[0], 1e-3)
-    r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
-    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
-    x0 = np.clip([float(vv[k]), r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
-    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
+    res, kept = _fit_circle(gv, gz, depth0, float(vv[k]))
     p = res.x
     cov, rms = _sigmas(res, 3)
 
@@ -263,12 +322,23 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     def width(q):
         return 2 * math.sqrt(max(q[2] ** 2 - q[1] ** 2, 0.0))
 
-    D, W = depth(p), width(p)
-    g_depth = Measured(D, propagate(depth, p, cov))
-    g_width = Measured(W, propagate(width, p, cov))
-    g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
-    # the groove's inner edge: inward from its deepest point, the last point on the circle (three
-    # off it in a row end the walk); the flank is the points inward of that edge
+    need = max(3, settings.min_points // 2)
+    n_in, n_out = int(np.count_nonzero(gv[kept] < p[0])), int(np.count_nonzero(gv[kept] > p[0]))
+    note = ""
+    if n_in >= need and n_out >= need:
+        D, W = depth(p), width(p)
+        g_depth = Measured(D, propagate(depth, p, cov))
+        g_width = Measured(W, propagate(width, p, cov))
+        g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
+    else:
+        # the circle is not held on both sides of its bottom: its radius and width are guesses
+        near = np.abs(gv - vv[k]) <= max(2 * float(np.median(np.diff(gv))) if len(gv) > 2 else 0.5, 0.2)
+        spread = float(np.std(gz[near])) if near.sum() > 1 else rms
+        D, W = depth0, 2 * float(max(gv[-1] - gv[0], 0.0))
+        g_depth = Measured(D, spread / math.sqrt(max(int(near.sum()), 1)))
+        g_width = g_radius = Measured.none()
+        note = (f"groove radius and width not measured: {n_in} points inward and {n_out} outward of the "
+                f"circle's bottom (at least {need} each needed)")
     on_circle_z = p[1] - np.sqrt(np.maximum(p[2] ** 2 - (v - p[0]) ** 2, 0.0))
     on = (np.abs(v - p[0]) < p[2]) & (np.abs(h - on_circle_z) <= max(3 * rms, 0.02))
     inner = np.flatnonzero(v <= vv[k])
@@ -283,14 +353,31 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
                 break
     flank = (v < v_meet - 0.05) & (v > v_meet - flank_mm) & (h > 0)
     # the toe is within the groove when the groove's wall runs straight up into the weld's flank:
-    # no stretch of plate (|h| < groove_min_depth_mm) longer than groove_plate_gap_mm between them
-    inward = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W)])
-    level = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W) & (np.abs(h) < settings.groove_min_depth_mm)])
+    # no stretch of plate (|h| < groove_min_depth_mm, off the groove's circle: a wide shallow
+    # groove's wall is itself nearly level where it crosses the plate) longer than
+    # groove_plate_gap_mm between them
+    # groove_plate_gap_mm: consecutive points (along v) all at the plate's level and off the
+    # circle, so that a steep, sparsely sampled wall whose clumps of points each straddle the
+    # plate's level is not read as plate
+    reach = W if math.isfinite(W) else 2 * float(gv[-1] - gv[0])
+    between = (v < vv[k]) & (v > toe_guess_v - flank_mm - reach)
     up = v[(v < vv[k]) & (h > settings.toe_threshold_mm)]
-    flat = level[level > up.max()] if len(up) else level
-    toe_within = bool(len(up) and len(inward) and (len(flat) < 2 or flat.max() - flat.min() <= settings.groove_plate_gap_mm))
-    note = ""
+    if len(up):
+        between &= v > up.max()
+    order_b = np.argsort(v[between])
+    bv = v[between][order_b]
+    flat = ((np.abs(h[between]) < settings.groove_min_depth_mm) & ~on[between])[order_b]
+    longest, start = 0.0, None
+    for i in range(len(bv)):
+        if flat[i]:
+            start = i if start is None else start
+            longest = max(longest, float(bv[i] - bv[start]))
+        else:
+            start = None
+    toe_within = bool(len(up) and np.count_nonzero((v < vv[k]) & (v > toe_guess_v - flank_mm - reach))
+                      and longest <= settings.groove_plate_gap_mm)
     angle, toe_v = Measured.none(), v_meet
+    groove_note, note = note, ""
     if flank.sum() >= 3:
         fv, fz = v[flank], h[flank]
         if len(fv) >= 3 and np.ptp(fv) > 0.1:
@@ -307,6 +394,7 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
             note = "too few flank points above the groove"
     else:
         note = "too few flank points above the groove"
+    note = "; ".join(x for x in (groove_note, note) if x)
     groove = GrooveFit(depth=g_depth, width=g_width, radius=g_radius, centre_v_mm=float(p[0]),
                        toe_within=toe_within, rms_mm=rms, n_points=len(gv))
     # where the groove leaves its circle is known to the points' spacing there (uniform: /sqrt 12)

@@ -144,7 +144,9 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         z0, z1 = float(a.at(u0)), float(b.at(u1))
         # the peak on the points nearest the section along the line (bead ripples): within
         # height_half_width_mm, or out to the tenth nearest point over the cap's middle
-        between = (u > u0) & (u < u1)
+        # (at least the middle millimetre: a very shallow groove's wide circle can cut the cap
+        # nearly to its top, the toes where it meets the weld a fraction of a millimetre apart)
+        between = (u > min(u0, centre - 0.5)) & (u < max(u1, centre + 0.5))
         middle = np.sort(np.abs(s[between & (np.abs(u - centre) < 2.0)]))
         reach = max(settings.height_half_width_mm, float(middle[min(9, len(middle) - 1)]) if len(middle) else np.inf)
         between &= np.abs(s) <= reach

@@ -78,4 +78,8 @@ def test_ci_weld_file_carries_uncertainties_verdicts_and_statistics(weld_run):
     assert set(stats["min_at"]) == {"line", "position_mm", "toe"}
     assert geometry["summary"]["verdict"] in ("pass", "fail")
     assert geometry["summary"]["failing"] == sum(not s["passed"] for s in geometry["sections"] if s["passed"] is not None)
+    # uncertain sections (a figure within its 1-sigma of a limit, or not measured) are said apart
+    assert {s["verdict"] for s in geometry["sections"]} <= {"pass", "fail", "uncertain", "not measured"}
+    assert geometry["summary"]["sections_uncertain"] == sum(s["verdict"] == "uncertain" for s in geometry["sections"])
+    assert len(geometry["uncertain"]) == sum(len(s["uncertain"]) for s in geometry["sections"] if s["passed"])
     assert refs["weld"].metrics["sections"] == geometry["summary"]["sections"]
