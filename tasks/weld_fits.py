@@ -127,51 +127,8 @@ def propagate(f, p: np.ndarray, cov: np.ndarray) -> float:
     return math.sqrt(var) if var >= 0 and math.isfinite(var) else _NAN
 
 
-def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
-    """A line h = slope * u + intercept through the points, trimmed of outliers (stickers, spatter)
-    by 3 robust sigmas, three rounds, starting from the lowest band of points parallel to the
-    least-median line that holds a fifth of them (a sticker over most of the window lies on the
-    plate: the plate is under it). ``u``, ``h``: (n,) float64, mm. None: too few points."""
-    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
-    if u.shape != h.shape or u.ndim != 1:
-        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
-    keep = np.isfinite(u) & np.isfinite(h)
-    if keep.sum() < max(min_points, 3):
-        return None
-    # least median of squares first (a sticker can cover a third of a plate window, 0.1 mm high):
-    # lines through point pairs drawn with a fixed seed, the one whose median |residual| is least
-    uk, hk = u[keep], h[keep]
-    rng = np.random.default_rng(0)
-    i, j = rng.integers(0, len(uk), size=(2, 300))
-    ok = np.abs(uk[i] - uk[j]) > 1e-6
-    if ok.any():
-        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
-        offsets = hk[i[ok]] - slopes * uk[i[ok]]
-        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
-        best = int(np.argmin(med))
-        r = h - (slopes[best] * u + offsets[best])
-        # the noise from neighbours along u (a sticker's 0.1 mm step inflates the median residual)
-        o = np.argsort(uk)
-        step = np.diff(hk[o] - slopes[best] * uk[o])
-        noise = 1.4826 * float(np.median(np.abs(step))) / math.sqrt(2) if len(step) else np.inf
-        # (at least 0.03 mm: layers of passes registered a few um apart are one plate; a sticker's
-        # paper, 0.1 mm, is not)
-        tol = max(3 * min(1.4826 * med[best], noise), 0.03)
-        # the plate is the lowest band of the window holding a fifth of its points (at least
-        # min_points): a sticker (0.1 mm of paper) or spatter lies on the plate, never under it,
-        # and one covering more than half of the window is the median's line, not the plate
-        rs = np.sort(r[keep])
-        need = max(int(np.ceil(0.2 * len(rs))), min_points, 3)
-        count = np.searchsorted(rs, rs + 2 * tol, side="right") - np.arange(len(rs))
-        first = np.flatnonzero(count >= need)
-        level = float(np.median(rs[first[0]:first[0] + count[first[0]]])) if len(first) else 0.0
-        band = keep & (np.abs(r - level) <= tol)
-        if band.sum() >= max(min_points, 3):  # the band's own line, the points around it (both sides)
-            coef = np.polyfit(u[band], h[band], 1)
-            r = h - np.polyval(coef, u)
-            spread = min(float(med[best]), float(np.median(np.abs(r[band]))))
-            band = keep & (np.abs(r) <= max(3 * 1.4826 * spread, 1e-3))
-        keep = band
+def _trimmed_line(u: np.ndarray, h: np.ndarray, keep: np.ndarray, min_points: int) -> PlateFit | None:
+    """Least squares on ``keep``, trimmed by 3 robust sigmas (points only leave), three rounds."""
     for _ in range(3):
         if keep.sum() < max(min_points, 3):
             return None
@@ -191,6 +148,64 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     dof = max(len(r) - 2, 1)
     cov = np.linalg.pinv(A.T @ A) * float(r @ r) / dof
     return PlateFit(float(coef[0]), float(coef[1]), cov, float(np.sqrt(np.mean(r * r))), int(keep.sum()))
+
+
+def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
+    """A line h = slope * u + intercept through the plate's points, not a sticker's or spatter's
+    (0.1 mm of paper on the plate, possibly over most of the window). ``u``, ``h``: (n,) float64,
+    mm. None: too few points.
+
+    Lines through point pairs (a fixed seed) give the least-median line and the noise (from
+    neighbours along u). A sticker or spatter lies on the plate, never under it; two starts:
+    the lowest band parallel to the least-median line holding a fifth of the points (a sticker
+    covering most of the window is the median's line, the plate a band under it), and the pair's
+    line with the most points on it less twice those under it (where a sticker in the middle of
+    the window tilts the median's line). Each is refined by trimmed least squares on the points
+    around it; the one with the smaller RMS (a line across plate and sticker has the step in its
+    residuals) is the plate."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if not ok.any():
+        return _trimmed_line(u, h, keep, min_points)
+    slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+    offsets = hk[i[ok]] - slopes * uk[i[ok]]
+    resid = hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])
+    med = np.median(np.abs(resid), axis=1)
+    best = int(np.argmin(med))
+    o = np.argsort(uk)
+    step = np.diff(hk[o] - slopes[best] * uk[o])
+    noise = 1.4826 * float(np.median(np.abs(step))) / math.sqrt(2) if len(step) else np.inf
+    # (a band at least 0.03 mm: layers of passes registered a few um apart are one plate; a
+    # sticker's paper, 0.1 mm, is not)
+    tol = max(3 * min(1.4826 * float(med[best]), noise), 0.03)
+    r_best = h - (slopes[best] * u + offsets[best])
+    rs = np.sort(r_best[keep])
+    need = max(int(np.ceil(0.2 * len(rs))), min_points, 3)
+    count = np.searchsorted(rs, rs + 2 * tol, side="right") - np.arange(len(rs))
+    first = np.flatnonzero(count >= need)
+    level = float(np.median(rs[first[0]:first[0] + count[first[0]]])) if len(first) else 0.0
+    score = np.count_nonzero(np.abs(resid) <= tol, axis=1) - 2 * np.count_nonzero(resid < -tol, axis=1)
+    pick = int(np.argmax(score))
+    fits = []
+    for r in (r_best - level, h - (slopes[pick] * u + offsets[pick])):
+        band = keep & (np.abs(r) <= tol)
+        if band.sum() >= max(min_points, 3):  # the band's own line, the points around it (both sides)
+            coef = np.polyfit(u[band], h[band], 1)
+            r = h - np.polyval(coef, u)
+            spread = min(float(med[best]), float(np.median(np.abs(r[band]))))
+            band = keep & (np.abs(r) <= max(3 * 1.4826 * spread, 1e-3))
+        fit = _trimmed_line(u, h, band, min_points)
+        if fit is not None:
+            fits.append(fit)
+    return min(fits, key=lambda f: (round(f.rms_mm, 6), -f.n_points)) if fits else None
 
 
 def _toe_model(p: np.ndarray, w: np.ndarray, undercut: bool) -> np.ndarray:
