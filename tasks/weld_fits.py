@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_toe", "fit_groove",
-           "propagate"]
+__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
+           "fit_groove", "propagate"]
 
 _NAN = float("nan")
 
@@ -148,6 +148,30 @@ def _trimmed_line(u: np.ndarray, h: np.ndarray, keep: np.ndarray, min_points: in
     dof = max(len(r) - 2, 1)
     cov = np.linalg.pinv(A.T @ A) * float(r @ r) / dof
     return PlateFit(float(coef[0]), float(coef[1]), cov, float(np.sqrt(np.mean(r * r))), int(keep.sum()))
+
+
+def fit_robust_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
+    """A line through points with outliers on either side (the weld's centres along the line, a
+    whole section's tilt): the least-median line through point pairs (a fixed seed), then trimmed
+    least squares on the points within 3 robust sigmas of it. None: too few points."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if ok.any():
+        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+        offsets = hk[i[ok]] - slopes * uk[i[ok]]
+        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
+        best = int(np.argmin(med))
+        r = h - (slopes[best] * u + offsets[best])
+        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
+    return _trimmed_line(u, h, keep, min_points)
 
 
 def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:

@@ -29,7 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tasks.weld_fits import Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, propagate
+from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_robust_line, fit_toe,
+                             propagate)
 
 __all__ = ["SectionMeasurement", "WeldLineMeasurement", "measure_section", "measure_weld_line",
            "along_weld_statistics", "TOE_SIDES"]
@@ -68,7 +69,7 @@ def _centre_guess(u: np.ndarray, h: np.ndarray) -> float | None:
     height), over half the highest rise (on 0.5 mm bins)."""
     if len(u) < 10:
         return None
-    plate = fit_plate_line(u, h, min_points=10)  # the plates dominate a section: tilt taken out
+    plate = fit_robust_line(u, h, min_points=10)  # the plates dominate a section: tilt taken out
     base = plate.at(u) if plate is not None else np.median(h)
     bins = np.floor(u / 0.5).astype(np.int64)
     ub, inv = np.unique(bins, return_inverse=True)
@@ -255,7 +256,7 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
     offset = turn = 0.0
     sections = first
     if len(cs) >= 3:
-        fit = fit_plate_line(cs[:, 0], cs[:, 1], min_points=3)
+        fit = fit_robust_line(cs[:, 0], cs[:, 1], min_points=3)  # centres off on either side
         if fit is not None:
             turn = math.atan(fit.slope)
             origin = origin + fit.intercept * a
