@@ -183,7 +183,7 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     neighbours along u). A sticker or spatter lies on the plate, never under it; two starts:
     the lowest band parallel to the least-median line holding a fifth of the points (a sticker
     covering most of the window is the median's line, the plate a band under it), and the pair's
-    line with the most points on it less twice those under it (where a sticker in the middle of
+    line with the most points on it less five times those under it (where a sticker in the middle of
     the window tilts the median's line). Each is refined by trimmed least squares on the points
     around it; the one with the smaller RMS (a line across plate and sticker has the step in its
     residuals) is the plate."""
@@ -216,7 +216,7 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     count = np.searchsorted(rs, rs + 2 * tol, side="right") - np.arange(len(rs))
     first = np.flatnonzero(count >= need)
     level = float(np.median(rs[first[0]:first[0] + count[first[0]]])) if len(first) else 0.0
-    score = np.count_nonzero(np.abs(resid) <= tol, axis=1) - 2 * np.count_nonzero(resid < -tol, axis=1)
+    score = np.count_nonzero(np.abs(resid) <= tol, axis=1) - 5 * np.count_nonzero(resid < -tol, axis=1)
     pick = int(np.argmax(score))
     fits = []
     for r in (r_best - level, h - (slopes[pick] * u + offsets[pick])):

@@ -51,6 +51,10 @@ class SectionMeasurement:
     toes: tuple[ToeFit | None, ToeFit | None]
     n_points: int
     note: str = ""
+    # where the line is refined through (the points' frame): a treated weld's grooves' centres'
+    # midpoint (the toes where the grooves meet the weld wander with the grooves' widths, ~1 mm;
+    # the grooves' centres ~0.2 mm); None: centre_mm
+    axis_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -153,9 +157,13 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         between &= np.abs(s) <= reach
         rise = h[between] - (z0 + (z1 - z0) * (u[between] - u0) / max(u1 - u0, 1e-9))
         height = _peak(u[between], rise)
+    axis = None
+    if toes[0] is not None and toes[1] is not None and toes[0].groove is not None and toes[1].groove is not None:
+        mid = c + (toes[1].groove.centre_v_mm - toes[0].groove.centre_v_mm) / 2
+        axis = tuple(float(x) for x in to_frame(mid, float(a.at(mid))))
     return SectionMeasurement(line, position_mm, tuple(float(x) for x in to_frame(centre, float(a.at(centre)))),
                               height, width, Measured(float(axial), axial_sd), Measured(ang, ang_sd),
-                              (toes[0], toes[1]), n)
+                              (toes[0], toes[1]), n, axis_mm=axis)
 
 
 def _peak(u: np.ndarray, rise: np.ndarray) -> Measured:
@@ -251,8 +259,8 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
 
     first = cut(s, u, h, origin, t, a, n)
     # the line refined on the data: a robust line through the sections' centres, in the face
-    cs = np.array([[sec.position_mm, (np.asarray(sec.centre_mm) - origin) @ a] for sec in first
-                   if sec.width.value == sec.width.value])
+    cs = np.array([[sec.position_mm, (np.asarray(sec.axis_mm if sec.axis_mm is not None else sec.centre_mm) - origin) @ a]
+                   for sec in first if sec.width.value == sec.width.value])
     offset = turn = 0.0
     sections = first
     if len(cs) >= 3:
