@@ -8,8 +8,8 @@ line and reads them as a profile: ``u`` across (mm, along ``a``), ``h`` height (
 
 Per section (every figure a value and its 1-sigma):
 
-- the two plates: a line each (``tasks.weld_fits.fit_plate_line``) on ``plate_window_mm`` beside
-  the weld's centre; axial misalignment (the plus plate's height over the minus one's at the
+- the two plates: a line each (``tasks.weld_fits.fit_plate_line``: under any sticker or spatter)
+  on ``plate_window_mm`` beside the weld's centre; axial misalignment (the plus plate's height over the minus one's at the
   centre, along ``n``) and angular misalignment (the plus plate's slope less the minus one's);
 - each toe (``minus``: u < centre, ``plus``: u > centre): ``tasks.weld_fits.fit_toe`` as welded,
   ``fit_groove`` where a treated toe dips below the plate;
@@ -17,9 +17,10 @@ Per section (every figure a value and its 1-sigma):
   the peak, on the points within ``height_half_width_mm`` of the section, or its nearest ten over
   the cap's middle) and width (between the toes).
 
-The line is refined on the data: a first pass finds each section's centre, a line through them
-(robust) gives the weld's true offset and direction in the face, and the sections are cut again
-across it.
+The line is refined on the data: a first pass finds each section's centre (a treated weld's: the
+midpoint of its grooves' centres, steadier than its toes, which wander with the grooves' widths),
+a line through them (robust) gives the weld's true offset and direction in the face, and the
+sections are cut again across it.
 """
 
 from __future__ import annotations
