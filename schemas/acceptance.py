@@ -1,6 +1,8 @@
 """Acceptance limits of the measured weld, per joint and treatment (``data_catalog/weld_acceptance.yaml``
 holds the defaults and their sources). A section passes when every figure it measured lies within
-its rule's limits; the weld passes when at most ``max_failing_fraction`` of its sections fail."""
+its rule's limits; the weld passes when at most ``max_failing_fraction`` of its sections fail.
+A figure within ``uncertain_sigmas`` of its 1-sigma of a limit is "uncertain" (its section listed
+as such, not failed): the measurement cannot tell on which side of the limit it lies."""
 
 from __future__ import annotations
 
@@ -52,6 +54,10 @@ class AcceptanceRule(StrictModel):
     groove_required: bool = Field(default=False, description="a toe without a measured groove fails")
     max_failing_fraction: float = Field(default=0.0, ge=0, le=1, description=(
         "the weld passes when at most this share of its measured sections fail"))
+    uncertain_sigmas: float = Field(default=1.0, ge=0, le=10, description=(
+        "a figure whose measured value lies within this many of its 1-sigma of a limit (on either "
+        "side) is 'uncertain' there: listed for a person to look at, neither failed nor passed "
+        "silently; the weld passes when no section fails for certain (0: the value alone decides)"))
 
     @field_validator("flank_angle_deg", "angular_misalignment_deg")
     @classmethod

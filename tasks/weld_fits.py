@@ -14,7 +14,10 @@ over this side's plate line).
   the flank a line over ``toe_window_mm[0]`` inward of it (the flank angle the weld has now, just
   above the groove: the original flank at the toe is cut away by the pin); the toe is within the
   groove when the groove's wall runs up into the weld's flank with no stretch of plate between them
-  longer than ``groove_plate_gap_mm``.
+  longer than ``groove_plate_gap_mm`` (points on the groove's circle are groove, not plate).
+  A groove's radius and width are only reported where its circle is held by points on both sides
+  of its bottom; otherwise they are not measured (NaN, the reason in the toe's note), never an
+  extrapolated value.
 """
 
 from __future__ import annotations
@@ -25,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_toe", "fit_groove",
-           "propagate"]
+__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
+           "fit_groove", "propagate"]
 
 _NAN = float("nan")
 
@@ -124,28 +127,8 @@ def propagate(f, p: np.ndarray, cov: np.ndarray) -> float:
     return math.sqrt(var) if var >= 0 and math.isfinite(var) else _NAN
 
 
-def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
-    """A line h = slope * u + intercept through the points, trimmed of outliers (stickers, spatter)
-    by 3 robust sigmas, three rounds. ``u``, ``h``: (n,) float64, mm. None: too few points."""
-    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
-    if u.shape != h.shape or u.ndim != 1:
-        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
-    keep = np.isfinite(u) & np.isfinite(h)
-    if keep.sum() < max(min_points, 3):
-        return None
-    # least median of squares first (a sticker can cover a third of a plate window, 0.1 mm high):
-    # lines through point pairs drawn with a fixed seed, the one whose median |residual| is least
-    uk, hk = u[keep], h[keep]
-    rng = np.random.default_rng(0)
-    i, j = rng.integers(0, len(uk), size=(2, 300))
-    ok = np.abs(uk[i] - uk[j]) > 1e-6
-    if ok.any():
-        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
-        offsets = hk[i[ok]] - slopes * uk[i[ok]]
-        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
-        best = int(np.argmin(med))
-        r = h - (slopes[best] * u + offsets[best])
-        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
+def _trimmed_line(u: np.ndarray, h: np.ndarray, keep: np.ndarray, min_points: int) -> PlateFit | None:
+    """Least squares on ``keep``, trimmed by 3 robust sigmas (points only leave), three rounds."""
     for _ in range(3):
         if keep.sum() < max(min_points, 3):
             return None
@@ -165,6 +148,88 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     dof = max(len(r) - 2, 1)
     cov = np.linalg.pinv(A.T @ A) * float(r @ r) / dof
     return PlateFit(float(coef[0]), float(coef[1]), cov, float(np.sqrt(np.mean(r * r))), int(keep.sum()))
+
+
+def fit_robust_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
+    """A line through points with outliers on either side (the weld's centres along the line, a
+    whole section's tilt): the least-median line through point pairs (a fixed seed), then trimmed
+    least squares on the points within 3 robust sigmas of it. None: too few points."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if ok.any():
+        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+        offsets = hk[i[ok]] - slopes * uk[i[ok]]
+        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
+        best = int(np.argmin(med))
+        r = h - (slopes[best] * u + offsets[best])
+        keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
+    return _trimmed_line(u, h, keep, min_points)
+
+
+def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
+    """A line h = slope * u + intercept through the plate's points, not a sticker's or spatter's
+    (0.1 mm of paper on the plate, possibly over most of the window). ``u``, ``h``: (n,) float64,
+    mm. None: too few points.
+
+    Lines through point pairs (a fixed seed) give the least-median line and the noise (from
+    neighbours along u). A sticker or spatter lies on the plate, never under it; two starts:
+    the lowest band parallel to the least-median line holding a fifth of the points (a sticker
+    covering most of the window is the median's line, the plate a band under it), and the pair's
+    line with the most points on it less five times those under it (where a sticker in the middle of
+    the window tilts the median's line). Each is refined by trimmed least squares on the points
+    around it; the one with the smaller RMS (a line across plate and sticker has the step in its
+    residuals) is the plate."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    if keep.sum() < max(min_points, 3):
+        return None
+    uk, hk = u[keep], h[keep]
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if not ok.any():
+        return _trimmed_line(u, h, keep, min_points)
+    slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+    offsets = hk[i[ok]] - slopes * uk[i[ok]]
+    resid = hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])
+    med = np.median(np.abs(resid), axis=1)
+    best = int(np.argmin(med))
+    o = np.argsort(uk)
+    step = np.diff(hk[o] - slopes[best] * uk[o])
+    noise = 1.4826 * float(np.median(np.abs(step))) / math.sqrt(2) if len(step) else np.inf
+    # (a band at least 0.03 mm: layers of passes registered a few um apart are one plate; a
+    # sticker's paper, 0.1 mm, is not)
+    tol = max(3 * min(1.4826 * float(med[best]), noise), 0.03)
+    r_best = h - (slopes[best] * u + offsets[best])
+    rs = np.sort(r_best[keep])
+    need = max(int(np.ceil(0.2 * len(rs))), min_points, 3)
+    count = np.searchsorted(rs, rs + 2 * tol, side="right") - np.arange(len(rs))
+    first = np.flatnonzero(count >= need)
+    level = float(np.median(rs[first[0]:first[0] + count[first[0]]])) if len(first) else 0.0
+    score = np.count_nonzero(np.abs(resid) <= tol, axis=1) - 5 * np.count_nonzero(resid < -tol, axis=1)
+    pick = int(np.argmax(score))
+    fits = []
+    for r in (r_best - level, h - (slopes[pick] * u + offsets[pick])):
+        band = keep & (np.abs(r) <= tol)
+        if band.sum() >= max(min_points, 3):  # the band's own line, the points around it (both sides)
+            coef = np.polyfit(u[band], h[band], 1)
+            r = h - np.polyval(coef, u)
+            spread = min(float(med[best]), float(np.median(np.abs(r[band]))))
+            band = keep & (np.abs(r) <= max(3 * 1.4826 * spread, 1e-3))
+        fit = _trimmed_line(u, h, band, min_points)
+        if fit is not None:
+            fits.append(fit)
+    return min(fits, key=lambda f: (round(f.rms_mm, 6), -f.n_points)) if fits else None
 
 
 def _toe_model(p: np.ndarray, w: np.ndarray, undercut: bool) -> np.ndarray:
@@ -227,19 +292,56 @@ def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray
     return np.hypot(v - p[0], z - p[1]) - p[2]
 
 
+def _running_median(z: np.ndarray, k: int = 5) -> np.ndarray:
+    """Each value replaced by the median of the k (odd) around it (fewer at the ends)."""
+    if len(z) < k:
+        return z.copy()
+    half = k // 2
+    padded = np.concatenate([np.full(half, np.nan), z, np.full(half, np.nan)])
+    return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, k), axis=1)
+
+
+def _fit_circle(gv: np.ndarray, gz: np.ndarray, depth0: float, v_bottom: float):
+    """The groove's circle through (gv, gz), then again without the points off it by more than
+    4 robust sigmas (spatter, a stray return): (least_squares result, the points kept)."""
+    span = max(float(gv[-1] - gv[0]), 1e-3)
+    r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
+    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
+    x0 = np.clip([v_bottom, r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
+    keep = np.ones(len(gv), bool)
+    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
+    r = _circle_residuals(res.x, gv, gz)
+    new = np.abs(r) <= max(4 * 1.4826 * float(np.median(np.abs(r))), 0.01)
+    if not new.all() and new.sum() >= 4:
+        keep = new
+        res = least_squares(_circle_residuals, np.clip(res.x, lo + 1e-9, hi - 1e-9), args=(gv[keep], gz[keep]),
+                            bounds=(lo, hi), x_scale="jac")
+    return res, keep
+
+
 def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
     """A treated toe: the groove's circle on its lower part (points deeper than a quarter of its
     depth, around its deepest point), the flank above it by a parabola extended to the plate.
-    ``v``, ``h`` as in ``fit_toe``. None: no groove deeper than ``groove_min_depth_mm``."""
+    ``v``, ``h`` as in ``fit_toe``. None: no groove deeper than ``groove_min_depth_mm``.
+
+    Robust to what a real (or coarse) profile holds: the deepest point is found on a running
+    median of five points (one stray return below the groove is not its bottom); the circle is
+    refitted without points off it by more than 4 robust sigmas; a circle with fewer than
+    ``min_points // 2`` (at least 3) points on either side of its bottom does not determine its
+    radius and width (a wall seen, not a groove): those are not measured (NaN, said in ``note``),
+    the depth is read on the median profile, and the toe is still treated."""
     flank_mm, plate_mm = settings.toe_window_mm
     region = (v > toe_guess_v - flank_mm) & (v < toe_guess_v + plate_mm + 8.0)
-    if region.sum() < settings.min_points or h[region].min() > -settings.groove_min_depth_mm:
+    if region.sum() < settings.min_points:
         return None
     order = np.argsort(v[region])
     vv, hh = v[region][order], h[region][order]
-    k = int(np.argmin(hh))
-    depth0 = -float(hh[k])
-    deep = hh < -0.25 * depth0
+    smooth = _running_median(hh)
+    k = int(np.argmin(smooth))
+    depth0 = -float(smooth[k])
+    if depth0 < settings.groove_min_depth_mm:
+        return None
+    deep = smooth < -0.25 * depth0
     lo_k = k
     while lo_k > 0 and deep[lo_k - 1]:
         lo_k -= 1
@@ -249,11 +351,7 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     gv, gz = vv[lo_k:hi_k + 1], hh[lo_k:hi_k + 1]
     if len(gv) < max(settings.min_points, 4):
         return None
-    span = max(gv[-1] - gv[0], 1e-3)
-    r0 = (span * span / 4 + depth0 * depth0) / (2 * depth0)
-    lo, hi = np.array([gv[0] - 5, -50.0, 0.05]), np.array([gv[-1] + 5, 50.0, 60.0])
-    x0 = np.clip([float(vv[k]), r0 - depth0, r0], lo + 1e-9, hi - 1e-9)
-    res = least_squares(_circle_residuals, x0, args=(gv, gz), bounds=(lo, hi), x_scale="jac")
+    res, kept = _fit_circle(gv, gz, depth0, float(vv[k]))
     p = res.x
     cov, rms = _sigmas(res, 3)
 
@@ -263,12 +361,23 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
     def width(q):
         return 2 * math.sqrt(max(q[2] ** 2 - q[1] ** 2, 0.0))
 
-    D, W = depth(p), width(p)
-    g_depth = Measured(D, propagate(depth, p, cov))
-    g_width = Measured(W, propagate(width, p, cov))
-    g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
-    # the groove's inner edge: inward from its deepest point, the last point on the circle (three
-    # off it in a row end the walk); the flank is the points inward of that edge
+    need = max(3, settings.min_points // 2)
+    n_in, n_out = int(np.count_nonzero(gv[kept] < p[0])), int(np.count_nonzero(gv[kept] > p[0]))
+    note = ""
+    if n_in >= need and n_out >= need:
+        D, W = depth(p), width(p)
+        g_depth = Measured(D, propagate(depth, p, cov))
+        g_width = Measured(W, propagate(width, p, cov))
+        g_radius = Measured(float(p[2]), math.sqrt(max(float(cov[2, 2]), 0.0)))
+    else:
+        # the circle is not held on both sides of its bottom: its radius and width are guesses
+        near = np.abs(gv - vv[k]) <= max(2 * float(np.median(np.diff(gv))) if len(gv) > 2 else 0.5, 0.2)
+        spread = float(np.std(gz[near])) if near.sum() > 1 else rms
+        D, W = depth0, 2 * float(max(gv[-1] - gv[0], 0.0))
+        g_depth = Measured(D, spread / math.sqrt(max(int(near.sum()), 1)))
+        g_width = g_radius = Measured.none()
+        note = (f"groove radius and width not measured: {n_in} points inward and {n_out} outward of the "
+                f"circle's bottom (at least {need} each needed)")
     on_circle_z = p[1] - np.sqrt(np.maximum(p[2] ** 2 - (v - p[0]) ** 2, 0.0))
     on = (np.abs(v - p[0]) < p[2]) & (np.abs(h - on_circle_z) <= max(3 * rms, 0.02))
     inner = np.flatnonzero(v <= vv[k])
@@ -283,14 +392,31 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
                 break
     flank = (v < v_meet - 0.05) & (v > v_meet - flank_mm) & (h > 0)
     # the toe is within the groove when the groove's wall runs straight up into the weld's flank:
-    # no stretch of plate (|h| < groove_min_depth_mm) longer than groove_plate_gap_mm between them
-    inward = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W)])
-    level = np.sort(v[(v < vv[k]) & (v > toe_guess_v - flank_mm - W) & (np.abs(h) < settings.groove_min_depth_mm)])
+    # no stretch of plate (|h| < groove_min_depth_mm, off the groove's circle: a wide shallow
+    # groove's wall is itself nearly level where it crosses the plate) longer than
+    # groove_plate_gap_mm between them
+    # groove_plate_gap_mm: consecutive points (along v) all at the plate's level and off the
+    # circle, so that a steep, sparsely sampled wall whose clumps of points each straddle the
+    # plate's level is not read as plate
+    reach = W if math.isfinite(W) else 2 * float(gv[-1] - gv[0])
+    between = (v < vv[k]) & (v > toe_guess_v - flank_mm - reach)
     up = v[(v < vv[k]) & (h > settings.toe_threshold_mm)]
-    flat = level[level > up.max()] if len(up) else level
-    toe_within = bool(len(up) and len(inward) and (len(flat) < 2 or flat.max() - flat.min() <= settings.groove_plate_gap_mm))
-    note = ""
+    if len(up):
+        between &= v > up.max()
+    order_b = np.argsort(v[between])
+    bv = v[between][order_b]
+    flat = ((np.abs(h[between]) < settings.groove_min_depth_mm) & ~on[between])[order_b]
+    longest, start = 0.0, None
+    for i in range(len(bv)):
+        if flat[i]:
+            start = i if start is None else start
+            longest = max(longest, float(bv[i] - bv[start]))
+        else:
+            start = None
+    toe_within = bool(len(up) and np.count_nonzero((v < vv[k]) & (v > toe_guess_v - flank_mm - reach))
+                      and longest <= settings.groove_plate_gap_mm)
     angle, toe_v = Measured.none(), v_meet
+    groove_note, note = note, ""
     if flank.sum() >= 3:
         fv, fz = v[flank], h[flank]
         if len(fv) >= 3 and np.ptp(fv) > 0.1:
@@ -307,6 +433,7 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
             note = "too few flank points above the groove"
     else:
         note = "too few flank points above the groove"
+    note = "; ".join(x for x in (groove_note, note) if x)
     groove = GrooveFit(depth=g_depth, width=g_width, radius=g_radius, centre_v_mm=float(p[0]),
                        toe_within=toe_within, rms_mm=rms, n_points=len(gv))
     # where the groove leaves its circle is known to the points' spacing there (uniform: /sqrt 12)

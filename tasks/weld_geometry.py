@@ -8,8 +8,8 @@ line and reads them as a profile: ``u`` across (mm, along ``a``), ``h`` height (
 
 Per section (every figure a value and its 1-sigma):
 
-- the two plates: a line each (``tasks.weld_fits.fit_plate_line``) on ``plate_window_mm`` beside
-  the weld's centre; axial misalignment (the plus plate's height over the minus one's at the
+- the two plates: a line each (``tasks.weld_fits.fit_plate_line``: under any sticker or spatter)
+  on ``plate_window_mm`` beside the weld's centre; axial misalignment (the plus plate's height over the minus one's at the
   centre, along ``n``) and angular misalignment (the plus plate's slope less the minus one's);
 - each toe (``minus``: u < centre, ``plus``: u > centre): ``tasks.weld_fits.fit_toe`` as welded,
   ``fit_groove`` where a treated toe dips below the plate;
@@ -17,9 +17,10 @@ Per section (every figure a value and its 1-sigma):
   the peak, on the points within ``height_half_width_mm`` of the section, or its nearest ten over
   the cap's middle) and width (between the toes).
 
-The line is refined on the data: a first pass finds each section's centre, a line through them
-(robust) gives the weld's true offset and direction in the face, and the sections are cut again
-across it.
+The line is refined on the data: a first pass finds each section's centre (a treated weld's: the
+midpoint of its grooves' centres, steadier than its toes, which wander with the grooves' widths),
+a line through them (robust) gives the weld's true offset and direction in the face, and the
+sections are cut again across it.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tasks.weld_fits import Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, propagate
+from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_robust_line, fit_toe,
+                             propagate)
 
 __all__ = ["SectionMeasurement", "WeldLineMeasurement", "measure_section", "measure_weld_line",
            "along_weld_statistics", "TOE_SIDES"]
@@ -50,6 +52,10 @@ class SectionMeasurement:
     toes: tuple[ToeFit | None, ToeFit | None]
     n_points: int
     note: str = ""
+    # where the line is refined through (the points' frame): a treated weld's grooves' centres'
+    # midpoint (the toes where the grooves meet the weld wander with the grooves' widths, ~1 mm;
+    # the grooves' centres ~0.2 mm); None: centre_mm
+    axis_mm: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -68,7 +74,7 @@ def _centre_guess(u: np.ndarray, h: np.ndarray) -> float | None:
     height), over half the highest rise (on 0.5 mm bins)."""
     if len(u) < 10:
         return None
-    plate = fit_plate_line(u, h, min_points=10)  # the plates dominate a section: tilt taken out
+    plate = fit_robust_line(u, h, min_points=10)  # the plates dominate a section: tilt taken out
     base = plate.at(u) if plate is not None else np.median(h)
     bins = np.floor(u / 0.5).astype(np.int64)
     ub, inv = np.unique(bins, return_inverse=True)
@@ -144,15 +150,21 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         z0, z1 = float(a.at(u0)), float(b.at(u1))
         # the peak on the points nearest the section along the line (bead ripples): within
         # height_half_width_mm, or out to the tenth nearest point over the cap's middle
-        between = (u > u0) & (u < u1)
+        # (at least the middle millimetre: a very shallow groove's wide circle can cut the cap
+        # nearly to its top, the toes where it meets the weld a fraction of a millimetre apart)
+        between = (u > min(u0, centre - 0.5)) & (u < max(u1, centre + 0.5))
         middle = np.sort(np.abs(s[between & (np.abs(u - centre) < 2.0)]))
         reach = max(settings.height_half_width_mm, float(middle[min(9, len(middle) - 1)]) if len(middle) else np.inf)
         between &= np.abs(s) <= reach
         rise = h[between] - (z0 + (z1 - z0) * (u[between] - u0) / max(u1 - u0, 1e-9))
         height = _peak(u[between], rise)
+    axis = None
+    if toes[0] is not None and toes[1] is not None and toes[0].groove is not None and toes[1].groove is not None:
+        mid = c + (toes[1].groove.centre_v_mm - toes[0].groove.centre_v_mm) / 2
+        axis = tuple(float(x) for x in to_frame(mid, float(a.at(mid))))
     return SectionMeasurement(line, position_mm, tuple(float(x) for x in to_frame(centre, float(a.at(centre)))),
                               height, width, Measured(float(axial), axial_sd), Measured(ang, ang_sd),
-                              (toes[0], toes[1]), n)
+                              (toes[0], toes[1]), n, axis_mm=axis)
 
 
 def _peak(u: np.ndarray, rise: np.ndarray) -> Measured:
@@ -248,12 +260,12 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
 
     first = cut(s, u, h, origin, t, a, n)
     # the line refined on the data: a robust line through the sections' centres, in the face
-    cs = np.array([[sec.position_mm, (np.asarray(sec.centre_mm) - origin) @ a] for sec in first
-                   if sec.width.value == sec.width.value])
+    cs = np.array([[sec.position_mm, (np.asarray(sec.axis_mm if sec.axis_mm is not None else sec.centre_mm) - origin) @ a]
+                   for sec in first if sec.width.value == sec.width.value])
     offset = turn = 0.0
     sections = first
     if len(cs) >= 3:
-        fit = fit_plate_line(cs[:, 0], cs[:, 1], min_points=3)
+        fit = fit_robust_line(cs[:, 0], cs[:, 1], min_points=3)  # centres off on either side
         if fit is not None:
             turn = math.atan(fit.slope)
             origin = origin + fit.intercept * a

@@ -7,6 +7,10 @@ first pass's refined pose; the lines are then refined on the data (``tasks.weld_
 figures are fitted on the measured points (cell means of the merged passes), not on the Poisson
 surface. A sample whose setups state no nominal placement, or whose joint is not a butt weld
 between two plates, is not measured (said in the file, not an error).
+
+Each section's ``verdict`` is "pass", "fail", "uncertain" (a figure within its 1-sigma of a limit,
+or a limited figure not measured: listed in its ``uncertain``, and all of them in the file's
+``uncertain``; it does not fail the weld) or "not measured"; ``failing`` lists the violations.
 """
 
 from __future__ import annotations
@@ -68,6 +72,8 @@ def _section_json(sec: SectionMeasurement, verdict) -> dict[str, Any]:
             "toes": {side: _toe_json(t) for side, t in zip(TOE_SIDES, sec.toes)},
             "passed": None if verdict is None else verdict.passed,
             "violations": [] if verdict is None else [v.__dict__ for v in verdict.violations],
+            "verdict": None if verdict is None else verdict.verdict,
+            "uncertain": [] if verdict is None else [v.__dict__ for v in verdict.uncertain],
             **({"note": sec.note} if sec.note else {})}
 
 
@@ -153,19 +159,21 @@ def weld(ctx) -> dict[str, Any]:
         sections += found.sections
     verdict = judge_weld(sections, rule) if rule is not None else None
     failing = [] if verdict is None else [v.__dict__ for sv in verdict.sections for v in sv.violations]
+    uncertain = [] if verdict is None else [v.__dict__ for sv in verdict.sections if sv.passed for v in sv.uncertain]
     section_rows = [_section_json(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)]
     summary = {"sections": len(sections),
                "sections_measured": None if verdict is None else verdict.n_measured,
                "sections_not_measured": None if verdict is None else verdict.n_not_measured,
                "failing": None if verdict is None else verdict.n_failing,
+               "sections_uncertain": None if verdict is None else verdict.n_uncertain,
                "passed": None if verdict is None else verdict.passed,
                "verdict": ("no acceptance rule for this joint and treatment" if verdict is None
                            else "pass" if verdict.passed else "fail")}
     body.update({"measured": True, "lines": lines, "summary": summary, "statistics": _statistics(sections),
-                 "failing": failing, "sections": section_rows})
+                 "failing": failing, "uncertain": uncertain, "sections": section_rows})
     WELD_GEOMETRY.write(ctx.out, body)
     stats = body["statistics"]
-    return {**summary, "failing_first": failing[:5],
+    return {**summary, "failing_first": failing[:5], "uncertain_first": uncertain[:5],
             "toe_radius_min_mm": stats["toe_radius_mm"].get("min"), "flank_angle_max_deg": stats["flank_angle_deg"].get("max"),
             "height_max_mm": stats["reinforcement_height_mm"].get("max"),
             "groove_depth_min_mm": stats["groove_depth_mm"].get("min")}
