@@ -159,7 +159,9 @@ def _print_report(report: dict, out: Path) -> None:
         failing = weld.get("failing_sections", [])
         print(f"weld: {weld['sections_measured']} of {weld['sections']} sections measured, {weld['verdict']} against "
               f"the acceptance limits" + (f" ({len(failing)} findings in {weld['failing']} sections: report.json, "
-                                          f"'weld')" if failing else ""))
+                                          f"'weld')" if failing else "")
+              + (f"; {weld['sections_uncertain']} sections uncertain (a figure within its 1-sigma of a limit)"
+                 if weld.get("sections_uncertain") else ""))
     elif weld:
         print(f"weld: not measured: {weld['why_not']}")
     volume = report.get("volume_mesh", {})

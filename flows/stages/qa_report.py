@@ -294,7 +294,8 @@ def _chosen_sections(geometry: dict[str, Any], per_line: int) -> list[dict[str, 
         rows = [s for s in geometry["sections"] if s["line"] == line]
         failing = sorted((s for s in rows if s.get("passed") is False), key=lambda s: (-len(s["violations"]),
                                                                                        s["position_mm"]))
-        picked = failing[:per_line]
+        uncertain = [s for s in rows if s.get("verdict") == "uncertain"]
+        picked = (failing + uncertain)[:per_line]
         rest = [s for s in rows if s not in picked]
         want = per_line - len(picked)
         if want > 0 and rest:
@@ -346,9 +347,15 @@ def _section_pictures(ctx, geometry: dict[str, Any], points: np.ndarray) -> list
                          + (f", groove {_fmt(groove['depth_mm'], 'mm')} deep, {_fmt(groove['width_mm'], 'mm', 1)} wide"
                             if groove else ""))
         failing = sec.get("passed") is False
-        title = f"{sec['line']} at {sec['position_mm']:g} mm" + (" - fails" if failing else "")
-        verdict = ("FAILS: " + "; ".join(f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec["violations"])
-                   if failing else "within the limits" if sec.get("passed") else sec.get("note", "not judged"))
+        title = f"{sec['line']} at {sec['position_mm']:g} mm" + (" - fails" if failing else " - uncertain"
+                                                                 if sec.get("verdict") == "uncertain" else "")
+        if failing:
+            verdict = "FAILS: " + "; ".join(f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec["violations"])
+        elif sec.get("verdict") == "uncertain":
+            verdict = "UNCERTAIN (within 1 sigma of a limit, or not measured): " + "; ".join(
+                f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec.get("uncertain", []))
+        else:
+            verdict = "within the limits" if sec.get("passed") else sec.get("note", "not judged")
         width = _value(sec["reinforcement_width_mm"])[0]
         span = (width / 2 if math.isfinite(width) else s.reach_mm / 2) + 6.0
         out.append(_picture(weld_section(u, h, title=title, toes=marks, nominal=nominal, failing=failing,

@@ -92,6 +92,8 @@ def weld_summary(geometry: dict[str, Any]) -> dict[str, Any]:
             "acceptance_rule_source": (geometry["acceptance"] or {}).get("source"), **geometry["summary"],
             "failing_sections": [{k: f[k] for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
                                  for f in geometry["failing"]],
+            "uncertain_sections": [{k: f.get(k) for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
+                                   for f in geometry.get("uncertain", [])],
             "lines": geometry["lines"], "statistics": geometry["statistics"]}
 
 
