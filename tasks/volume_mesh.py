@@ -179,6 +179,20 @@ def _child() -> None:
     sys.stdout.flush()
 
 
+def _ramp(gmsh, points: np.ndarray, size_min: float, reach: float, size_max: float, growth: float) -> int:
+    """A gmsh size field: ``size_min`` within ``reach`` of ``points`` (n, 3), then growing by
+    ``growth`` per mm up to ``size_max`` (a Distance field into a Threshold)."""
+    tags = [gmsh.model.geo.addPoint(*map(float, p)) for p in points]
+    gmsh.model.geo.synchronize()
+    distance = gmsh.model.mesh.field.add("Distance")
+    gmsh.model.mesh.field.setNumbers(distance, "PointsList", tags)
+    ramp = gmsh.model.mesh.field.add("Threshold")
+    for name, value in (("InField", distance), ("SizeMin", size_min), ("SizeMax", size_max), ("DistMin", reach),
+                        ("DistMax", reach + max(size_max - size_min, 0.0) / growth)):
+        gmsh.model.mesh.field.setNumber(ramp, name, value)
+    return ramp
+
+
 def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
                       feature_angle_deg, optimize, seed, toes=None, toe_size_mm=None, toe_zone_mm=0.0):
     """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
@@ -206,30 +220,14 @@ def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_
         if weld is not None and len(weld):
             # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
             # growing linearly by `growth` per mm up to size_mm
-            points = [gmsh.model.geo.addPoint(*map(float, p)) for p in weld]
-            gmsh.model.geo.synchronize()
-            distance = gmsh.model.mesh.field.add("Distance")
-            gmsh.model.mesh.field.setNumbers(distance, "PointsList", points)
-            ramp = gmsh.model.mesh.field.add("Threshold")
-            for name, value in (("InField", distance), ("SizeMin", weld_size_mm), ("SizeMax", size_mm),
-                                ("DistMin", weld_zone_mm),
-                                ("DistMax", weld_zone_mm + max(size_mm - weld_size_mm, 0.0) / growth)):
-                gmsh.model.mesh.field.setNumber(ramp, name, value)
+            ramp = _ramp(gmsh, weld, weld_size_mm, weld_zone_mm, size_mm, growth)
             field = ramp
             if toes is not None and len(toes):  # finer at the toes, the smaller of the two sizes wins
-                toe_points = [gmsh.model.geo.addPoint(*map(float, p)) for p in toes]
-                gmsh.model.geo.synchronize()
-                toe_distance = gmsh.model.mesh.field.add("Distance")
-                gmsh.model.mesh.field.setNumbers(toe_distance, "PointsList", toe_points)
-                toe_ramp = gmsh.model.mesh.field.add("Threshold")
                 # growing at the same rate up to the largest size (a Threshold is SizeMax beyond
                 # DistMax: capped at the weld's size it would cap the whole part there)
-                for name, value in (("InField", toe_distance), ("SizeMin", toe_size_mm), ("SizeMax", size_mm),
-                                    ("DistMin", toe_zone_mm),
-                                    ("DistMax", toe_zone_mm + max(size_mm - toe_size_mm, 0.0) / growth)):
-                    gmsh.model.mesh.field.setNumber(toe_ramp, name, value)
                 field = gmsh.model.mesh.field.add("Min")
-                gmsh.model.mesh.field.setNumbers(field, "FieldsList", [ramp, toe_ramp])
+                gmsh.model.mesh.field.setNumbers(field, "FieldsList", [
+                    ramp, _ramp(gmsh, toes, toe_size_mm, toe_zone_mm, size_mm, growth)])
             sized = field
             if remesh:  # on the surface only: inside, sizes grow from the surface's
                 field = gmsh.model.mesh.field.add("Restrict")

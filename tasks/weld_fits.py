@@ -154,24 +154,42 @@ def fit_robust_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFi
     """A line through points with outliers on either side (the weld's centres along the line, a
     whole section's tilt): the least-median line through point pairs (a fixed seed), then trimmed
     least squares on the points within 3 robust sigmas of it. None: too few points."""
-    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
-    if u.shape != h.shape or u.ndim != 1:
-        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
-    keep = np.isfinite(u) & np.isfinite(h)
-    if keep.sum() < max(min_points, 3):
+    found = _profile(u, h, min_points)
+    if found is None:
         return None
-    uk, hk = u[keep], h[keep]
-    rng = np.random.default_rng(0)
-    i, j = rng.integers(0, len(uk), size=(2, 300))
-    ok = np.abs(uk[i] - uk[j]) > 1e-6
-    if ok.any():
-        slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
-        offsets = hk[i[ok]] - slopes * uk[i[ok]]
-        med = np.median(np.abs(hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])), axis=1)
+    u, h, keep = found
+    pairs = _pair_lines(u[keep], h[keep])
+    if pairs is not None:
+        slopes, offsets, _, med = pairs
         best = int(np.argmin(med))
         r = h - (slopes[best] * u + offsets[best])
         keep = keep & (np.abs(r) <= max(3 * 1.4826 * med[best], 1e-3))
     return _trimmed_line(u, h, keep, min_points)
+
+
+def _profile(u, h, min_points: int):
+    """(u, h, finite) as float64 (n,) arrays, checked; None when fewer than ``min_points`` (and 3)
+    are finite."""
+    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
+    if u.shape != h.shape or u.ndim != 1:
+        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
+    keep = np.isfinite(u) & np.isfinite(h)
+    return None if keep.sum() < max(min_points, 3) else (u, h, keep)
+
+
+def _pair_lines(uk: np.ndarray, hk: np.ndarray):
+    """Lines through 300 point pairs (a fixed seed): their slopes and offsets, every point's
+    residual to each (lines, points), and each line's median absolute residual; None when no pair
+    spans any u."""
+    rng = np.random.default_rng(0)
+    i, j = rng.integers(0, len(uk), size=(2, 300))
+    ok = np.abs(uk[i] - uk[j]) > 1e-6
+    if not ok.any():
+        return None
+    slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
+    offsets = hk[i[ok]] - slopes * uk[i[ok]]
+    resid = hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])
+    return slopes, offsets, resid, np.median(np.abs(resid), axis=1)
 
 
 def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:
@@ -187,23 +205,16 @@ def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit
     the window tilts the median's line). Each is refined by trimmed least squares on the points
     around it; the one with the smaller RMS (a line across plate and sticker has the step in its
     residuals) is the plate."""
-    u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
-    if u.shape != h.shape or u.ndim != 1:
-        raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
-    keep = np.isfinite(u) & np.isfinite(h)
-    if keep.sum() < max(min_points, 3):
+    found = _profile(u, h, min_points)
+    if found is None:
         return None
-    uk, hk = u[keep], h[keep]
-    rng = np.random.default_rng(0)
-    i, j = rng.integers(0, len(uk), size=(2, 300))
-    ok = np.abs(uk[i] - uk[j]) > 1e-6
-    if not ok.any():
+    u, h, keep = found
+    pairs = _pair_lines(u[keep], h[keep])
+    if pairs is None:
         return _trimmed_line(u, h, keep, min_points)
-    slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
-    offsets = hk[i[ok]] - slopes * uk[i[ok]]
-    resid = hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])
-    med = np.median(np.abs(resid), axis=1)
+    slopes, offsets, resid, med = pairs
     best = int(np.argmin(med))
+    uk, hk = u[keep], h[keep]
     o = np.argsort(uk)
     step = np.diff(hk[o] - slopes[best] * uk[o])
     noise = 1.4826 * float(np.median(np.abs(step))) / math.sqrt(2) if len(step) else np.inf
