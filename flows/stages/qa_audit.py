@@ -7,7 +7,7 @@ from __future__ import annotations
 import html
 from typing import Any
 
-__all__ = ["AUDIT_MARK", "UNVERIFIED", "fill_audit"]
+__all__ = ["AUDIT_MARK", "UNVERIFIED", "fill_audit", "strip_audit"]
 
 AUDIT_MARK = "<!-- weldrecon: audit status -->"
 UNVERIFIED = {"intact": False, "entries": 0, "head_seq": None, "head_hash": None,
@@ -28,4 +28,16 @@ def fill_audit(page: str, status: dict[str, Any]) -> str:
              f'publication seq {status["head_seq"]}, sha256 <code>{html.escape(str(status["head_hash"]))}</code>. '
              'The run-finished entry that follows it records this file\'s sha256; check the folder later with '
              '<code>weldrecon audit verify RUN_DIR --head HASH</code>.</p>' + (f"<ul>{items}</ul>" if items else ""))
-    return page.replace(AUDIT_MARK, block, 1)
+    return page.replace(AUDIT_MARK, _BEGIN + block + _END, 1)
+
+
+_BEGIN, _END = "<!-- weldrecon: audit status begin -->", "<!-- weldrecon: audit status end -->"
+
+
+def strip_audit(page: str) -> str:
+    """A published report as its stage drew it: the audit section back to its mark (what two runs
+    of the same inputs must agree on byte for byte; the audit section is each run folder's own)."""
+    start, end = page.find(_BEGIN), page.find(_END)
+    if start < 0 or end < start:
+        raise ValueError("the QA report has no filled audit section")
+    return page[:start] + AUDIT_MARK + page[end + len(_END):]

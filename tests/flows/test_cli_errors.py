@@ -103,7 +103,8 @@ def test_a_batch_names_a_deleted_sample_and_a_malformed_one_instead_of_up_to_dat
     assert out[0] == "done: none"
     assert out[1].startswith(f"FAILED sim-ci-0011 at register: cannot read the sample folder {sample}: ")
     assert out[2].startswith(f"NOT REGISTERED {malformed}: {malformed / 'manifest.json'}: ")
-    assert out[-1] == "up to date: none"  # each missing manifest field on its own line before
+    assert out[-2] == "up to date: none"  # each missing manifest field on its own line before
+    assert out[-1] == f"index: {workspace.resolve() / 'index.html'}"  # the batch index page, rewritten
     shown = run_cli("catalog", "show", "sim-ci-0011", "--workspace", str(workspace)).stdout
     assert "state       failed at stage register" in shown
 

@@ -18,7 +18,7 @@ from data_catalog.stages import StageStore
 from flows.preflight import load_config
 from flows.stages import run_in_process
 from flows.stages.outputs import QA_REPORT
-from flows.stages.qa_audit import AUDIT_MARK, fill_audit
+from flows.stages.qa_audit import AUDIT_MARK, fill_audit, strip_audit
 from flows.stages.report import publish
 
 REPO = Path(__file__).resolve().parents[2]
@@ -94,6 +94,7 @@ def test_the_report_is_the_same_bytes_when_drawn_again(ci_run, ci_sample, tmp_pa
     published = (out / "results" / QA_REPORT.name).read_text()
     before, after = drawn.split(AUDIT_MARK)
     assert AUDIT_MARK not in published and published.startswith(before) and published.endswith(after)
+    assert strip_audit(published) == drawn
 
 
 def test_a_page_altered_in_the_store_is_not_published(ci_run, tmp_path):
