@@ -55,7 +55,7 @@ def test_the_flow_ends_with_a_watertight_stl_and_a_report(run):
     assert report["mesh"]["watertight"] and report["mesh"]["consistently_oriented"]
     saved = json.loads((out / "results" / "report.json").read_text())
     assert saved["sample_id"] == "sim-ci-0011"
-    assert set(saved["stages"]) == {s.name for s in STAGES} - {"report"}  # every stage before the report
+    assert set(saved["stages"]) == {s.name for s in STAGES} - {"report", "qa_report"}  # every stage before the report
     assert json.loads((out / "results" / "config.json").read_text()) == saved["config"]  # published with them
     assert not (out / "config.json").exists()
     weld = saved["weld"]  # the weld measured and judged: its summary in the report
@@ -199,7 +199,7 @@ def test_a_rerun_executes_no_stage_and_a_new_depth_only_meshing(run, ci_sample, 
     deeper = tmp_path / "deeper.yaml"
     deeper.write_text(Path(CI_CONFIG).read_text().replace("poisson_depth: 8", "poisson_depth: 7"))
     changed = reconstruct_sample(str(ci_sample), str(out), str(deeper))
-    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "volume", "report"}
+    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "volume", "report", "qa_report"}
 
 
 def test_the_weld_zone_stays_fine(run, ci_sample):

@@ -172,7 +172,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sa
     assert set(produced) == set(expected)
     assert [k for k in expected if produced[k] != expected[k]] == []
     ran = {k for k, cached in again["cached"].items() if not cached}
-    assert ran == {"mesh", "export", "volume", "report"}  # the finished stages were not rerun
+    assert ran == {"mesh", "export", "volume", "report", "qa_report"}  # the finished stages were not rerun
     entries = read_trail(run)
     assert [e["kind"] for e in entries].count("run-started") == 2
     assert verify_trail(run) == []
