@@ -81,8 +81,8 @@ def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
 
 def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm: list[np.ndarray],
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
-                   feature_angle_deg: float, optimize: bool, toe_lines_mm: list[np.ndarray] = (),
-                   toe_size_mm: float | None = None, toe_zone_mm: float = 0.0, seed: int = 1) -> VolumeMesh:
+                   feature_angle_deg: float, optimize: bool, toe_size_mm: float, toe_zone_mm: float,
+                   toe_lines_mm: list[np.ndarray] = (), seed: int = 1) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
     triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
     ``toe_size_mm`` within ``toe_zone_mm`` of the ``toe_lines_mm`` (polylines (k, 3), mm, where the
@@ -98,7 +98,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     weld = polyline_samples(weld_lines_mm, step_mm=max(weld_size_mm, 0.05) / 2) if weld_lines_mm else None
     tree = cKDTree(weld) if weld is not None and len(weld) else None
     toes = None
-    if len(toe_lines_mm) and toe_size_mm is not None and toe_size_mm < weld_size_mm:
+    if len(toe_lines_mm) and toe_size_mm < weld_size_mm:
         toes = polyline_samples(toe_lines_mm, step_mm=max(toe_size_mm, 0.05) / 2)
     sizes = dict(size_mm=size_mm, weld_size_mm=weld_size_mm, weld_zone_mm=weld_zone_mm, growth=growth,
                  feature_angle_deg=feature_angle_deg, optimize=optimize, seed=seed, toes=toes,

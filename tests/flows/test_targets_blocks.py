@@ -74,7 +74,11 @@ def test_the_stage_matches_detect_targets_on_the_whole_pass(ci_sample, pass_id, 
                            min_rim_coverage=s.min_rim_coverage, radius_tolerance=s.radius_tolerance)
     assert (metrics["targets"], metrics["circles"], metrics["rejected"]) == (len(found.targets), found.n_circles,
                                                                            found.rejected)
-    _assert_same_bytes(arrays, {"centres": np.array([t.centre_mm for t in found.targets]),
+    reader = open_entry(ci_sample, entry)
+    assert tuple(arrays["grid_shape"]) == (reader.n_profiles, reader.n_columns)
+    assert arrays["preview"].dtype == np.uint8 and 0 < arrays["preview"].shape[0] <= 640  # the report's picture
+    found_arrays = {k: arrays[k] for k in ("centres", "normals", "rms_mm", "rim_coverage", "pixel")}
+    _assert_same_bytes(found_arrays, {"centres": np.array([t.centre_mm for t in found.targets]),
                                 "normals": np.array([t.normal for t in found.targets]),
                                 "rms_mm": np.array([t.rms_mm for t in found.targets]),
                                 "rim_coverage": np.array([t.rim_coverage for t in found.targets]),

@@ -31,16 +31,16 @@ def _mesh_ref(folder: Path, vertices: np.ndarray, triangles: np.ndarray) -> Stag
 @pytest.fixture(scope="module")
 def ci_inputs(ci_run, ci_sample):
     _, report = ci_run
-    return load_manifest(ci_sample / "manifest.json"), report["refs"]["refine"]
+    return load_manifest(ci_sample / "manifest.json"), report["refs"]["refine"], report["refs"]["weld"]
 
 
 def test_an_open_surface_gets_no_model_and_says_why(ci_inputs, ci_sample, tmp_path):
-    manifest, refine = ci_inputs
+    manifest, refine, weld = ci_inputs
     vertices, triangles = box_surface((60.0, 30.0, 10.0), n=4)
     top = vertices[triangles].mean(axis=1)[:, 2] > 4.9
     mesh = _mesh_ref(tmp_path / "mesh" / "open", vertices, triangles[~top])
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
-                    config=ReconstructionConfig(), inputs={"refine": refine, "mesh": mesh})
+                    config=ReconstructionConfig(), inputs={"refine": refine, "weld": weld, "mesh": mesh})
     assert sorted(ref.outputs) == [VOLUME_SUMMARY.name]  # the model files left out, the stage recorded
     summary = VOLUME_SUMMARY.read(ref)
     assert summary["made"] is False and "not closed" in summary["why"] and "16 boundary edges" in summary["why"]
@@ -64,12 +64,12 @@ def test_an_open_surface_gets_no_model_and_says_why(ci_inputs, ci_sample, tmp_pa
 
 
 def test_a_closed_surface_becomes_the_model_files(ci_inputs, ci_sample, tmp_path):
-    manifest, refine = ci_inputs
+    manifest, refine, weld = ci_inputs
     vertices, triangles = box_surface((60.0, 30.0, 10.0), n=4)
     mesh = _mesh_ref(tmp_path / "mesh" / "box", vertices, triangles)
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 4.0, "weld_size_mm": 2.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
-                    config=config, inputs={"refine": refine, "mesh": mesh})
+                    config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
     assert sorted(ref.outputs) == sorted([VOLUME_INP.name, VOLUME_VTU.name, VOLUME_SUMMARY.name])
     summary = VOLUME_SUMMARY.read(ref)
     assert summary["made"] and summary["solid"]["components"] == 1
@@ -80,14 +80,14 @@ def test_a_closed_surface_becomes_the_model_files(ci_inputs, ci_sample, tmp_path
 def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci_sample, tmp_path):
     import open3d as o3d
 
-    manifest, refine = ci_inputs
+    manifest, refine, weld = ci_inputs
     # a sphere of 10 mm radius meshed with elements of up to 8 mm: the remeshed surface cuts its
     # bends short, and the solid loses more than the default 0.5 % of the volume
     sphere = o3d.geometry.TriangleMesh.create_sphere(radius=10.0, resolution=40)
     mesh = _mesh_ref(tmp_path / "mesh" / "sphere", np.asarray(sphere.vertices), np.asarray(sphere.triangles))
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 8.0, "weld_size_mm": 8.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
-                    config=config, inputs={"refine": refine, "mesh": mesh})
+                    config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
     assert sorted(ref.outputs) == [VOLUME_SUMMARY.name]  # no model files
     summary = VOLUME_SUMMARY.read(ref)
     assert summary["made"] is False

@@ -20,7 +20,7 @@ from tasks.volume_mesh import (VolumeMesh, VolumeMeshError, element_quality, pol
 BOX = (40.0, 20.0, 6.0)
 WELD = [np.array([[0.0, -10.0, 3.0], [0.0, 10.0, 3.0]])]
 SIZES = dict(size_mm=4.0, weld_size_mm=0.8, weld_zone_mm=2.0, growth=0.5,
-             feature_angle_deg=40.0, optimize=True)
+             feature_angle_deg=40.0, optimize=True, toe_size_mm=0.8, toe_zone_mm=0.0)  # toes: no finer (off)
 
 
 def box_surface(size=BOX, n=8, offset=(0.0, 0.0, 0.0)):
@@ -92,8 +92,8 @@ def test_elements_are_finer_at_the_weld_and_the_weld_zone_is_marked(plate):
 def test_elements_are_finer_still_at_the_measured_toes(plate):
     vertices, triangles, solid = plate
     toes = [np.array([[x, -10.0, 3.0], [x, 10.0, 3.0]]) for x in (-1.5, 1.5)]  # two toes beside the weld line
-    refined = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes, toe_size_mm=0.3,
-                             toe_zone_mm=0.3, **SIZES)
+    refined = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes,
+                             **{**SIZES, "toe_size_mm": 0.3, "toe_zone_mm": 0.3})
     assert len(refined.tetrahedra) > len(solid.tetrahedra)
 
     def edges_near(s, x0):
@@ -105,7 +105,7 @@ def test_elements_are_finer_still_at_the_measured_toes(plate):
     for x0 in (-1.5, 1.5):
         assert np.median(edges_near(refined, x0)) < 0.45 < 0.6 < np.median(edges_near(solid, x0))
     # a toe size no finer than the weld's changes nothing
-    same = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes, toe_size_mm=0.8, **SIZES)
+    same = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, toe_lines_mm=toes, **{**SIZES, "toe_zone_mm": 1.0})
     assert np.array_equal(same.tetrahedra, solid.tetrahedra) and np.array_equal(same.points, solid.points)
 
 
