@@ -29,7 +29,7 @@ from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
 from flows.stages.outputs import (CLOUD, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY,
                                   REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY)
-from flows.stages.weld_lines import T_common_specimen, weld_lines_common
+from flows.stages.weld_lines import weld_frame, weld_lines_common
 from schemas.manifest import SampleManifest
 from tasks.coverage import FaceAccumulator
 from tasks.mesh import simplify_surface
@@ -69,9 +69,9 @@ def _view_frame(manifest: SampleManifest, T_common_pass: np.ndarray, specimen_po
     """common frame -> the frame the maps are drawn in: the specimen's (its nominal placement
     through the first placed setup's pose) or, for parts placed nowhere, the points' principal axes
     (z the least spread, signs fixed by the third moments)."""
-    placed = T_common_specimen(manifest, T_common_pass)
-    if placed:
-        return np.linalg.inv(placed[0][1]), "the specimen frame (the drawing's)"
+    frame = weld_frame(manifest, T_common_pass)
+    if frame is not None:
+        return np.linalg.inv(frame), "the specimen frame (the drawing's)"
     centre = specimen_points.mean(axis=0)
     d = specimen_points - centre
     _, vectors = np.linalg.eigh(d.T @ d)

@@ -16,7 +16,7 @@ import numpy as np
 
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
 from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY
-from flows.stages.weld_lines import T_common_specimen, weld_lines_common
+from flows.stages.weld_lines import weld_frame, weld_lines_common
 from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
 
@@ -58,8 +58,8 @@ def volume(ctx) -> dict[str, Any]:
     T_common_pass = REFINED.open(ctx.inputs["refine"]).T_common_pass
     lines = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
     lines = lines[:len(ctx.manifest.weld_lines())]
-    placed = T_common_specimen(ctx.manifest, T_common_pass)  # the weld stage's frame: the first placed setup's
-    toes = toe_lines(WELD_GEOMETRY.read(ctx.inputs["weld"]), placed[0][1]) if placed else []
+    frame = weld_frame(ctx.manifest, T_common_pass)  # where the weld stage measured the toes
+    toes = toe_lines(WELD_GEOMETRY.read(ctx.inputs["weld"]), frame) if frame is not None else []
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,

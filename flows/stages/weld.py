@@ -23,7 +23,7 @@ import numpy as np
 from data_catalog.acceptance import DEFAULT_ACCEPTANCE_FILE, load_acceptance_limits
 from data_catalog.hashing import sha256_file
 from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY
-from flows.stages.weld_lines import T_common_specimen
+from flows.stages.weld_lines import weld_frame
 from schemas.manifest import SampleManifest
 from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import SectionSettings
@@ -104,12 +104,6 @@ def _statistics(sections: list[SectionMeasurement]) -> dict[str, Any]:
     return figures
 
 
-def _T_common_specimen(ctx) -> np.ndarray | None:
-    """Specimen frame -> common frame by the first setup that states its nominal placement."""
-    placed = T_common_specimen(ctx.manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
-    return placed[0][1] if placed else None
-
-
 def weld(ctx) -> dict[str, Any]:
     s = ctx.settings
     manifest = ctx.manifest
@@ -126,7 +120,7 @@ def weld(ctx) -> dict[str, Any]:
                             "acceptance": None if rule is None else rule.model_dump(mode="json"),
                             "acceptance_source": "settings (weld.acceptance)" if s.acceptance is not None
                             else "data_catalog/weld_acceptance.yaml"}
-    T = _T_common_specimen(ctx)
+    T = weld_frame(manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
     why = None
     if joint not in MEASURABLE_JOINTS:
         why = f"joint {joint!r}: the sections measure a butt weld between two plates (one of {list(MEASURABLE_JOINTS)})"

@@ -10,7 +10,7 @@ import numpy as np
 
 from schemas.manifest import SampleManifest
 
-__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen"]
+__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame"]
 
 
 def weld_lines_common(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[np.ndarray, float]]:
@@ -27,6 +27,13 @@ def T_common_specimen(manifest: SampleManifest, T_common_pass: np.ndarray) -> li
     index = {e.pass_id: k for k, (_, e) in enumerate(manifest.passes())}
     return [(setup, np.asarray(T_common_pass[index[setup.passes[0].pass_id]]) @ np.asarray(setup.T_world_specimen_nominal))
             for setup in manifest.setups if setup.T_world_specimen_nominal is not None]
+
+
+def weld_frame(manifest: SampleManifest, T_common_pass: np.ndarray) -> np.ndarray | None:
+    """Specimen frame -> common frame by the first setup that states its nominal placement: the
+    frame the weld is measured in (stages weld, volume, qa_report). None: no setup is placed."""
+    placed = T_common_specimen(manifest, T_common_pass)
+    return placed[0][1] if placed else None
 
 
 def weld_lines_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
