@@ -47,7 +47,7 @@ def _child(case: str, out: str) -> None:
     # Peer: Open3D casting the same number of laser rays, once each, at the same scene and poses.
     from data_catalog.truth import read_truth_pass
     from simulator.scanner import fan_directions
-    from simulator.transforms import apply
+    from tasks.frames import apply
 
     sample = Path(out) / "sample"
     mesh = o3d.io.read_triangle_mesh(str(sample / "truth" / "specimen.ply"))

@@ -57,7 +57,7 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
     out_dir = catalog.out_dir_for(record.sample_id)
     catalog.mark_running(record.sample_id, out_dir, str(flow_run.id) if flow_run.id else None)
     try:
-        report = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by,
+        run = reconstruct_sample(record.sample_dir, str(out_dir), config_path, started_by=started_by,
                                     sample_id=record.sample_id,
                                     trail_head=record.trail_head["hash"] if record.trail_head else None)
     except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
@@ -65,11 +65,11 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
         message = f"{type(exc).__name__}: {exc}"
         catalog.mark_failed(record.sample_id, stage, message)
         return {"sample_id": record.sample_id, "state": "failed", "stage": stage, "error": message}
-    artefacts = {name: item["sha256"] for name, item in report["outputs"].items()}
+    artefacts = {name: item["sha256"] for name, item in run.outputs.items()}
     catalog.mark_done(record.sample_id, record.fingerprint, artefacts,  # as taken just before the run
-                      trail_head=report["trail_head"])
+                      trail_head={"seq": run.trail_head.seq, "hash": run.trail_head.hash})
     return {"sample_id": record.sample_id, "state": "done", "out_dir": str(out_dir),
-            "cached_stages": sorted(k for k, v in report["cached"].items() if v)}
+            "cached_stages": sorted(k for k, v in run.cached.items() if v)}
 
 
 @contextlib.contextmanager

@@ -123,16 +123,18 @@ def _log_to_file(folder: Path, name: str) -> Path:
     return path
 
 
-def _print_report(report: dict, out: Path) -> None:
+def _print_report(run, out: Path) -> None:
+    """The run's summary on the terminal (``run``: a ``flows.reconstruct.RunResult``)."""
     from flows.stages import STAGES
 
-    refined, mesh = report["stages"]["refine"], report["mesh"]
-    print(f"{report['sample_id']}: {len(report['passes'])} passes")
+    report = run.report
+    refined, mesh = report.stages["refine"], report.mesh
+    print(f"{report.sample_id}: {len(report.passes)} passes")
     for stage in STAGES:
         name = stage.name
-        if name not in report["stages"]:
+        if name not in report.stages:
             continue
-        value, seconds, cached = report["stages"][name], report["seconds"].get(name, 0.0), report["cached"][name]
+        value, seconds, cached = report.stages[name], run.seconds.get(name, 0.0), run.cached[name]
         if stage.per_pass:
             print(f"  {name:<12} {len(value)} passes, {seconds:.1f} s of work{', all cached' if cached else ''}")
         else:
@@ -141,50 +143,48 @@ def _print_report(report: dict, out: Path) -> None:
                               "watertight", "surface_pairs", "surface_rms_median_mm", "largest_pose_change_mm",
                               "target_residual_median_mm")}
             print(f"  {name:<12} {'cached' if cached else f'{seconds:.1f} s'}  {extra}")
-    methods = report.get("registration_method", {})
+    methods = report.registration_method
     if methods:  # per pass: targets, surfaces from given poses, surfaces, global
         kinds = sorted(set(methods.values()))
         print("registration: " + "; ".join(f"{k} ({sum(v == k for v in methods.values())} passes)" for k in kinds))
-    weak = report["registration"]["pairs_below_min_common"]
+    weak = report.registration.pairs_below_min_common
     if weak:
         print("  pass pairs with fewer common targets than needed: "
-              + ", ".join(f"{w['a']}|{w['b']} ({w['common_targets']})" for w in weak))
+              + ", ".join(f"{w.a}|{w.b} ({w.common_targets})" for w in weak))
     residual = refined.get("target_residual_median_mm")
     print(f"mesh: {mesh['vertices']:,} vertices, {mesh['triangles']:,} triangles, "
           f"{'watertight' if mesh['watertight'] else 'NOT watertight'}"
           + (f"; target residual median {residual * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um"
              if residual is not None else ""))
-    weld = report.get("weld", {})
-    if weld.get("measured"):
-        failing = weld.get("failing_sections", [])
-        print(f"weld: {weld['sections_measured']} of {weld['sections']} sections measured, {weld['verdict']} against "
-              f"the acceptance limits" + (f" ({len(failing)} findings in {weld['failing']} sections: report.json, "
+    weld = report.weld
+    if weld.measured:
+        failing = weld.failing_sections
+        print(f"weld: {weld.sections_measured} of {weld.sections} sections measured, {weld.verdict} against "
+              f"the acceptance limits" + (f" ({len(failing)} findings in {weld.failing} sections: report.json, "
                                           f"'weld')" if failing else "")
-              + (f"; {weld['sections_uncertain']} sections uncertain (a figure within its 1-sigma of a limit)"
-                 if weld.get("sections_uncertain") else ""))
-    elif weld:
-        print(f"weld: not measured: {weld['why_not']}")
-    volume = report.get("volume_mesh", {})
-    if volume.get("made"):
-        solid, quality = volume["solid"], volume["quality"]
-        print(f"FE model: {solid['tetrahedra']:,} tetrahedra, one solid, volume {100 * solid['volume_difference']:+.2f} % "
-              f"of the mesh's; worst element: dihedral {quality['min_dihedral_deg']['worst']:.1f} deg, "
-              f"aspect ratio {quality['aspect_ratio']['worst']:.1f}")
-    elif volume:
-        print(f"FE model: not made: {volume['why']}")
-    for item in report["outputs"].values():
+              + (f"; {weld.sections_uncertain} sections uncertain (a figure within its 1-sigma of a limit)"
+                 if weld.sections_uncertain else ""))
+    else:
+        print(f"weld: not measured: {weld.why_not}")
+    volume = report.volume_mesh
+    if volume.made:
+        solid, quality = volume.solid, volume.quality
+        print(f"FE model: {solid.tetrahedra:,} tetrahedra, one solid, volume {100 * solid.volume_difference:+.2f} % "
+              f"of the mesh's; worst element: dihedral {quality.min_dihedral_deg.worst:.1f} deg, "
+              f"aspect ratio {quality.aspect_ratio.worst:.1f}")
+    else:
+        print(f"FE model: not made: {volume.why}")
+    for item in run.outputs.values():
         print(f"  {item['path']}")
-    if "report.html" in report["outputs"]:
-        print(f"QA report: {report['outputs']['report.html']['path']} (one file, opens offline in a browser)")
-    head = report.get("trail_head")
-    if head:  # the anchor: keep it outside the run folder; `audit verify --head` checks the trail still holds it
-        print(f"audit trail head: seq {head['seq']} sha256 {head['hash']} "
-              f"(weldrecon audit verify {out} --head {head['hash']})")
-    checks = report.get("checks", [])
-    flagged = [c for c in checks if c["result"] != "ok"]
+    if "report.html" in run.outputs:
+        print(f"QA report: {run.outputs['report.html']['path']} (one file, opens offline in a browser)")
+    head = run.trail_head  # the anchor: keep it outside the run folder; `audit verify --head` checks the trail still holds it
+    print(f"audit trail head: seq {head.seq} sha256 {head.hash} (weldrecon audit verify {out} --head {head.hash})")
+    checks = report.checks
+    flagged = [c for c in checks if c.result != "ok"]
     print(f"checks: {len(checks) - len(flagged)} of {len(checks)} ok (report.json, 'checks')")
     for c in flagged:
-        print(f"weldrecon reconstruct: warning: pass {c['pass']}: {c['check']}: {c['what']}", file=sys.stderr)
+        print(f"weldrecon reconstruct: warning: pass {c.pass_}: {c.check}: {c.what}", file=sys.stderr)
 
 
 def _cmd_reconstruct(args: argparse.Namespace) -> int:
@@ -225,9 +225,9 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
         if dask:
             print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
         stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
-        report = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
-                                    dask=dask, follow_timeout_s=follow)
-    _print_report(report, out)
+        run = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
+                                 dask=dask, follow_timeout_s=follow)
+    _print_report(run, out)
     return 0
 
 

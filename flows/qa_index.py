@@ -9,7 +9,6 @@ Rewritten after every batch (``flows.batch``) and by ``weldrecon catalog index``
 from __future__ import annotations
 
 import base64
-import json
 import os
 import re
 from pathlib import Path
@@ -19,6 +18,7 @@ import numpy as np
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.catalog import Catalog, SampleRecord
+from flows.stages.outputs import REPORT
 from flows.stages.qa_report import _ENV
 from tasks.report_figures import sample_chart
 
@@ -43,18 +43,18 @@ def _summary(record: SampleRecord, root: Path) -> dict[str, Any]:
         row["thumbnail"] = found.group(1) if found else None
     if json_path.is_file():
         try:
-            report = json.loads(json_path.read_text())
+            report = REPORT.read_path(json_path)
         except (OSError, ValueError):
             return row
-        checks = report.get("checks", [])
-        flagged = sum(c.get("result") != "ok" for c in checks)
+        checks = report.checks
+        flagged = sum(c.result != "ok" for c in checks)
         row["checks"] = {"ok": len(checks) - flagged, "total": len(checks)}
-        weld = report.get("weld", {})
-        row["weld"] = ({"verdict": weld.get("verdict"), "sections": weld.get("sections"), "failing": weld.get("failing") or 0}
-                       if weld.get("measured") else {"verdict": "not measured", "sections": 0, "failing": 0})
-        volume = report.get("volume_mesh", {})
-        row["fe"] = volume.get("solid", {}).get("tetrahedra") if volume.get("made") else None
-        refine = report.get("stages", {}).get("refine", {})
+        weld = report.weld
+        row["weld"] = ({"verdict": weld.verdict, "sections": weld.sections, "failing": weld.failing or 0}
+                       if weld.measured else {"verdict": "not measured", "sections": 0, "failing": 0})
+        volume = report.volume_mesh
+        row["fe"] = volume.solid.tetrahedra if volume.made else None
+        refine = report.stages.get("refine", {})
         value = refine.get("target_residual_median_mm") if isinstance(refine, dict) else None
         row["residual_um"] = None if value is None else round(value * 1000, 1)
     return row

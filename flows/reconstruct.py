@@ -10,9 +10,9 @@ back-off; bad input is not.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -33,8 +33,9 @@ from flows.stages.outputs import REPORT
 from flows.stages.report import RESULTS, publish
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
+from schemas.stage_documents import Report
 
-__all__ = ["check_out_dir", "check_run_folder", "reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
+__all__ = ["RunResult", "TrailHead", "check_out_dir", "check_run_folder", "reconstruct_sample", "load_config", "ReconstructionFailed", "task_runner", "prefect_api_for_workers",
            "wait_for_file"]
 
 
@@ -229,7 +230,34 @@ def audit_status(out: Path) -> dict[str, Any]:
             "problems": [str(p) for p in problems]}
 
 
-def _link_the_reports(sample_id: str, published: dict[str, dict[str, str]], log) -> None:
+@dataclass(frozen=True)
+class TrailHead:
+    """The run-finished entry of the audit trail: an anchor to keep outside the run folder."""
+
+    seq: int
+    hash: str
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a reconstruction run hands back: the published report (``results/report.json``), the
+    published files (name -> path and sha256), every stage's refs, which stages were all cached,
+    the seconds each stage's bodies took, and the trail's head."""
+
+    report: Report
+    outputs: dict[str, dict[str, str]]
+    refs: dict[str, Any]
+    cached: dict[str, bool]
+    seconds: dict[str, float]
+    trail_head: TrailHead
+
+    def stage_path(self, name: str) -> str | list[str]:
+        """A stage's folder in the stage store (a list for per-pass stages)."""
+        ref = self.refs[name]
+        return [r.path for r in ref] if isinstance(ref, list) else ref.path
+
+
+def _link_the_reports(sample_id: str, report: Report, published: dict[str, dict[str, str]], log) -> None:
     """Prefect artifacts on this flow run: a link to the sample's QA report and a summary table,
     so the Prefect UI leads from each run to its report. Best effort: a run is not failed for it."""
     import re
@@ -240,16 +268,12 @@ def _link_the_reports(sample_id: str, published: dict[str, dict[str, str]], log)
         return
     key = re.sub(r"[^a-z0-9-]+", "-", f"qa-report-{sample_id}".lower()).strip("-")[:100]
     path = Path(published["report.html"]["path"])
-    report = json.loads(Path(published[REPORT.name]["path"]).read_text())
-    weld = report.get("weld", {})
-    checks = report.get("checks", [])
-    flagged = [c for c in checks if c.get("result") != "ok"]
-    volume = report.get("volume_mesh", {})
+    weld, checks, volume = report.weld, report.checks, report.volume_mesh
+    flagged = [c for c in checks if c.result != "ok"]
     rows = [("checks", f"{len(checks) - len(flagged)} of {len(checks)} ok"),
-            ("weld", f"{weld.get('verdict')}, {weld.get('sections')} sections, {weld.get('failing') or 0} failing"
-             if weld.get("measured") else f"not measured: {weld.get('why_not')}"),
-            ("FE model", f"{volume.get('solid', {}).get('tetrahedra')} tetrahedra" if volume.get("made")
-             else f"not made: {volume.get('why')}"),
+            ("weld", f"{weld.verdict}, {weld.sections} sections, {weld.failing or 0} failing"
+             if weld.measured else f"not measured: {weld.why_not}"),
+            ("FE model", f"{volume.solid.tetrahedra} tetrahedra" if volume.made else f"not made: {volume.why}"),
             ("QA report", f"[{path.name}]({path.as_uri()})"), ("report.html sha256", published["report.html"]["sha256"])]
     table = "\n".join(f"| {k} | {v} |" for k, v in rows)
     try:
@@ -288,7 +312,7 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
                        dask: str | None = None, follow_timeout_s: float | None = None,
-                       sample_id: str | None = None, trail_head: str | None = None) -> dict[str, Any]:
+                       sample_id: str | None = None, trail_head: str | None = None) -> RunResult:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
@@ -376,12 +400,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         audit.append(out, "run-failed", sample_id=manifest.sample_id, stage=getattr(exc, "stage", None),
                      error=f"{type(exc).__name__}: {exc}")
         raise
-    _link_the_reports(manifest.sample_id, published, log)
-    result = dict(json.loads(Path(published[REPORT.name]["path"]).read_text()))
-    result["outputs"] = published
-    result["refs"] = refs
-    result["stage_paths"] = {n: ([r.path for r in v] if isinstance(v, list) else v.path) for n, v in refs.items()}
-    result["cached"] = cached
-    result["seconds"] = {n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()}
-    result["trail_head"] = {"seq": finished["seq"], "hash": finished["hash"]}
-    return result
+    report = REPORT.read_path(Path(published[REPORT.name]["path"]))
+    _link_the_reports(manifest.sample_id, report, published, log)
+    return RunResult(report=report, outputs=published, refs=refs,
+                     cached=cached, seconds={n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()},
+                     trail_head=TrailHead(seq=finished["seq"], hash=finished["hash"]))

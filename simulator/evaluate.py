@@ -17,6 +17,7 @@ from data_catalog.manifests import load_manifest
 from data_catalog.passes import read_pass
 from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, read_truth, read_truth_pass, read_weld_truth
 from schemas.truth import Material, PointLabel
+from schemas.weld_document import WeldGeometry
 from tasks.ingest import profile_points, sensor_poses
 from tasks.matching import kabsch, match_rotation_invariant
 
@@ -117,7 +118,7 @@ def T_true_specimen_nominal(sample_dir: Path, manifest, refined) -> np.ndarray:
     return np.linalg.inv(gauge.T_recon_specimen) @ T_common_nominal
 
 
-def weld_errors(sample: Path, geometry: dict, T_true_specimen_nominal: np.ndarray) -> dict[str, list[tuple[float, float]]]:
+def weld_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: np.ndarray) -> dict[str, list[tuple[float, float]]]:
     """Stage weld's ``weld_geometry.json`` (``geometry``) against ``truth/weld_sections.json``:
     figure -> [(measured - true, true)] over every measured section and toe. Each section is
     placed in the true specimen frame by ``T_true_specimen_nominal`` and compared with the drawn
@@ -133,36 +134,35 @@ def weld_errors(sample: Path, geometry: dict, T_true_specimen_nominal: np.ndarra
             errors.setdefault(name, []).append((float(measured) - float(true), float(true)))
 
     R, t = T_true_specimen_nominal[:3, :3], T_true_specimen_nominal[:3, 3]
-    for sec in geometry["sections"]:
-        rows = by_side.get(sec["line"])
-        if not rows or sec["reinforcement_height_mm"]["value"] is None:
+    for sec in geometry.sections:
+        rows = by_side.get(sec.line)
+        if not rows or sec.reinforcement_height_mm.value is None:
             continue
-        y = float((R @ np.asarray(sec["centre_specimen_mm"]) + t)[1])
+        y = float((R @ np.asarray(sec.centre_specimen_mm) + t)[1])
         ys = np.array([r.y_mm for r in rows])
 
         def at(get):
             return float(np.interp(y, ys, [get(r) for r in rows]))
 
-        add("reinforcement_height_mm", sec["reinforcement_height_mm"]["value"], at(lambda r: r.peak_height_mm))
-        treated = any(t is not None and t.get("groove") is not None for t in sec["toes"].values())
+        add("reinforcement_height_mm", sec.reinforcement_height_mm.value, at(lambda r: r.peak_height_mm))
+        treated = any(toe is not None and toe.groove is not None for _, toe in sec.toes.sides())
         if not treated:  # a treated weld's width is between where the grooves meet it, not the drawn toes
-            add("reinforcement_width_mm", sec["reinforcement_width_mm"]["value"], at(lambda r: r.width_mm))
-        for k, side in enumerate(("minus", "plus")):
-            toe = sec["toes"][side]
+            add("reinforcement_width_mm", sec.reinforcement_width_mm.value, at(lambda r: r.width_mm))
+        for k, (side, toe) in enumerate(sec.toes.sides()):
             if toe is None:
                 continue
-            groove = toe.get("groove")
+            groove = toe.groove
             if groove is None:  # a treated toe's drawn flank is cut away by the groove: not compared
-                add("flank_angle_deg", toe["flank_angle_deg"]["value"], at(lambda r: r.flank_angle_deg[k]))
+                add("flank_angle_deg", toe.flank_angle_deg.value, at(lambda r: r.flank_angle_deg[k]))
                 true_r = at(lambda r: r.toe_radius_mm[k])
-                add("toe_radius_mm", toe["toe_radius_mm"]["value"], true_r)
+                add("toe_radius_mm", toe.toe_radius_mm.value, true_r)
                 if true_r >= 0.5:
-                    add("toe_radius_mm (r >= 0.5)", toe["toe_radius_mm"]["value"], true_r)
-                add("undercut_depth_mm", toe["undercut_depth_mm"]["value"], at(lambda r: r.undercut_depth_mm[k]))
+                    add("toe_radius_mm (r >= 0.5)", toe.toe_radius_mm.value, true_r)
+                add("undercut_depth_mm", toe.undercut_depth_mm.value, at(lambda r: r.undercut_depth_mm[k]))
             elif rows[0].groove_depth_mm is not None:
-                add("groove_depth_mm", groove["depth_mm"]["value"], at(lambda r: r.groove_depth_mm[k]))
-                add("groove_width_mm", groove["width_mm"]["value"], at(lambda r: r.groove_width_mm[k]))
-                add("groove_radius_mm (toe radius, treated)", groove["radius_mm"]["value"],
+                add("groove_depth_mm", groove.depth_mm.value, at(lambda r: r.groove_depth_mm[k]))
+                add("groove_width_mm", groove.width_mm.value, at(lambda r: r.groove_width_mm[k]))
+                add("groove_radius_mm (toe radius, treated)", groove.radius_mm.value,
                     at(lambda r: r.groove_radius_mm[k]))
     return errors
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from schemas.simulation import FixtureConfig, PlacementConfig
 from simulator.specimen import Specimen
-from simulator.transforms import apply, make_pose, rotation_deg, translation
+from tasks.frames import apply, make_pose, rotation_deg, translation
 
 __all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "FLIP"]
 

@@ -13,7 +13,7 @@ from schemas.manifest import SampleManifest
 from schemas.simulation import SimulationConfig
 from schemas.truth import GroundTruth, PointLabel
 from simulator.scanner import fan_directions
-from simulator.transforms import apply, invert
+from tasks.frames import apply, invert
 
 __all__ = ["write_previews", "project_to_pass"]
 

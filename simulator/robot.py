@@ -14,7 +14,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from schemas.simulation import RobotConfig, ScanPlanConfig, SpecimenConfig
-from simulator.transforms import frame_from_axes, invert, make_pose
+from tasks.frames import frame_from_axes, invert, make_pose
 
 __all__ = ["PlannedPass", "plan_passes", "PassMotion", "draw_motion"]
 

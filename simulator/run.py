@@ -44,7 +44,7 @@ from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
 from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
 from simulator.tjoint import (build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
                               tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
-from simulator.transforms import invert
+from tasks.frames import invert
 
 __all__ = ["SimulationSummary", "simulate", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
 

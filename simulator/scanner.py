@@ -15,7 +15,7 @@ import numpy as np
 from schemas.simulation import ScannerConfig
 from schemas.truth import Material, PointLabel
 from simulator.scene import NO_STICKER, Scene
-from simulator.transforms import apply, invert
+from tasks.frames import apply, invert
 
 __all__ = ["Profiles", "LineScanner", "fan_directions"]
 

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
 from simulator.specimen import SurfaceMesh
-from simulator.transforms import apply, invert
+from tasks.frames import apply, invert
 
 __all__ = ["StickerSet", "Scene", "NO_STICKER"]
 

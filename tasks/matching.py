@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from tasks.frames import apply
+
 __all__ = ["PairMatch", "match_by_translation", "RigidMatch", "AmbiguousMatch", "match_rotation_invariant", "kabsch",
            "pose_difference"]
 
@@ -209,7 +211,7 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
                     continue  # nearly collinear: the rotation about their line is unknown
                 tries += 1
                 T = kabsch(src, dst)
-                dist, idx = tree_a.query(b @ T[:3, :3].T + T[:3, 3], distance_upper_bound=tolerance_mm)
+                dist, idx = tree_a.query(apply(T, b), distance_upper_bound=tolerance_mm)
                 inl = np.flatnonzero(np.isfinite(dist))
                 if exclude is not None:
                     degrees, mm = pose_difference(T, exclude, b[inl])
@@ -248,6 +250,6 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
         raise AmbiguousMatch(f"ambiguous: the best rigid transform brings {len(best_pairs)} targets together, a "
                              f"clearly different one {runner_up} (more than {distinct_deg:g} deg or {distinct_mm:g} mm "
                              f"apart; expected at most {max_runner_up_ratio:g} of the best's)")
-    moved = at @ T[:3, :3].T + T[:3, 3]
+    moved = apply(T, at)
     rms = float(np.sqrt(np.mean(np.sum((moved - a[best_pairs[:, 0]]) ** 2, axis=1))))
     return RigidMatch(pairs=best_pairs[np.argsort(best_pairs[:, 0])], T_a_b=T, rms_mm=rms, runner_up=runner_up)

@@ -24,8 +24,9 @@ import numpy as np
 
 from tasks.checks import check_points
 from tasks.kernels import numba
+from tasks.weld_zone import WeldZone
 
-__all__ = ["MergeResult", "CellSums", "AdaptiveCloud", "PolylineZone", "merge_box_grid", "cell_sums",
+__all__ = ["MergeResult", "CellSums", "AdaptiveCloud", "merge_box_grid", "cell_sums",
            "combine_cell_sums", "cell_index_of_keys", "coarsen_flat_cells", "transform_measured"]
 
 
@@ -305,47 +306,6 @@ def _finish_cells(counts, point_sums, normal_sums, points, normals):
 # --- non-uniform resolution: fine cells where the surface bends, coarse cells where it is flat ---
 
 @dataclass(frozen=True)
-class PolylineZone:
-    """The space within ``radius_mm`` of a polyline: the union of the capsules round its segments,
-    e.g. the zone kept fine around a weld line. ``points_mm``: its k >= 2 vertices in the cloud's
-    frame, mm."""
-
-    points_mm: tuple[tuple[float, float, float], ...]
-    radius_mm: float
-
-    def distance_mm(self, points_mm: np.ndarray) -> np.ndarray:
-        """(n,) float64: the distance of each of ``points_mm`` (n, 3) to the polyline, mm."""
-        p = np.asarray(points_mm, np.float64).reshape(-1, 3)
-        vertices = np.asarray(self.points_mm, np.float64)
-        best = np.full(len(p), np.inf)
-        for a, b in zip(vertices[:-1], vertices[1:]):
-            d = b - a
-            t = np.clip((p - a) @ d / max(float(d @ d), 1e-300), 0.0, 1.0)
-            r = p - a - t[:, None] * d
-            best = np.minimum(best, np.einsum("ij,ij->i", r, r))
-        return np.sqrt(best)
-
-    def contains(self, points_mm: np.ndarray) -> np.ndarray:
-        """(n,) bool: the point lies within ``radius_mm`` of the polyline. Points outside the
-        zone's bounding box (most of a slab away from the weld) cost one comparison each."""
-        p = np.asarray(points_mm, np.float64).reshape(-1, 3)
-        vertices = np.asarray(self.points_mm, np.float64)
-        near = np.all((p >= vertices.min(axis=0) - self.radius_mm) & (p <= vertices.max(axis=0) + self.radius_mm),
-                      axis=1)
-        inside = np.zeros(len(p), bool)
-        inside[near] = self.distance_mm(p[near]) <= self.radius_mm
-        return inside
-
-
-def _in_zones(points_mm: np.ndarray, zones: tuple[PolylineZone, ...]) -> np.ndarray:
-    """(n,) bool: the point lies in at least one of ``zones``."""
-    inside = np.zeros(len(points_mm), bool)
-    for zone in zones:
-        inside |= zone.contains(points_mm)
-    return inside
-
-
-@dataclass(frozen=True)
 class AdaptiveCloud:
     """A merged cloud at two resolutions: ``points_mm`` (m, 3) float64, ``normals`` (m, 3) unit,
     ``counts`` (m,) int64 measured points per output point, ``fine`` (m,) bool whether the point is
@@ -361,7 +321,7 @@ class AdaptiveCloud:
 
 
 def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: float,
-                       max_deviation_mm: float, fine_zones: tuple[PolylineZone, ...] = ()) -> AdaptiveCloud:
+                       max_deviation_mm: float, fine_zone: WeldZone = WeldZone(())) -> AdaptiveCloud:
     """Merge the fine cells of each coarse cell (``factor`` fine cells on an edge) into one point
     where the surface in it is flat: every fine normal within ``max_normal_deg`` of the coarse
     cell's mean normal, and every fine point within ``max_deviation_mm`` of the plane through the
@@ -369,7 +329,7 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
 
     A coarse cell's mean is the count-weighted mean of its fine cells (the mean of all the measured
     points in it). ``merged`` needs normals; cells without one (NaN) keep their coarse cell fine.
-    A coarse cell whose mean point lies in one of the ``fine_zones`` (round the weld's lines)
+    A coarse cell whose mean point lies in the ``fine_zone`` (round the weld's lines)
     keeps its fine cells, flat or not. ``factor`` 1 returns the fine cloud unchanged (all ``fine``).
     """
     if merged.normals is None:
@@ -379,7 +339,7 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
     n = merged.n_points
     if factor == 1 or n == 0:
         return AdaptiveCloud(merged.points_mm, merged.normals, merged.counts, np.ones(n, bool),
-                             _in_zones(merged.points_mm, fine_zones))
+                             fine_zone.contains(merged.points_mm))
     coarse = np.floor_divide(merged.cells, factor)
     keys = _pack(coarse)
     order = np.argsort(keys, kind="stable")  # fine cells stay in (i, j, k) order within a coarse cell
@@ -398,7 +358,7 @@ def coarsen_flat_cells(merged: MergeResult, *, factor: int, max_normal_deg: floa
     cos_dev = np.einsum("ij,ij->i", safe_n, mean_n[group])
     off_plane = np.abs(np.einsum("ij,ij->i", cells_p - mean_p[group], mean_n[group]))
     bent = ~has_normal | ~(cos_dev >= np.cos(np.radians(max_normal_deg))) | ~(off_plane <= max_deviation_mm)
-    in_zone = _in_zones(mean_p, fine_zones)
+    in_zone = fine_zone.contains(mean_p)
     flat = ~np.logical_or.reduceat(bent, starts) & (length > 0) & ~in_zone
     keep_fine = ~flat[group]
     first = np.zeros(len(keys), bool)

@@ -32,6 +32,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from tasks.checks import check_points
+from tasks.frames import apply
 
 __all__ = ["NothingToRefine", "SurfaceSample", "RefineResult", "orient_toward", "surface_sample", "refine_poses"]
 
@@ -127,10 +128,6 @@ def _planes_at(dense: np.ndarray, tree: cKDTree, idx: np.ndarray, k: int) -> np.
     return np.column_stack([centroid, vectors[:, :, 0], dist[:, -1], np.sqrt(np.maximum(values[:, 0], 0) / k)])
 
 
-def _apply(T: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return p @ T[:3, :3].T + T[:3, 3]
-
-
 def _skew_rows(v: np.ndarray) -> np.ndarray:
     """(k, 3) -> (k, 3, 3): d(w x v)/dw = -[v]x."""
     out = np.zeros((len(v), 3, 3))
@@ -200,7 +197,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     column = np.full(n, -1)
     column[free] = np.arange(len(free))
     # the pose increment rotates about this centre, which keeps the normal equations well scaled
-    centre = np.mean([_apply(T[k], s.points_mm).mean(axis=0) for k, s in enumerate(samples) if len(s.points_mm)], axis=0)
+    centre = np.mean([apply(T[k], s.points_mm).mean(axis=0) for k, s in enumerate(samples) if len(s.points_mm)], axis=0)
     # the gate on point-to-plane distances narrows over the first iterations, then stays; the
     # loop ends once no pass point moves more than tolerance_mm
     gates = np.geomspace(max_distance_mm, final_distance_mm, 3).tolist()
@@ -224,7 +221,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     for gate in gates:
         rows_j, rows_r = [], []  # per residual block: (k, 12) jacobian wrt (pose a, pose b), (k,) residual
         blocks_ab = []
-        boxes = np.array([[_apply(T[k], s.points_mm).min(axis=0), _apply(T[k], s.points_mm).max(axis=0)]
+        boxes = np.array([[apply(T[k], s.points_mm).min(axis=0), apply(T[k], s.points_mm).max(axis=0)]
                           if len(s.points_mm) else [[np.inf] * 3, [-np.inf] * 3] for k, s in enumerate(samples)])
         pair_rms, pair_count = {}, {}
         # both ways round: point-to-plane on a curved surface is biased (the tangent plane at the
@@ -234,7 +231,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             if tree_b is None or len(sa.points_mm) == 0:
                 continue
             T_b_a = np.linalg.solve(T[b], T[a])
-            src = _apply(T_b_a, sa.points_mm)
+            src = apply(T_b_a, sa.points_mm)
             dist, idx = tree_b.query(src, distance_upper_bound=neighbour_mm, workers=1)
             src_idx = np.flatnonzero(np.isfinite(dist))
             if len(src_idx) < 50:
@@ -250,8 +247,8 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             ok = ((cos >= min_normal_cos) & (reach <= neighbour_mm)
                   & (plane_rms <= max_plane_rms_mm))
             src_idx, n_b, q_b = src_idx[ok], n_b[ok], plane[ok, :3]
-            P = _apply(T[a], sa.points_mm[src_idx]) - centre
-            Q = _apply(T[b], q_b) - centre
+            P = apply(T[a], sa.points_mm[src_idx]) - centre
+            Q = apply(T[b], q_b) - centre
             N = n_b @ T[b][:3, :3].T
             r = np.einsum("ij,ij->i", N, P - Q)
             close = np.abs(r) <= gate
@@ -299,8 +296,8 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             D[:3, :3] = R
             D[:3, 3] = centre + dx[c, 3:] - R @ centre
             if len(samples[k].points_mm):
-                moved = _apply(T[k], samples[k].points_mm)
-                step = max(step, float(np.linalg.norm(_apply(D, moved) - moved, axis=1).max()))
+                moved = apply(T[k], samples[k].points_mm)
+                step = max(step, float(np.linalg.norm(apply(D, moved) - moved, axis=1).max()))
             T[k] = D @ T[k]
         steps.append(step)
         if gate == final_distance_mm and step < tolerance_mm:

@@ -14,6 +14,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
+from tasks.frames import apply_each
+
 __all__ = ["RegistrationGraph", "RegistrationResult", "RegistrationError", "solve_pass_poses"]
 
 
@@ -62,10 +64,6 @@ class RegistrationResult:
     iterations: int
 
 
-def _apply(T: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return np.einsum("nij,nj->ni", T[:, :3, :3], p) + T[:, :3, 3]
-
-
 def _poses(x: np.ndarray, free: np.ndarray, centres: np.ndarray, n: int) -> np.ndarray:
     T = np.repeat(np.eye(4)[None], n, axis=0)
     params = x.reshape(-1, 6)
@@ -98,8 +96,8 @@ def solve_pass_poses(graph: RegistrationGraph, *, fixed: int = 0, outlier_mm: fl
         label = [names[i] for i in lost] if names else lost
         raise RegistrationError(f"passes {label} share no chain of 3+ common targets with the others; "
                                 "they cannot be registered", lost)
-    a = _apply(graph.T_initial[graph.edge_passes[:, 0]], graph.points_a)
-    b = _apply(graph.T_initial[graph.edge_passes[:, 1]], graph.points_b)
+    a = apply_each(graph.T_initial[graph.edge_passes[:, 0]], graph.points_a)
+    b = apply_each(graph.T_initial[graph.edge_passes[:, 1]], graph.points_b)
     centres = np.zeros((n, 3))
     for k in range(n):
         pts = np.concatenate([a[graph.edge_passes[:, 0] == k], b[graph.edge_passes[:, 1] == k]])
@@ -113,12 +111,12 @@ def solve_pass_poses(graph: RegistrationGraph, *, fixed: int = 0, outlier_mm: fl
 
         def residuals(x: np.ndarray) -> np.ndarray:
             T = _poses(x, free, centres, n)
-            return (_apply(T[ea], pa) - _apply(T[eb], pb)).ravel()
+            return (apply_each(T[ea], pa) - apply_each(T[eb], pb)).ravel()
 
         sol = least_squares(residuals, x, method="trf", x_scale="jac")
         x, iterations = sol.x, iterations + sol.nfev
         T = _poses(x, free, centres, n)
-        res = np.linalg.norm(_apply(T[graph.edge_passes[:, 0]], a) - _apply(T[graph.edge_passes[:, 1]], b), axis=1)
+        res = np.linalg.norm(apply_each(T[graph.edge_passes[:, 0]], a) - apply_each(T[graph.edge_passes[:, 1]], b), axis=1)
         limit = max(outlier_mm, 5 * float(np.median(res[inlier])))
         new = res <= limit
         if np.array_equal(new, inlier):

@@ -48,6 +48,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from tasks.checks import check_points
+from tasks.frames import apply
 from tasks.matching import pose_difference
 from tasks.refine import NothingToRefine, RefineResult, SurfaceSample, orient_toward, refine_poses, surface_sample
 
@@ -284,7 +285,7 @@ def _ransac(source: ScanFeatures, target: ScanFeatures, options: PairOptions) ->
     order = np.argsort(-support, kind="stable")
     refit = []
     for T in hypotheses[order[: 50 * options.top_k]]:
-        inl = np.linalg.norm(P @ T[:3, :3].T + T[:3, 3] - Q, axis=1) <= options.ransac_inlier_mm
+        inl = np.linalg.norm(apply(T, P) - Q, axis=1) <= options.ransac_inlier_mm
         refit.append(_kabsch(P[inl][None], Q[inl][None])[0] if inl.sum() >= 3 else T)
     return np.array(refit), support[order[: len(refit)]], len(P)
 
@@ -293,7 +294,7 @@ def _overlap(a: SurfaceSample, b: SurfaceSample, T_b_a: np.ndarray, inlier_mm: f
     """Share of a's surface samples with a measured point of b within inlier_mm."""
     if len(a.points_mm) == 0 or b.tree is None:
         return 0.0
-    dist, _ = b.tree.query(a.points_mm @ T_b_a[:3, :3].T + T_b_a[:3, 3], distance_upper_bound=inlier_mm, workers=1)
+    dist, _ = b.tree.query(apply(T_b_a, a.points_mm), distance_upper_bound=inlier_mm, workers=1)
     return float(np.isfinite(dist).mean())
 
 
@@ -319,7 +320,7 @@ def _probes(source: ScanFeatures, target: ScanFeatures, T: np.ndarray, pair: Pai
     the overlap, and turned ``1.5 distinct_deg`` both ways about its short axis (its normal, for
     a patch) through its centroid: where a surface can slide or turn on the other (a plate, a
     repeating pattern, a body of revolution), ICP from there stays away, and scores as well."""
-    moved = source.surface.points_mm @ T[:3, :3].T + T[:3, 3]
+    moved = apply(T, source.surface.points_mm)
     near = target.surface.tree.query(moved, distance_upper_bound=pair.inlier_mm, workers=1)[0] < np.inf
     if near.sum() < 10:
         return []

@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+
+from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
+from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "tetrahedralize", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes"]
@@ -47,7 +49,7 @@ class VolumeMesh:
     tetrahedra: np.ndarray  # (e, 4) int64, positively oriented (Abaqus C3D4 / VTK order)
     boundary_element: np.ndarray  # (f,) int64: the tetrahedron each boundary face belongs to
     boundary_face: np.ndarray  # (f,) int64: which of its faces, Abaqus numbering 1-4
-    weld_zone_face: np.ndarray  # (f,) bool: the face's centroid within the weld zone
+    weld_zone_face: np.ndarray  # (f,) bool: the face's centroid within the weld zone (tasks.weld_zone)
     surface_remeshed: bool = True  # False: gmsh could not reparametrise; the surface's own triangles kept
 
     def boundary_triangles(self) -> np.ndarray:
@@ -96,7 +98,6 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     if len(triangles) == 0:
         raise VolumeMeshError("the surface has no triangles")
     weld = polyline_samples(weld_lines_mm, step_mm=max(weld_size_mm, 0.05) / 2) if weld_lines_mm else None
-    tree = cKDTree(weld) if weld is not None and len(weld) else None
     toes = None
     if len(toe_lines_mm) and toe_size_mm < weld_size_mm:
         toes = polyline_samples(toe_lines_mm, step_mm=max(toe_size_mm, 0.05) / 2)
@@ -129,8 +130,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]
     element, face = _boundary_faces(tets)
     centroids = points[np.take_along_axis(tets[element], np.asarray(_FACES)[face - 1], axis=1)].mean(axis=1)
-    in_zone = (tree.query(centroids, distance_upper_bound=weld_zone_mm)[0] <= weld_zone_mm if tree is not None
-               else np.zeros(len(element), bool))
+    in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).contains(centroids)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
                       weld_zone_face=in_zone, surface_remeshed=remeshed)
 
@@ -264,7 +264,7 @@ def _boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (once // 4).astype(np.int64), np.asarray(_FACE_NUMBER, np.int64)[once % 4]
 
 
-def solid_checks(mesh: VolumeMesh, surface_volume_mm3: float) -> dict:
+def solid_checks(mesh: VolumeMesh, surface_volume_mm3: float) -> SolidChecks:
     """One solid? Connected through shared faces, every tetrahedron positive, a closed boundary
     (every boundary edge shared by two boundary faces), and its volume against the surface's."""
     tets = mesh.tetrahedra
@@ -282,12 +282,12 @@ def solid_checks(mesh: VolumeMesh, surface_volume_mm3: float) -> dict:
     edges = np.sort(np.concatenate([boundary[:, [0, 1]], boundary[:, [1, 2]], boundary[:, [2, 0]]]), axis=1)
     _, edge_counts = np.unique(edges, axis=0, return_counts=True)
     volume = float(volumes.sum())
-    return {"tetrahedra": int(len(tets)), "nodes": int(len(mesh.points)), "boundary_faces": int(len(boundary)),
-            "weld_zone_faces": int(np.count_nonzero(mesh.weld_zone_face)), "components": int(n_components),
-            "negative_or_flat": int(np.count_nonzero(volumes <= 0)),
-            "open_boundary_edges": int(np.count_nonzero(edge_counts != 2)),
-            "volume_mm3": volume, "surface_volume_mm3": float(surface_volume_mm3),
-            "volume_difference": volume / surface_volume_mm3 - 1.0 if surface_volume_mm3 else None}
+    return SolidChecks(tetrahedra=int(len(tets)), nodes=int(len(mesh.points)), boundary_faces=int(len(boundary)),
+                       weld_zone_faces=int(np.count_nonzero(mesh.weld_zone_face)), components=int(n_components),
+                       negative_or_flat=int(np.count_nonzero(volumes <= 0)),
+                       open_boundary_edges=int(np.count_nonzero(edge_counts != 2)),
+                       volume_mm3=volume, surface_volume_mm3=float(surface_volume_mm3),
+                       volume_difference=volume / surface_volume_mm3 - 1.0 if surface_volume_mm3 else None)
 
 
 def element_quality(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -312,12 +312,12 @@ def element_quality(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, n
     return min_dihedral, circumradius / np.maximum(3 * inradius, 1e-300)
 
 
-def quality_summary(min_dihedral_deg: np.ndarray, aspect_ratio: np.ndarray) -> dict:
+def quality_summary(min_dihedral_deg: np.ndarray, aspect_ratio: np.ndarray) -> ElementQuality:
     """The figures an FE analyst asks for: the worst element and the percentiles."""
-    def stats(v: np.ndarray, worst: str) -> dict:
+    def stats(v: np.ndarray, worst: str) -> QualityStatistics:
         q = np.percentile(v, [1, 50, 99])
-        return {"worst": round(float(v.min() if worst == "min" else v.max()), 4), "p1": round(float(q[0]), 4),
-                "median": round(float(q[1]), 4), "p99": round(float(q[2]), 4)}
+        return QualityStatistics(worst=round(float(v.min() if worst == "min" else v.max()), 4), p1=round(float(q[0]), 4),
+                                 median=round(float(q[1]), 4), p99=round(float(q[2]), 4))
 
-    return {"min_dihedral_deg": stats(min_dihedral_deg, "min"), "aspect_ratio": stats(aspect_ratio, "max"),
-            "below_10_deg": int(np.count_nonzero(min_dihedral_deg < 10.0))}
+    return ElementQuality(min_dihedral_deg=stats(min_dihedral_deg, "min"), aspect_ratio=stats(aspect_ratio, "max"),
+                          below_10_deg=int(np.count_nonzero(min_dihedral_deg < 10.0)))

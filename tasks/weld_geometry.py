@@ -34,7 +34,7 @@ from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_
                              propagate)
 
 __all__ = ["SectionMeasurement", "WeldLineMeasurement", "measure_section", "measure_weld_line",
-           "along_weld_statistics", "TOE_SIDES"]
+           "along_weld_statistics", "toe_polylines", "TOE_SIDES"]
 
 TOE_SIDES = ("minus", "plus")
 _NAN = float("nan")
@@ -294,3 +294,28 @@ def along_weld_statistics(values: np.ndarray, positions: list) -> dict:
     return {"n": int(ok.sum()), "min": round(float(v.min()), 4), "p5": round(float(np.percentile(v, 5)), 4),
             "median": round(float(np.median(v)), 4), "p95": round(float(np.percentile(v, 95)), 4),
             "max": round(float(v.max()), 4), "min_at": where[int(np.argmin(v))], "max_at": where[int(np.argmax(v))]}
+
+
+def toe_polylines(lines: list[WeldLineMeasurement]) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+    """The measured weld toes as polylines, one per weld line and side, in the frame the points
+    came in, mm: (line, side, positions along the line (k,), toe points (k, 3)), sorted by line
+    and side; each section's toe on its line's across direction from the section's centre (where
+    both toes were fitted: the centre is midway between them). Lines with fewer than two such
+    sections give none."""
+    found: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
+    for line in lines:
+        across = np.asarray(line.across, np.float64)
+        for sec in line.sections:
+            if sec.toes[0] is None or sec.toes[1] is None:
+                continue
+            centre_u = (sec.toes[0].position_u_mm + sec.toes[1].position_u_mm) / 2
+            for side, toe in zip(TOE_SIDES, sec.toes):
+                point = np.asarray(sec.centre_mm, np.float64) + (toe.position_u_mm - centre_u) * across
+                found.setdefault((sec.line, side), []).append((sec.position_mm, point))
+    out = []
+    for (name, side), rows in sorted(found.items()):
+        if len(rows) < 2:
+            continue
+        rows.sort(key=lambda r: r[0])
+        out.append((name, side, np.array([p for p, _ in rows], np.float64), np.array([q for _, q in rows], np.float64)))
+    return out

@@ -8,11 +8,8 @@ description of the files it writes. ``run_stage`` (``flows.stages.runner``) runs
 
 from __future__ import annotations
 
-from flows.stages import (denoise, export, merge, mesh, outputs, qa_report, refine, registration, report, segment,
-                          targets, volume, weld)
+from flows.stages import outputs
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
-from flows.stages.passes import pass_view
-from flows.stages.weld_lines import weld_lines_view
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
@@ -30,38 +27,43 @@ def _sample_wide_grids(manifest, entry):
 
 
 STAGES: tuple[Stage, ...] = (
-    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), denoise.denoise, pass_view,
+    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), "flows.stages.denoise:denoise", "flows.stages.passes:pass_view",
           "ingest the pass (robot poses), remove statistical outliers, fit normals on the grid; streamed in blocks"),
-    Stage("targets", True, (), "targets", (outputs.TARGETS,), targets.targets, targets.targets_view,
+    Stage("targets", True, (), "targets", (outputs.TARGETS,), "flows.stages.targets:targets", "flows.stages.targets:targets_view",
           "sticker targets: Hough circles, sub-pixel 3-D rim fit; streamed in blocks"),
     Stage("registration", False, ("targets",), "registration",
-          (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), registration.register, registration.setups_view,
+          (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), "flows.stages.registration:register",
+          "flows.stages.registration:setups_view",
           "match targets between passes, solve all pass poses"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
-          refine.refine, _sample_wide_grids, "all pass poses on targets and overlapping surfaces together; imported "
+          "flows.stages.refine:refine", "flows.stages:_sample_wide_grids", "all pass poses on targets and overlapping surfaces together; imported "
           "scans (registration: surfaces) on their surfaces alone, from given poses or globally"),
-    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), merge.merge, merge.merge_view,
+    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), "flows.stages.merge:merge", "flows.stages.merge:merge_view",
           "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
           "away from the weld"),
-    Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), segment.segment, segment.segment_view,
+    Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), "flows.stages.segment:segment",
+          "flows.stages.segment:segment_view",
           "remove unwanted objects (the fixture): components of occupied grid cells holding the part's stickers; "
           "a single setup: the fixture's plane, the drawing's box, one body of the part's size"),
-    Stage("weld", False, ("segment", "refine"), "weld", (outputs.WELD_GEOMETRY,), weld.weld, weld.weld_view,
+    Stage("weld", False, ("segment", "refine"), "weld", (outputs.WELD_GEOMETRY, outputs.WELD_TOES), "flows.stages.weld:weld",
+          "flows.stages.weld:weld_view",
           "the weld measured on the specimen's points: sections every 1 mm, toe radius, flank angle, height, "
           "undercut, misalignment, HFMI grooves, each with its uncertainty; judged against acceptance limits"),
-    Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), mesh.mesh, _sample_wide,
+    Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), "flows.stages.mesh:mesh", "flows.stages:_sample_wide",
           "screened Poisson (MeshLab) on the merged points and normals"),
-    Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), export.export, _sample_wide,
+    Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), "flows.stages.export:export", "flows.stages:_sample_wide",
           "binary STL and PLY"),
-    Stage("volume", False, ("refine", "weld", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY),
-          volume.volume, weld_lines_view, "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
+    Stage("volume", False, ("refine", "weld", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY,
+                                                     outputs.ELEMENT_QUALITY),
+          "flows.stages.volume:volume", "flows.stages.placement:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
           "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
     Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
                             "export", "volume"), "*",
-          (outputs.REPORT,), report.report, report.report_view, "the sample's report"),
+          (outputs.REPORT,), "flows.stages.report:report", "flows.stages.report:report_view", "the sample's report"),
     Stage("qa_report", False, ("denoise", "targets", "registration", "refine", "segment", "weld", "mesh", "volume",
-                               "report"), "qa_report", (outputs.QA_REPORT,), qa_report.qa_report, qa_report.qa_report_view,
+                               "report"), "qa_report", (outputs.QA_REPORT,), "flows.stages.qa_report:qa_report",
+          "flows.stages.qa_report:qa_report_view",
           "the QA report people read: one self-contained HTML page (coverage, stickers, registration graph, "
           "disagreement of overlapping passes, mesh renderings, weld sections and figures, FE model, provenance)"),
 )

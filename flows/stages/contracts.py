@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import numpy as np
+from pydantic import BaseModel, ValidationError
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.stages import ArrayWriter, load_arrays, open_array, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS",
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "DocumentError", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS",
            "block_rows"]
 
 A = TypeVar("A")
@@ -139,17 +140,42 @@ class _LazyArrays:
         return self._loaded[name]
 
 
+D = TypeVar("D", bound=BaseModel)
+
+
+class DocumentError(ValueError):
+    """A stage's JSON document that does not hold to its model (a renamed or missing field)."""
+
+
 @dataclass(frozen=True)
-class JsonFile:
-    """A JSON document (sorted keys, indented) in the stage's folder."""
+class JsonFile(Generic[D]):
+    """A JSON document (sorted keys, indented) in the stage's folder, the pydantic model ``model``
+    written and read: readers get the model, never a dict (a renamed field fails where the file
+    is read, naming it)."""
 
     name: str
+    model: type[D]
 
-    def write(self, out: Path, value: dict[str, Any]) -> None:
-        atomic_write_text(Path(out) / self.name, json.dumps(value, indent=1, sort_keys=True) + "\n")
+    def write(self, out: Path, value: D) -> None:
+        if not isinstance(value, self.model):
+            raise TypeError(f"{self.name}: expected a {self.model.__name__}, got {type(value).__name__}")
+        atomic_write_text(Path(out) / self.name, self.dumps(value))
 
-    def read(self, ref: StageRef) -> dict[str, Any]:
-        return json.loads(ref.file(self.name).read_text())
+    def dumps(self, value: D) -> str:
+        """The document's bytes: NaN and infinities as null, keys sorted."""
+        return json.dumps(json.loads(value.model_dump_json(by_alias=True)), indent=1, sort_keys=True, allow_nan=False) + "\n"
+
+    def read(self, ref: StageRef) -> D:
+        return self.read_path(ref.file(self.name))
+
+    def read_path(self, path: Path) -> D:
+        try:
+            return self.model.model_validate_json(Path(path).read_bytes())
+        except ValidationError as exc:
+            first = exc.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "(top level)"
+            raise DocumentError(f"{path}: not a valid {self.model.__name__} ({exc.error_count()} problems; first: "
+                                f"{where}: {first['msg']})") from None
 
 
 @dataclass(frozen=True)

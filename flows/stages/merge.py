@@ -2,7 +2,7 @@
 
 Where the manifest says where the fixture put the specimen (``Setup.T_world_specimen_nominal``),
 the zone around its weld lines (every point within ``merge.weld_zone_mm`` plus the setup's
-placement tolerance of a line) stays at the fine resolution, flat or not (``weld_zones``).
+placement tolerance of a line) stays at the fine resolution, flat or not (``placement.sample_weld_zone``).
 
 Each pass is read in blocks of profiles; a block's points and normals go into the common frame and
 are summed per cell (``tasks.merge.cell_sums``, a few times fewer records than points at the
@@ -23,12 +23,12 @@ import numpy as np
 from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import block_rows, zarr_array
-from flows.stages.weld_lines import weld_lines_common, weld_lines_view
+from flows.stages.placement import sample_weld_zone, weld_lines_view
 from schemas.manifest import SampleManifest
-from tasks.merge import (CellSums, PolylineZone, cell_index_of_keys, cell_sums, coarsen_flat_cells,
+from tasks.merge import (CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells,
                          combine_cell_sums, transform_measured)
 
-__all__ = ["merge", "merge_view", "weld_zones"]
+__all__ = ["merge", "merge_view"]
 
 merge_view = weld_lines_view  # what the merge reads of the manifest
 
@@ -75,21 +75,11 @@ class _Spill:
             yield CellSums(rec["key"], rec["count"], rec["p"], rec["q"])
 
 
-def weld_zones(manifest: SampleManifest, T_common_pass: np.ndarray, zone_mm: float) -> tuple[PolylineZone, ...]:
-    """The weld's zone in the common frame, per setup that states its nominal placement and per
-    weld line (``weld_lines_common``): every point within ``zone_mm`` plus the setup's tolerance
-    of the line."""
-    if zone_mm <= 0:
-        return ()
-    return tuple(PolylineZone(tuple(tuple(float(v) for v in p) for p in points), float(zone_mm + tolerance))
-                 for points, tolerance in weld_lines_common(manifest, T_common_pass))
-
-
 def merge(ctx) -> dict[str, Any]:
     s = ctx.settings
     slab_cells = SLAB_CELLS // s.coarse_factor * s.coarse_factor  # a coarse cell never straddles two slabs
     T_all = REFINED.open(ctx.inputs["refine"]).T_common_pass
-    zones = weld_zones(ctx.manifest, T_all, s.weld_zone_mm)
+    zone = sample_weld_zone(ctx.manifest, T_all, s.weld_zone_mm, widened=True)
     points_in = 0
     with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         spill = _Spill(Path(scratch))
@@ -107,7 +97,7 @@ def merge(ctx) -> dict[str, Any]:
         for part in spill.slabs():
             merged = combine_cell_sums(part, cell_mm=s.cell_mm)
             cloud = coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
-                                       max_deviation_mm=s.flat_deviation_mm, fine_zones=zones)
+                                       max_deviation_mm=s.flat_deviation_mm, fine_zone=zone)
             out.append("points", cloud.points_mm)
             out.append("normals", cloud.normals.astype(np.float32))
             out.append("counts", cloud.counts.astype(np.int32))
@@ -122,4 +112,4 @@ def merge(ctx) -> dict[str, Any]:
     return {"points_in": int(points_in), "points_out": int(points_out), "fine_cells": int(fine_cells),
             "fine_points_out": int(fine_out), "coarse_points_out": int(points_out - fine_out),
             "weld_zone_points_out": int(zone_out),
-            "weld_zones": [{"points_mm": [list(p) for p in z.points_mm], "radius_mm": z.radius_mm} for z in zones]}
+            "weld_zones": [{"points_mm": [list(p) for p in z.points_mm], "radius_mm": z.radius_mm} for z in zone.zones]}

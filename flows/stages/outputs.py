@@ -1,6 +1,6 @@
 """The typed description of every stage's output files, one block per stage: a zarr group's
-arrays as the fields of a frozen dataclass (shape, type, unit, frame), JSON documents and mesh
-files by name. Readers and writers go through these, so each file and array name is spelled
+arrays as the fields of a frozen dataclass (shape, type, unit, frame), JSON documents as their
+pydantic models (``schemas.stage_documents``, ``schemas.weld_document``), mesh files by name. Readers and writers go through these, so each file and array name is spelled
 here only. (Kept apart from the stage bodies, so that a stage's code version does not include the
 compute code of the stages whose outputs it reads.)"""
 
@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, TextFile
+from schemas.stage_documents import FEModelSummary, RefineSummary, RegistrationSummary, Report
+from schemas.weld_document import WeldGeometry
 
 
 # --- stage denoise ---
@@ -53,7 +55,7 @@ class Registration:
     track_centres_mm: np.ndarray  # (m, 3) float64: that observation's centre, coarse frame
 
 REGISTRATION = ArrayFile("registration.zarr", Registration)
-REGISTRATION_SUMMARY = JsonFile("registration.json")  # pairs, weak pairs, per-pass RMS
+REGISTRATION_SUMMARY = JsonFile("registration.json", RegistrationSummary)  # pairs, weak pairs, per-pass RMS
 
 
 # --- stage refine ---
@@ -65,7 +67,7 @@ class RefinedPoses:
     target_residual_mm: np.ndarray  # (e,) float64, inlier target pairs after refinement
 
 REFINED = ArrayFile("refined.zarr", RefinedPoses)
-REFINE_SUMMARY = JsonFile("refine.json")  # surface pairs (points, RMS), step per iteration
+REFINE_SUMMARY = JsonFile("refine.json", RefineSummary)  # surface pairs (points, RMS), step per iteration
 
 
 # --- stage merge ---
@@ -91,7 +93,20 @@ SPECIMEN = ArrayFile("specimen.zarr", SpecimenCloud)
 
 
 # --- stage weld ---
-WELD_GEOMETRY = JsonFile("weld_geometry.json")  # per section: figures with 1-sigma, pass/fail; statistics along the weld
+WELD_GEOMETRY = JsonFile("weld_geometry.json", WeldGeometry)  # per section: figures with 1-sigma, verdicts; statistics
+
+
+@dataclass(frozen=True)
+class WeldToes:
+    points_mm: np.ndarray  # (m, 3) float64, mm, common frame: the measured toes, polyline after polyline
+    polyline: np.ndarray  # (m,) int64: which toe polyline (one per weld line and side, sorted by both), in order along it
+    position_mm: np.ndarray  # (m,) float64: the section's position along its weld line
+
+    def polylines(self) -> list[np.ndarray]:
+        """The toes as polylines (k >= 2, 3), common frame, mm."""
+        return [self.points_mm[self.polyline == k] for k in np.unique(self.polyline)]
+
+WELD_TOES = ArrayFile("toes.zarr", WeldToes)
 
 
 # --- stage mesh ---
@@ -112,11 +127,20 @@ PLY = MeshFile("mesh.ply")  # binary PLY, mm
 # the model files are left out when the surface mesh is open (volume.json says so: "made": false)
 VOLUME_INP = MeshFile("model.inp", optional=True)  # Abaqus, C3D4, mm: ALL, WELD_ZONE_NODES, WELD_ZONE_SURFACE
 VOLUME_VTU = MeshFile("model.vtu", optional=True)  # VTU (zlib): min_dihedral_deg, aspect_ratio, weld_zone_boundary
-VOLUME_SUMMARY = JsonFile("volume.json")  # whether it was made, the solid checks, the element quality figures
+VOLUME_SUMMARY = JsonFile("volume.json", FEModelSummary)  # whether it was made, the solid checks, the quality figures
+
+
+@dataclass(frozen=True)
+class ElementQualityArrays:
+    min_dihedral_deg: np.ndarray  # (e,) float32, each tetrahedron's smallest dihedral angle
+    aspect_ratio: np.ndarray  # (e,) float32, circumradius / (3 x inradius)
+
+# beside the model files: the per-element quality as arrays (empty when no model was made)
+ELEMENT_QUALITY = ArrayFile("quality.zarr", ElementQualityArrays)
 
 
 # --- stage report ---
-REPORT = JsonFile("report.json")
+REPORT = JsonFile("report.json", Report)
 
 
 # --- stage qa_report ---

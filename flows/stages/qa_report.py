@@ -27,10 +27,14 @@ from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescap
 
 from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
-from flows.stages.outputs import (CLOUD, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY,
-                                  REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY)
-from flows.stages.weld_lines import weld_frame, weld_lines_common
+from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION,
+                                  REGISTRATION_SUMMARY, REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
+from flows.stages.placement import sample_weld_zone, weld_frame, weld_lines_common
+from schemas.acceptance import AcceptanceRule
 from schemas.manifest import SampleManifest
+from schemas.weld_document import TOE_SIDES, Figure, Finding, WeldGeometry, WeldSection
+from tasks.frames import apply, invert, rotate
+from tasks.weld_zone import WeldZone
 from tasks.coverage import FaceAccumulator
 from tasks.mesh import simplify_surface
 from tasks.report_figures import (AlongWeldSeries, ViewedFace, along_weld, face_map, histogram, intensity_image,
@@ -61,17 +65,13 @@ def _picture(png: bytes, alt: str, caption: str = "") -> dict[str, str]:
     return {"src": _uri(png), "alt": alt, "caption": caption}
 
 
-def _apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ T[:3, :3].T + T[:3, 3]
-
-
 def _view_frame(manifest: SampleManifest, T_common_pass: np.ndarray, specimen_points: np.ndarray) -> tuple[np.ndarray, str]:
     """common frame -> the frame the maps are drawn in: the specimen's (its nominal placement
     through the first placed setup's pose) or, for parts placed nowhere, the points' principal axes
     (z the least spread, signs fixed by the third moments)."""
     frame = weld_frame(manifest, T_common_pass)
     if frame is not None:
-        return np.linalg.inv(frame), "the specimen frame (the drawing's)"
+        return invert(frame), "the specimen frame (the drawing's)"
     centre = specimen_points.mean(axis=0)
     d = specimen_points - centre
     _, vectors = np.linalg.eigh(d.T @ d)
@@ -112,12 +112,12 @@ def _maps(ctx, T_view_common: np.ndarray, T_common_pass: np.ndarray, surface: np
         step = tuple(slice(None, None, n) for n in _steps(ctx.manifest, entries[k], stored_points.shape, s.cell_mm,
                                                           s.points_per_pass))
         points, normals = stored_points[step], stored_normals[step]
-        points = _apply(T, np.asarray(points, np.float64).reshape(-1, 3))
+        points = apply(T, np.asarray(points, np.float64).reshape(-1, 3))
         normals = np.asarray(normals, np.float64).reshape(-1, 3) @ T[:3, :3].T
         faces.add(points, normals)
         origins = np.asarray(zarr_array(ref, CLOUD, "sensor_origins")[...], np.float64)
         if len(origins) >= 2 and np.isfinite(origins[[0, -1]]).all():
-            ends = _apply(T, origins[[0, -1]])
+            ends = apply(T, origins[[0, -1]])
             face = "top" if np.nanmean(normals[:, 2]) >= 0 else "bottom"  # normals face the sensor
             paths[face].append((name, ends[:, :2]))
     grids = faces.faces()
@@ -175,8 +175,8 @@ def _graph(ctx) -> tuple[list[dict[str, str]], list[dict[str, Any]]]:
         sel = inlier & (pairs.min(axis=1) == a) & (pairs.max(axis=1) == b)
         edges.append((a, b, int(sel.sum()), float(np.median(residual[sel]))))
     index = {n: k for k, n in enumerate(ctx.names)}
-    surface = [(index[p["a"]], index[p["b"]], float(p["rms_mm"])) for p in refine.get("surface_pairs", [])
-               if p.get("a") in index and p.get("b") in index]
+    surface = [(index[p.a], index[p.b], float(p.rms_mm if p.rms_mm is not None else math.nan))
+               for p in refine.surface_pairs if p.a in index and p.b in index]
     groups = [setup for setup, _ in ctx.manifest.passes()]
     picture = _picture(registration_graph(ctx.names, groups, edges, surface,
                                           title="Registration graph: pass pairs joined by common stickers"),
@@ -188,27 +188,20 @@ def _graph(ctx) -> tuple[list[dict[str, str]], list[dict[str, Any]]]:
         degree[ctx.names[a]] += 1
         degree[ctx.names[b]] += 1
     rows = [{"pass": n, "setup": g, "pairs": degree[n],
-             "rms_um": None if summary["pass_rms_mm"].get(n) is None else round(summary["pass_rms_mm"][n] * 1000, 1)}
+             "rms_um": None if summary.pass_rms_mm.get(n) is None else round(summary.pass_rms_mm[n] * 1000, 1)}
             for n, g in zip(ctx.names, groups)]
     return ([picture] if edges or surface else []), rows
 
 
-def _mesh_pictures(ctx, T_view_common: np.ndarray, lines_common: list[tuple[np.ndarray, float]]) -> list[dict[str, str]]:
+def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
     mesh = MESH.read(ctx.inputs["mesh"])
     vertices, triangles = simplify_surface(mesh.vertices, mesh.triangles, max_triangles=ctx.settings.mesh_triangles)
-    zone = ctx.config.volume.weld_zone_mm
-    centroids = vertices[triangles].mean(axis=1)
-    near = np.zeros(len(triangles), bool)
-    for line, _ in lines_common:
-        for p, q in zip(line[:-1], line[1:]):
-            t = (q - p) / max(np.linalg.norm(q - p), 1e-12)
-            rel = centroids - p
-            along = np.clip(rel @ t, 0, np.linalg.norm(q - p))
-            near |= np.linalg.norm(rel - along[:, None] * t, axis=1) < zone
-    v = _apply(T_view_common, vertices)
+    near = zone.contains(vertices[triangles].mean(axis=1))  # the FE model's WELD_ZONE_SURFACE is this zone's faces
+    v = apply(T_view_common, vertices)
+    radius = zone.zones[0].radius_mm if zone else 0.0
     caption = (f"The Poisson mesh ({len(mesh.triangles):,} triangles) simplified to {len(triangles):,} for the picture; "
-               f"orange: the weld zone ({zone:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
-    lines_view = [_apply(T_view_common, line) for line, _ in lines_common]
+               f"orange: the weld zone ({radius:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
+    lines_view = [apply(T_view_common, np.asarray(z.points_mm, np.float64)) for z in zone.zones]
     out = [_picture(mesh_view(v, triangles, azimuth_deg=-60, elevation_deg=35, title="The mesh from above",
                               highlight=near), "mesh from above", caption),
            _picture(mesh_view(v, triangles, azimuth_deg=120, elevation_deg=-35, title="The mesh from below",
@@ -230,55 +223,53 @@ def _mesh_pictures(ctx, T_view_common: np.ndarray, lines_common: list[tuple[np.n
     return out
 
 
-_TOE_FIGURES = (("toe_radius_mm", "toe radius", "mm", lambda t: t["toe_radius_mm"]),
-                ("flank_angle_deg", "flank angle", "deg", lambda t: t["flank_angle_deg"]),
-                ("undercut_depth_mm", "undercut", "mm", lambda t: t["undercut_depth_mm"]),
-                ("groove_depth_mm", "groove depth", "mm", lambda t: (t.get("groove") or {}).get("depth_mm")),
-                ("groove_width_mm", "groove width", "mm", lambda t: (t.get("groove") or {}).get("width_mm")))
+_TOE_FIGURES = (("toe_radius_mm", "toe radius", "mm"), ("flank_angle_deg", "flank angle", "deg"),
+                ("undercut_depth_mm", "undercut", "mm"), ("groove_depth_mm", "groove depth", "mm"),
+                ("groove_width_mm", "groove width", "mm"))
 _SECTION_FIGURES = (("reinforcement_height_mm", "height", "mm"),
                     ("reinforcement_width_mm", "width", "mm"),
                     ("axial_misalignment_mm", "axial misal.", "mm"),
                     ("angular_misalignment_deg", "angular misal.", "deg"))
 
 
-def _value(m: dict | None) -> tuple[float, float]:
-    if not m or m.get("value") is None:
+def _value(m: Figure | None) -> tuple[float, float]:
+    if m is None or m.value is None:
         return math.nan, math.nan
-    return float(m["value"]), math.nan if m.get("sigma") is None else float(m["sigma"])
+    return float(m.value), math.nan if m.sigma is None else float(m.sigma)
 
 
-def _along_weld(geometry: dict[str, Any]) -> list[dict[str, str]]:
-    rule = geometry.get("acceptance") or {}
-    sections = geometry["sections"]
-    failing = {(f["line"], f["position_mm"], f.get("figure")) for f in geometry.get("failing", [])}
+def _limits(rule: AcceptanceRule | None, figure: str) -> tuple[float | None, float | None]:
+    limits = None if rule is None else getattr(rule, figure)
+    return (None, None) if limits is None else (limits.min, limits.max)
+
+
+def _curve(rows: list[tuple[float, float, float, bool]]):
+    arr = np.array(rows, dtype=object)
+    return arr[:, 0].astype(float), arr[:, 1].astype(float), arr[:, 2].astype(float), arr[:, 3].astype(bool)
+
+
+def _along_weld(geometry: WeldGeometry) -> list[dict[str, str]]:
+    sections = geometry.sections
+    failing = {(f.line, f.position_mm, f.figure) for f in geometry.failing}
     series = []
-    treated = geometry.get("treatment") != "as-welded"
-    for figure, label, unit, get in _TOE_FIGURES:
+    treated = geometry.treatment != "as-welded"
+    for figure, label, unit in _TOE_FIGURES:
         if figure.startswith("groove") and not treated:
             continue
         curves = {}
-        for line in dict.fromkeys(s["line"] for s in sections):
-            for side in ("minus", "plus"):
-                rows = [(s["position_mm"], *_value(get(s["toes"][side]) if s["toes"].get(side) else None),
-                         (line, s["position_mm"], figure) in failing) for s in sections if s["line"] == line]
+        for line in geometry.line_names():
+            for side in TOE_SIDES:
+                rows = [(s.position_mm, *_value(getattr(s.toes, side).figure(figure) if getattr(s.toes, side) else None),
+                         (line, s.position_mm, figure) in failing) for s in sections if s.line == line]
                 if not rows or all(math.isnan(r[1]) for r in rows):
                     continue
-                arr = np.array(rows, dtype=object)
-                curves[f"{line} {side} toe"] = (arr[:, 0].astype(float), arr[:, 1].astype(float),
-                                                arr[:, 2].astype(float), arr[:, 3].astype(bool))
+                curves[f"{line} {side} toe"] = _curve(rows)
         if curves:
-            limits = rule.get(figure) or {}
-            series.append(AlongWeldSeries(label, unit, curves, limits.get("min"), limits.get("max")))
+            series.append(AlongWeldSeries(label, unit, curves, *_limits(geometry.acceptance, figure)))
     for figure, label, unit in _SECTION_FIGURES:
-        curves = {}
-        for line in dict.fromkeys(s["line"] for s in sections):
-            rows = [(s["position_mm"], *_value(s[figure]), (line, s["position_mm"], figure) in failing)
-                    for s in sections if s["line"] == line]
-            arr = np.array(rows, dtype=object)
-            curves[line] = (arr[:, 0].astype(float), arr[:, 1].astype(float), arr[:, 2].astype(float),
-                            arr[:, 3].astype(bool))
-        limits = rule.get(figure) or {}
-        series.append(AlongWeldSeries(label, unit, curves, limits.get("min"), limits.get("max")))
+        curves = {line: _curve([(s.position_mm, *_value(s.figure(figure)), (line, s.position_mm, figure) in failing)
+                                for s in sections if s.line == line]) for line in geometry.line_names()}
+        series.append(AlongWeldSeries(label, unit, curves, *_limits(geometry.acceptance, figure)))
     pictures = []
     for start in range(0, len(series), 4):  # at most four panels a picture
         pictures.append(_picture(along_weld(series[start:start + 4], title="Along the weld (band: 1 sigma; dashed red: "
@@ -287,91 +278,88 @@ def _along_weld(geometry: dict[str, Any]) -> list[dict[str, str]]:
     return pictures
 
 
-def _chosen_sections(geometry: dict[str, Any], per_line: int) -> list[dict[str, Any]]:
+def _chosen_sections(geometry: WeldGeometry, per_line: int) -> list[WeldSection]:
     """Per weld line, the failing sections first (most violations first), then evenly along it."""
     chosen = []
-    for line in dict.fromkeys(s["line"] for s in geometry["sections"]):
-        rows = [s for s in geometry["sections"] if s["line"] == line]
-        failing = sorted((s for s in rows if s.get("passed") is False), key=lambda s: (-len(s["violations"]),
-                                                                                       s["position_mm"]))
-        uncertain = [s for s in rows if s.get("verdict") == "uncertain"]
+    for line in geometry.line_names():
+        rows = [s for s in geometry.sections if s.line == line]
+        failing = sorted((s for s in rows if s.passed is False), key=lambda s: (-len(s.violations), s.position_mm))
+        uncertain = [s for s in rows if s.verdict == "uncertain"]
         picked = (failing + uncertain)[:per_line]
         rest = [s for s in rows if s not in picked]
         want = per_line - len(picked)
         if want > 0 and rest:
             picked += [rest[int(round(k))] for k in np.linspace(0, len(rest) - 1, want + 2)[1:-1]] if len(rest) > want \
                 else rest
-        chosen += sorted({id(s): s for s in picked}.values(), key=lambda s: s["position_mm"])
+        chosen += sorted({id(s): s for s in picked}.values(), key=lambda s: s.position_mm)
     return chosen
 
 
-def _fmt(m: dict | None, unit: str, digits: int = 2) -> str:
+def _fmt(m: Figure | None, unit: str, digits: int = 2) -> str:
     value, sigma = _value(m)
     if math.isnan(value):
         return "-"
     return f"{value:.{digits}f}" + (f" +- {sigma:.{digits}f}" if not math.isnan(sigma) else "") + f" {unit}"
 
 
-def _section_pictures(ctx, geometry: dict[str, Any], points: np.ndarray) -> list[dict[str, str]]:
-    """Cross-sections measured over the drawing's plate faces."""
+def _findings(found: list[Finding]) -> str:
+    return "; ".join(f"{v.figure} {v.value} (limit {v.limit})" for v in found)
+
+
+def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray) -> list[dict[str, str]]:
+    """Cross-sections measured over the drawing's plate faces (``points_specimen``: the specimen's
+    measured points in the frame the weld was measured in)."""
     s = ctx.config.weld
-    lines = {line["name"]: line for line in geometry["lines"]}
     lo, hi = ctx.manifest.specimen.bounds_mm() if ctx.manifest.specimen is not None else (None, None)
     out = []
     for sec in _chosen_sections(geometry, ctx.settings.sections_per_line):
-        line = lines[sec["line"]]
-        c = np.asarray(sec["centre_specimen_mm"], np.float64)
-        n = np.asarray(line["face_normal"], np.float64)
-        a = np.asarray(line["across"], np.float64)
+        line = geometry.line(sec.line)
+        c = np.asarray(sec.centre_specimen_mm, np.float64)
+        n = np.asarray(line.face_normal, np.float64)
+        a = np.asarray(line.across, np.float64)
         t = np.cross(n, a)
-        d = points - c
+        d = points_specimen - c
         sel = (np.abs(d @ t) <= s.section_half_width_mm) & (np.abs(d @ a) <= s.reach_mm) & (np.abs(d @ n) <= s.reach_mm / 2)
         u, h = d[sel] @ a, d[sel] @ n
-        toes = [(side, sec["toes"].get(side)) for side in ("minus", "plus")]
         marks = []
-        if all(toe is not None for _, toe in toes):
-            centre = (toes[0][1]["position_u_mm"] + toes[1][1]["position_u_mm"]) / 2
-            marks = [(toe["position_u_mm"] - centre, f"{side} toe") for side, toe in toes]
+        if sec.toes.both():
+            centre = (sec.toes.minus.position_u_mm + sec.toes.plus.position_u_mm) / 2
+            marks = [(toe.position_u_mm - centre, f"{side} toe") for side, toe in sec.toes.sides()]
         nominal = []
         if lo is not None and abs(n[2]) > 0.5:
             z0 = hi[2] if n[2] > 0 else lo[2]
             span = np.array([-s.reach_mm, s.reach_mm])
             nominal.append((span, (z0 - c[2] - span * a[2]) / n[2], "the drawing's plate face"))
-        notes = [f"height {_fmt(sec['reinforcement_height_mm'], 'mm')}", f"width {_fmt(sec['reinforcement_width_mm'], 'mm')}"]
-        for side, toe in toes:
+        notes = [f"height {_fmt(sec.reinforcement_height_mm, 'mm')}", f"width {_fmt(sec.reinforcement_width_mm, 'mm')}"]
+        for side, toe in sec.toes.sides():
             if toe is None:
                 notes.append(f"{side}: no toe fitted")
                 continue
-            groove = toe.get("groove")
-            notes.append(f"{side}: r {_fmt(toe['toe_radius_mm'], 'mm')}, flank {_fmt(toe['flank_angle_deg'], 'deg', 1)}"
-                         + (f", groove {_fmt(groove['depth_mm'], 'mm')} deep, {_fmt(groove['width_mm'], 'mm', 1)} wide"
+            groove = toe.groove
+            notes.append(f"{side}: r {_fmt(toe.toe_radius_mm, 'mm')}, flank {_fmt(toe.flank_angle_deg, 'deg', 1)}"
+                         + (f", groove {_fmt(groove.depth_mm, 'mm')} deep, {_fmt(groove.width_mm, 'mm', 1)} wide"
                             if groove else ""))
-        failing = sec.get("passed") is False
-        title = f"{sec['line']} at {sec['position_mm']:g} mm" + (" - fails" if failing else " - uncertain"
-                                                                 if sec.get("verdict") == "uncertain" else "")
+        failing = sec.passed is False
+        title = f"{sec.line} at {sec.position_mm:g} mm" + (" - fails" if failing else " - uncertain"
+                                                           if sec.verdict == "uncertain" else "")
         if failing:
-            verdict = "FAILS: " + "; ".join(f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec["violations"])
-        elif sec.get("verdict") == "uncertain":
-            verdict = "UNCERTAIN (within 1 sigma of a limit, or not measured): " + "; ".join(
-                f"{v['figure']} {v['value']} (limit {v['limit']})" for v in sec.get("uncertain", []))
+            verdict = "FAILS: " + _findings(sec.violations)
+        elif sec.verdict == "uncertain":
+            verdict = "UNCERTAIN (within 1 sigma of a limit, or not measured): " + _findings(sec.uncertain)
         else:
-            verdict = "within the limits" if sec.get("passed") else sec.get("note", "not judged")
-        width = _value(sec["reinforcement_width_mm"])[0]
+            verdict = "within the limits" if sec.passed else (sec.note or "not judged")
+        width = _value(sec.reinforcement_width_mm)[0]
         span = (width / 2 if math.isfinite(width) else s.reach_mm / 2) + 6.0
         out.append(_picture(weld_section(u, h, title=title, toes=marks, nominal=nominal, failing=failing,
                                          half_span_mm=min(span, s.reach_mm)),
-                            f"weld section {sec['line']} {sec['position_mm']:g} mm", f"{verdict}. " + "; ".join(notes)))
+                            f"weld section {sec.line} {sec.position_mm:g} mm", f"{verdict}. " + "; ".join(notes)))
     return out
 
 
 def _quality_picture(ctx) -> list[dict[str, str]]:
-    ref = ctx.inputs["volume"]
-    if VOLUME_VTU.name not in ref.outputs:
+    angles = np.asarray(ELEMENT_QUALITY.open(ctx.inputs["volume"]).min_dihedral_deg[...], np.float64)
+    if not len(angles):  # no model made
         return []
-    import meshio
-
-    mesh = meshio.read(ref.file(VOLUME_VTU.name))
-    angles = np.concatenate([np.asarray(block) for block in mesh.cell_data["min_dihedral_deg"]])
     return [_picture(histogram(angles, bins=np.arange(0, 72, 2.0), title="Element quality",
                                xlabel="min dihedral angle, deg", mark=10.0),
                      "FE model element quality", f"The smallest dihedral angle of each of the {len(angles):,} tetrahedra; "
@@ -385,19 +373,20 @@ def qa_report(ctx) -> dict[str, Any]:
     specimen = SPECIMEN.read(inputs["segment"])
     keep = specimen.measured.astype(bool)
     T_view_common, frame = _view_frame(ctx.manifest, T_common_pass, specimen.points[keep])
-    surface = _apply(T_view_common, specimen.points[keep])
-    surface_normals = specimen.normals[keep].astype(np.float64) @ T_view_common[:3, :3].T
-    lines_common = weld_lines_common(ctx.manifest, T_common_pass)
-    lines_view = [_apply(T_view_common, line)[:, :2] for line, _ in lines_common[: len(ctx.manifest.weld_lines())]]
+    surface = apply(T_view_common, specimen.points[keep])
+    surface_normals = rotate(T_view_common, specimen.normals[keep].astype(np.float64))
+    zone = sample_weld_zone(ctx.manifest, T_common_pass, ctx.config.volume.weld_zone_mm)  # the FE model's zone
+    lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
+    lines_view = [apply(T_view_common, line)[:, :2] for line in lines_common[: len(ctx.manifest.weld_lines())]]
     maps, map_figures = _maps(ctx, T_view_common, T_common_pass, surface, surface_normals, lines_view)
     graph, pass_rows = _graph(ctx)
     geometry = WELD_GEOMETRY.read(inputs["weld"])
-    weld = report["weld"]
+    weld = report.weld
     weld_pictures = []
-    if geometry.get("measured"):
+    if geometry.measured:
         weld_pictures = _section_pictures(ctx, geometry, surface) + _along_weld(geometry)
     volume = VOLUME_SUMMARY.read(inputs["volume"])
-    checks = report["checks"]
+    checks = report.checks
     try:
         version = importlib.metadata.version("weldrecon")
     except importlib.metadata.PackageNotFoundError:
@@ -405,13 +394,13 @@ def qa_report(ctx) -> dict[str, Any]:
     page = _ENV.get_template("qa_report.html.j2").render(
         sample_id=ctx.manifest.sample_id, version=version, frame=frame, audit_mark=AUDIT_MARK,
         manifest=ctx.manifest, passes=len(ctx.names), setups=len(ctx.manifest.setups),
-        checks=checks, flagged=[c for c in checks if c["result"] != "ok"], weld=weld, volume=volume,
-        method_counts=sorted(Counter(report["registration_method"].values()).items()),
+        checks=checks, flagged=[c for c in checks if c.result != "ok"], weld=weld, volume=volume,
+        method_counts=sorted(Counter(report.registration_method.values()).items()),
         weld_step=ctx.config.weld.section_step_mm,
-        mesh=report["mesh"], maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
-        pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, T_view_common, lines_common),
-        weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report["deliverables"],
-        stage_keys=report["stage_keys"], config=json.dumps(report["config"], indent=1, sort_keys=True),
+        mesh=report.mesh, maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
+        pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, T_view_common, zone),
+        weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report.deliverables,
+        stage_keys=report.stage_keys, config=json.dumps(report.config, indent=1, sort_keys=True),
         report_sha256=inputs["report"].outputs[REPORT.name])
     QA_REPORT.write_text(ctx.out, page)
     return {"pictures": page.count('<img '), "bytes": len(page.encode()), **map_figures}

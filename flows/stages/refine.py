@@ -9,6 +9,7 @@ import numpy as np
 
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from schemas.stage_documents import RefineSummary, SurfacePair
 from flows.stages.surfaces import register_on_surfaces
 from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import refine_poses, surface_sample
@@ -72,9 +73,9 @@ def refine(ctx) -> dict[str, Any]:
     REFINED.write(ctx.out, RefinedPoses(T_common_pass=T, track_positions_mm=positions,
                                         specimen_track=reg.specimen_track,
                                         target_residual_mm=np.asarray(target_res, dtype=np.float64)))
-    REFINE_SUMMARY.write(ctx.out, {"surface_pairs": [{"a": names[a], "b": names[b], "points": counts[(a, b)],
-                                                      "rms_mm": pairs[(a, b)]} for a, b in sorted(pairs)],
-                                   "step_mm": steps})
+    REFINE_SUMMARY.write(ctx.out, RefineSummary(
+        surface_pairs=[SurfacePair(a=names[a], b=names[b], points=counts[(a, b)], rms_mm=pairs[(a, b)])
+                       for a, b in sorted(pairs)], step_mm=steps))
     surface_rms = list(pairs.values())
     # each pass's target residuals (its edges) against the sample's: a pass whose data or poses
     # disagree with the others stands out here even when every file is valid

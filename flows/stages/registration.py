@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from flows.stages.outputs import REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
+from schemas.stage_documents import PassPair, RegistrationSummary, SetupEvidence
 from tasks.graph import register_passes
 from tasks.registration import RegistrationError
 
@@ -29,8 +30,8 @@ def _surfaces_sample(ctx) -> dict[str, Any]:
         edge_passes=np.zeros((0, 2), np.int64), points_a=empty3, points_b=empty3, track_positions_mm=empty3,
         specimen_track=np.zeros(0, bool), track_members=np.zeros((0, 2), np.int64), track_centres_mm=empty3))
     method = "none: registration surfaces (the scans are registered on their surfaces in stage refine)"
-    REGISTRATION_SUMMARY.write(ctx.out, {"method": method, "pairs": [], "pairs_below_min_common": [],
-                                         "pass_rms_mm": {}, "between_setups": []})
+    REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(method=method, pairs=[], pairs_below_min_common=[],
+                                                            pass_rms_mm={}, between_setups=[]))
     return {"target_pairs": 0, "method": method}
 
 
@@ -55,16 +56,15 @@ def register(ctx) -> dict[str, Any]:
         edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a, points_b=reg.graph.points_b,
         track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track,
         track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3)))
-    REGISTRATION_SUMMARY.write(ctx.out, {
-        "pairs": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common} for p in reg.pairs],
-        "pairs_below_min_common": [{"a": names[p.pass_a], "b": names[p.pass_b], "common_targets": p.n_common}
-                                   for p in reg.weak_pairs],
-        "pass_rms_mm": {n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
+    REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(
+        pairs=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common) for p in reg.pairs],
+        pairs_below_min_common=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common)
+                                for p in reg.weak_pairs],
+        pass_rms_mm={n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
         # why each turned setup's match is not a chance agreement: the targets it brought together
         # against the most a clearly different transform did (the fixture's, staying put, or none)
-        "between_setups": [{"a": setups[0], "b": s, "targets": n, "runner_up": r}
-                           for s, (n, r) in reg.setup_evidence.items()],
-    })
+        between_setups=[SetupEvidence(a=setups[0], b=s, targets=n, runner_up=r)
+                        for s, (n, r) in reg.setup_evidence.items()]))
     res = reg.result.residual_mm[reg.result.inlier]
     return {"target_pairs": int(reg.result.inlier.sum()), "outlier_pairs": int((~reg.result.inlier).sum()),
             "residual_median_mm": float(np.median(res)), "residual_max_mm": float(res.max()),

@@ -18,6 +18,8 @@ from flows.stages.outputs import (PLY, QA_REPORT, REFINE_SUMMARY, REGISTRATION_S
                                   VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
 from flows.stages.qa_audit import UNVERIFIED, fill_audit
+from schemas.stage_documents import Check, FEModelSummary, Report, WeldReport
+from schemas.weld_document import WeldGeometry
 
 __all__ = ["report", "report_view", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
@@ -42,7 +44,7 @@ def _metrics(ref: StageRef | list[StageRef]) -> Any:
     return {k: v for k, v in ref.metrics.items() if k != "seconds"}
 
 
-def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[dict[str, Any]]:
+def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[Check]:
     """Every consistency check the run made (tasks.consistency), one entry per check and pass:
     ``result`` "ok" or "flagged", ``what`` in words. Checks that fail stop the run instead."""
     out = []
@@ -51,90 +53,85 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
             continue
         found = ref.metrics["checks"]
         motion = found.get("motion", {})
-        out.append({"check": "profile times and poses", "pass": name, "result": "ok",
-                    "what": ("times in order; logged flange poses rigid, no jump or turn beyond the limits"
-                             if motion.get("logged_poses") else "times in order (nominal motion, no logged poses)"),
-                    "measured": motion})
+        out.append(Check(check="profile times and poses", pass_=name, result="ok",
+                         what=("times in order; logged flange poses rigid, no jump or turn beyond the limits"
+                               if motion.get("logged_poses") else "times in order (nominal motion, no logged poses)"),
+                         measured=motion))
         jumps = found.get("chunk_jumps", [])
-        out.append({"check": "surface continuity at chunk boundaries", "pass": name,
-                    "result": "flagged" if jumps else "ok",
-                    "what": ("; ".join(f"the surface steps {j['step_mm']} mm into profile {j['profile']} (a storage "
-                                       f"chunk's first), at most {j['around_mm']} mm around it: a chunk may be out of place"
-                                       for j in jumps) or "every chunk continues its neighbours"),
-                    "measured": jumps})
+        out.append(Check(check="surface continuity at chunk boundaries", pass_=name,
+                         result="flagged" if jumps else "ok",
+                         what=("; ".join(f"the surface steps {j['step_mm']} mm into profile {j['profile']} (a storage "
+                                         f"chunk's first), at most {j['around_mm']} mm around it: a chunk may be out of "
+                                         f"place" for j in jumps) or "every chunk continues its neighbours"),
+                         measured=jumps))
     residuals = refine.metrics.get("checks", {}).get("target_residuals", {})
     flagged = {f["pass"]: f for f in residuals.get("flagged", [])}
     for name, value in residuals.get("per_pass_median_mm", {}).items():
         f = flagged.get(name)
-        out.append({"check": "target residuals against the sample's", "pass": name,
-                    "result": "flagged" if f else "ok",
-                    "what": (f"median target residual {f['residual_median_mm'] * 1000:.0f} um, over 3 x the sample's "
-                             f"{f['sample_median_mm'] * 1000:.0f} um: its data or poses disagree with the other passes"
-                             if f else "in line with the other passes"),
-                    "measured": value})
+        out.append(Check(check="target residuals against the sample's", pass_=name,
+                         result="flagged" if f else "ok",
+                         what=(f"median target residual {f['residual_median_mm'] * 1000:.0f} um, over 3 x the sample's "
+                               f"{f['sample_median_mm'] * 1000:.0f} um: its data or poses disagree with the other passes"
+                               if f else "in line with the other passes"),
+                         measured=value))
     shared = refine.metrics.get("checks", {}).get("surfaces_between_setups")
     if shared:
-        out.append({"check": "surfaces the setups share", "pass": "all", "result": "flagged" if shared["flagged"] else "ok",
-                    "what": shared["flagged"] or (f"{shared['pairs_across']} pass pairs across setups overlap, median RMS "
-                                                  f"{shared['rms_median_across_mm'] * 1000:.0f} um (one setup's "
-                                                  f"{(shared['rms_median_within_mm'] or 0) * 1000:.0f} um)"),
-                    "measured": {k: v for k, v in shared.items() if k != "flagged"}})
+        out.append(Check(check="surfaces the setups share", pass_="all", result="flagged" if shared["flagged"] else "ok",
+                         what=shared["flagged"] or (f"{shared['pairs_across']} pass pairs across setups overlap, median "
+                                                    f"RMS {shared['rms_median_across_mm'] * 1000:.0f} um (one setup's "
+                                                    f"{(shared['rms_median_within_mm'] or 0) * 1000:.0f} um)"),
+                         measured={k: v for k, v in shared.items() if k != "flagged"}))
     return out
 
 
-def weld_summary(geometry: dict[str, Any]) -> dict[str, Any]:
+def weld_summary(geometry: WeldGeometry) -> WeldReport:
     """The weld's part of the report: the verdict, where it fails, the figures along the weld
     (the per-section values and their uncertainties stay in the weld stage's weld_geometry.json)."""
-    if not geometry.get("measured"):
-        return {"measured": False, "why_not": geometry.get("why_not")}
-    return {"measured": True, "joint": geometry["joint"], "treatment": geometry["treatment"],
-            "acceptance_source": geometry["acceptance_source"],
-            "acceptance_rule_source": (geometry["acceptance"] or {}).get("source"), **geometry["summary"],
-            "failing_sections": [{k: f[k] for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
-                                 for f in geometry["failing"]],
-            "uncertain_sections": [{k: f.get(k) for k in ("line", "position_mm", "toe", "figure", "value", "limit")}
-                                   for f in geometry.get("uncertain", [])],
-            "lines": geometry["lines"], "statistics": geometry["statistics"]}
+    if not geometry.measured:
+        return WeldReport(measured=False, why_not=geometry.why_not)
+    return WeldReport(measured=True, joint=geometry.joint, treatment=geometry.treatment,
+                      acceptance_source=geometry.acceptance_source,
+                      acceptance_rule_source=None if geometry.acceptance is None else geometry.acceptance.source,
+                      **geometry.summary.model_dump(), failing_sections=geometry.failing,
+                      uncertain_sections=geometry.uncertain, lines=geometry.lines, statistics=geometry.statistics)
 
 
-def fe_model_check(volume: StageRef) -> dict[str, Any]:
+def fe_model_check(summary: FEModelSummary) -> Check:
     """The FE model's check: made as one solid of the mesh's volume, or why not."""
-    summary = VOLUME_SUMMARY.read(volume)
-    if not summary["made"]:
-        return {"check": "FE model", "pass": "all", "result": "flagged", "what": f"not made: {summary['why']}",
-                "measured": {}}
-    solid = summary["solid"]
-    return {"check": "FE model", "pass": "all", "result": "ok",
-            "what": (f"one solid of {solid['tetrahedra']} tetrahedra, volume {100 * solid['volume_difference']:+.2f} % "
-                     f"of the mesh's" + ("" if summary["surface_remeshed"] else
-                                         "; the surface's own triangles kept (gmsh could not reparametrise it)")),
-            "measured": {"volume_difference": solid["volume_difference"],
-                         "min_dihedral_deg": summary["quality"]["min_dihedral_deg"]["worst"]}}
+    if not summary.made:
+        return Check(check="FE model", pass_="all", result="flagged", what=f"not made: {summary.why}", measured={})
+    solid = summary.solid
+    return Check(check="FE model", pass_="all", result="ok",
+                 what=(f"one solid of {solid.tetrahedra} tetrahedra, volume {100 * solid.volume_difference:+.2f} % "
+                       f"of the mesh's" + ("" if summary.surface_remeshed else
+                                           "; the surface's own triangles kept (gmsh could not reparametrise it)")),
+                 measured={"volume_difference": solid.volume_difference,
+                           "min_dihedral_deg": summary.quality.min_dihedral_deg.worst})
 
 
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
-    registration = REGISTRATION_SUMMARY.read(inputs["registration"])
-    registration["refinement"] = REFINE_SUMMARY.read(inputs["refine"])
-    body = {
-        "sample_id": ctx.manifest.sample_id,
-        "passes": ctx.names,
-        "config": ctx.config.model_dump(mode="json"),
-        "stages": {name: _metrics(ref) for name, ref in inputs.items()},
-        "registration": registration,
+    volume = VOLUME_SUMMARY.read(inputs["volume"])
+    body = Report(
+        sample_id=ctx.manifest.sample_id,
+        passes=ctx.names,
+        config=ctx.config.model_dump(mode="json"),
+        stages={name: _metrics(ref) for name, ref in inputs.items()},
+        registration=REGISTRATION_SUMMARY.read(inputs["registration"]),
+        refinement=REFINE_SUMMARY.read(inputs["refine"]),
         # per pass, what registered it: "targets" (stickers), "surfaces from given poses", "surfaces, global"
-        "registration_method": inputs["refine"].metrics.get("registration_method", {}),
-        "mesh": _metrics(inputs["mesh"]),
-        "volume_mesh": VOLUME_SUMMARY.read(inputs["volume"]),
-        "weld": weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
-        "checks": checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(inputs["volume"])],
-        "deliverables": {name: inputs[stage].outputs[source]
-                         for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
-                         if source in inputs[stage].outputs},
-        "stage_keys": {name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
-    }
+        registration_method=inputs["refine"].metrics.get("registration_method", {}),
+        mesh=_metrics(inputs["mesh"]),
+        volume_mesh=volume,
+        weld=weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
+        checks=checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(volume)],
+        deliverables={name: inputs[stage].outputs[source]
+                      for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
+                      if source in inputs[stage].outputs},
+        stage_keys={name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
+    )
     REPORT.write(ctx.out, body)
-    return {"deliverables": len(body["deliverables"])}
+    return {"deliverables": len(body.deliverables)}
 
 
 def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str, StageRef],

@@ -9,6 +9,7 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import importlib
 import importlib.metadata
 import importlib.util
 import json
@@ -73,14 +74,28 @@ class Stage:
     needs: tuple[str, ...]
     settings: str | None
     outputs: tuple[OutputFile, ...]
-    body: Callable[[StageContext], dict[str, Any]]
-    manifest_view: Callable[[SampleManifest, PassEntry | None], Any]
+    body_at: str  # "module:function", imported when first run (the registry imports no compute)
+    manifest_view_at: str  # "module:function"
     summary: str
+
+    @property
+    def body(self) -> Callable[[StageContext], dict[str, Any]]:
+        return _resolve(self.body_at)
+
+    @property
+    def manifest_view(self) -> Callable[[SampleManifest, PassEntry | None], Any]:
+        return _resolve(self.manifest_view_at)
 
     def settings_of(self, config: ReconstructionConfig) -> BaseModel | None:
         if self.settings is None:
             return None
         return config if self.settings == "*" else getattr(config, self.settings)
+
+
+@functools.cache
+def _resolve(at: str) -> Callable:
+    module, _, name = at.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 class StageFailed(RuntimeError):

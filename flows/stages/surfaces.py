@@ -21,6 +21,7 @@ import numpy as np
 
 from flows.stages.contracts import zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, RefinedPoses
+from schemas.stage_documents import RefineSummary, SurfaceMatch, SurfacePair
 from tasks.refine import NothingToRefine, surface_sample
 from tasks.surface_registration import (PairOptions, RefineOptions, refine_scan_poses, register_scans,
                                         scan_features)
@@ -47,8 +48,8 @@ def _refine_options(sc, gates) -> RefineOptions:
                          iterations_per_level=sc.iterations_per_level, tolerance_mm=sc.tolerance_mm)
 
 
-def _pair_figures(names, result) -> list[dict[str, Any]]:
-    return [{"a": names[a], "b": names[b], "points": result.pair_count[(a, b)], "rms_mm": result.pair_rms_mm[(a, b)]}
+def _pair_figures(names, result) -> list[SurfacePair]:
+    return [SurfacePair(a=names[a], b=names[b], points=result.pair_count[(a, b)], rms_mm=result.pair_rms_mm[(a, b)])
             for a, b in sorted(result.pair_rms_mm)]
 
 
@@ -88,22 +89,23 @@ def register_on_surfaces(ctx, sc) -> dict[str, Any]:
             raise ValueError(f"refine: scans not registered on their surfaces (no chain of verified pairs to "
                              f"{names[0]}): {'; '.join(refused)}; give rough poses (--poses) or scans that overlap more")
         T, method, result = reg.T_world_scan, GLOBAL, reg.refine
-        summary["pairs"] = [{"a": names[p.source], "b": names[p.target], "accepted": p.accepted, "reason": p.reason,
-                             "fitness": round(p.fitness, 6), "rms_mm": None if not np.isfinite(p.rms_mm) else p.rms_mm,
-                             "runner_up_fitness": round(p.runner_up_fitness, 6), "matches": p.matches}
+        summary["pairs"] = [SurfaceMatch(a=names[p.source], b=names[p.target], accepted=p.accepted, reason=p.reason,
+                                         fitness=round(p.fitness, 6),
+                                         rms_mm=None if not np.isfinite(p.rms_mm) else p.rms_mm,
+                                         runner_up_fitness=round(p.runner_up_fitness, 6), matches=p.matches)
                             for p in reg.pairs]
-        summary["tree"] = [[names[a], names[b]] for a, b in reg.tree]
+        summary["tree"] = [(names[a], names[b]) for a, b in reg.tree]
     pairs = _pair_figures(names, result) if result is not None else []
     steps = list(result.step_mm) if result is not None else []
     REFINED.write(ctx.out, RefinedPoses(T_common_pass=T, track_positions_mm=np.zeros((0, 3)),
                                         specimen_track=np.zeros(0, bool), target_residual_mm=np.zeros(0)))
-    REFINE_SUMMARY.write(ctx.out, {"method": method, "surface_pairs": pairs, "step_mm": steps, **summary})
+    REFINE_SUMMARY.write(ctx.out, RefineSummary(method=method, surface_pairs=pairs, step_mm=steps, **summary))
     moved = max(float(np.abs(p @ (T[k] - np.eye(4))[:3, :3].T + (T[k] - np.eye(4))[:3, 3]).max(initial=0.0))
                 for k, (p, _) in enumerate(clouds))
-    rms = [p["rms_mm"] for p in pairs]
+    rms = [p.rms_mm for p in pairs]
     return {"enabled": rc.enabled, "registration": "surfaces", "iterations": len(steps),
             "last_step_mm": steps[-1] if steps else 0.0, "surface_pairs": len(pairs),
-            "surface_points": int(sum(p["points"] for p in pairs)), "largest_pose_change_mm": moved,
+            "surface_points": int(sum(p.points for p in pairs)), "largest_pose_change_mm": moved,
             "surface_rms_median_mm": float(np.median(rms)) if rms else None,
             "target_residual_median_mm": None, "target_residual_max_mm": None,
             "registration_method": {name: method for name in names}, "reference_pass": names[0], "checks": {}}

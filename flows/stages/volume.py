@@ -15,34 +15,14 @@ from typing import Any
 import numpy as np
 
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
-from flows.stages.outputs import MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY
-from flows.stages.weld_lines import weld_frame, weld_lines_common
+from flows.stages.outputs import (ELEMENT_QUALITY, MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_TOES,
+                                  ElementQualityArrays)
+from flows.stages.placement import sample_weld_zone
+from schemas.stage_documents import FEModelSummary, SolidChecks, VolumeSets
 from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
 
-__all__ = ["volume", "toe_lines"]
-
-
-def toe_lines(geometry: dict[str, Any], T_common_specimen: np.ndarray) -> list[np.ndarray]:
-    """The weld toes the weld stage measured, one polyline (k, 3) per weld line and side, in the
-    common frame, mm: each section's toe on its line's across direction from the section's centre
-    (where both toes were fitted; the centre is midway between them)."""
-    if not geometry.get("measured"):
-        return []
-    across = {line["name"]: np.asarray(line["across"], np.float64) for line in geometry["lines"]}
-    found: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
-    for sec in geometry["sections"]:
-        toes = sec.get("toes") or {}
-        if toes.get("minus") is None or toes.get("plus") is None:
-            continue
-        centre_u = (toes["minus"]["position_u_mm"] + toes["plus"]["position_u_mm"]) / 2
-        for side in ("minus", "plus"):
-            point = np.asarray(sec["centre_specimen_mm"], np.float64) + \
-                (toes[side]["position_u_mm"] - centre_u) * across[sec["line"]]
-            found.setdefault((sec["line"], side), []).append((sec["position_mm"], point))
-    T = np.asarray(T_common_specimen, np.float64)
-    return [np.array([p for _, p in sorted(rows, key=lambda r: r[0])]) @ T[:3, :3].T + T[:3, 3]
-            for _, rows in sorted(found.items()) if len(rows) >= 2]
+__all__ = ["volume"]
 
 
 def volume(ctx) -> dict[str, Any]:
@@ -55,11 +35,11 @@ def volume(ctx) -> dict[str, Any]:
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
     # the weld lines where the first placed setup puts them: each setup's lines are all of the
     # part's, and the other setups' placements (by hand, within their tolerance) would only widen the zone
-    T_common_pass = REFINED.open(ctx.inputs["refine"]).T_common_pass
-    lines = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
-    lines = lines[:len(ctx.manifest.weld_lines())]
-    frame = weld_frame(ctx.manifest, T_common_pass)  # where the weld stage measured the toes
-    toes = toe_lines(WELD_GEOMETRY.read(ctx.inputs["weld"]), frame) if frame is not None else []
+    # the weld zone (placement.sample_weld_zone: the QA page draws the same): elements graded toward
+    # its lines, its boundary faces the named set
+    zone = sample_weld_zone(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass, s.weld_zone_mm)
+    lines = [np.asarray(z.points_mm, np.float64) for z in zone.zones]
+    toes = WELD_TOES.read(ctx.inputs["weld"]).polylines()  # where the weld stage measured the toes
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
@@ -68,13 +48,13 @@ def volume(ctx) -> dict[str, Any]:
     except VolumeMeshError as exc:
         return _not_made(ctx, str(exc))
     checks = solid_checks(solid, closed.volume_mm3)
-    difference = checks["volume_difference"]  # None: a surface of no volume (refused as off)
+    difference = checks.volume_difference  # None: a surface of no volume (refused as off)
     problems = [what for what, bad in (
-        (f"{checks['components']} separate solids, expected one", checks["components"] != 1),
-        (f"{checks['negative_or_flat']} tetrahedra with no positive volume", checks["negative_or_flat"] > 0),
-        (f"{checks['open_boundary_edges']} boundary edges not shared by two boundary faces",
-         checks["open_boundary_edges"] > 0),
-        (f"volume {checks['volume_mm3']:.1f} mm3 differs from the surface's {checks['surface_volume_mm3']:.1f} mm3 "
+        (f"{checks.components} separate solids, expected one", checks.components != 1),
+        (f"{checks.negative_or_flat} tetrahedra with no positive volume", checks.negative_or_flat > 0),
+        (f"{checks.open_boundary_edges} boundary edges not shared by two boundary faces",
+         checks.open_boundary_edges > 0),
+        (f"volume {checks.volume_mm3:.1f} mm3 differs from the surface's {checks.surface_volume_mm3:.1f} mm3 "
          f"by {100 * abs(difference or 0):.2f} %, over volume.max_volume_difference "
          f"{100 * s.max_volume_difference:.2f} %", difference is None or abs(difference) > s.max_volume_difference),
     ) if bad]
@@ -89,21 +69,26 @@ def volume(ctx) -> dict[str, Any]:
     write_vtu(ctx.out / VOLUME_VTU.name, solid.points, solid.tetrahedra,
               {"min_dihedral_deg": min_dihedral.astype(np.float32), "aspect_ratio": aspect.astype(np.float32),
                "weld_zone_boundary": in_zone})
-    rounded = {k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.items()}
-    summary = {"made": True, "surface_triangles": int(len(surface.triangles)), "meshed_triangles": int(len(triangles)),
-               "surface_remeshed": solid.surface_remeshed,
-               "solid": rounded, "quality": quality_summary(min_dihedral, aspect), "weld_lines": len(lines),
-               "toe_lines": len(toes), "toe_points": int(sum(len(t) for t in toes)),
-               "sets": {"elements": "ALL", "weld_zone_nodes": WELD_ZONE_NODES, "weld_zone_surface": WELD_ZONE_SURFACE}}
+    ELEMENT_QUALITY.write(ctx.out, ElementQualityArrays(min_dihedral_deg=min_dihedral.astype(np.float32),
+                                                        aspect_ratio=aspect.astype(np.float32)))
+    solid_figures = SolidChecks(**{k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.model_dump().items()})
+    summary = FEModelSummary(
+        made=True, surface_triangles=int(len(surface.triangles)), meshed_triangles=int(len(triangles)),
+        surface_remeshed=solid.surface_remeshed, solid=solid_figures,
+        quality=quality_summary(min_dihedral, aspect), weld_lines=len(lines), toe_lines=len(toes),
+        toe_points=int(sum(len(t) for t in toes)),
+        sets=VolumeSets(elements="ALL", weld_zone_nodes=WELD_ZONE_NODES, weld_zone_surface=WELD_ZONE_SURFACE))
     VOLUME_SUMMARY.write(ctx.out, summary)
-    return {"made": True, "tetrahedra": rounded["tetrahedra"], "nodes": rounded["nodes"],
-            "volume_difference": rounded["volume_difference"], "weld_zone_faces": rounded["weld_zone_faces"],
-            "min_dihedral_deg": summary["quality"]["min_dihedral_deg"]["worst"],
-            "aspect_ratio_worst": summary["quality"]["aspect_ratio"]["worst"]}
+    return {"made": True, "tetrahedra": solid_figures.tetrahedra, "nodes": solid_figures.nodes,
+            "volume_difference": solid_figures.volume_difference, "weld_zone_faces": solid_figures.weld_zone_faces,
+            "min_dihedral_deg": summary.quality.min_dihedral_deg.worst,
+            "aspect_ratio_worst": summary.quality.aspect_ratio.worst}
 
 
 def _not_made(ctx, why: str) -> dict[str, Any]:
     """No FE model: why, in volume.json (the report's check and the terminal say it); the model
     files left out, the run goes on and publishes the rest."""
-    VOLUME_SUMMARY.write(ctx.out, {"made": False, "why": why})
+    VOLUME_SUMMARY.write(ctx.out, FEModelSummary(made=False, why=why))
+    ELEMENT_QUALITY.write(ctx.out, ElementQualityArrays(min_dihedral_deg=np.zeros(0, np.float32),
+                                                        aspect_ratio=np.zeros(0, np.float32)))
     return {"made": False, "why": why}

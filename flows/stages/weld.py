@@ -1,5 +1,6 @@
 """Stage ``weld``: the weld measured on the specimen's merged points and judged against its
-acceptance limits (``weld_geometry.json``).
+acceptance limits (``weld_geometry.json``, ``schemas.weld_document.WeldGeometry``), and the
+measured toes as polylines in the common frame (``toes.zarr``, for the FE model).
 
 The points are in the common frame; the specimen frame (where the manifest's weld lines are) comes
 from the first setup that states its nominal placement (``T_world_specimen_nominal``) through its
@@ -22,12 +23,15 @@ import numpy as np
 
 from data_catalog.acceptance import DEFAULT_ACCEPTANCE_FILE, load_acceptance_limits
 from data_catalog.hashing import sha256_file
-from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY
-from flows.stages.weld_lines import weld_frame
+from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY, WELD_TOES, WeldToes
+from flows.stages.placement import weld_frame
 from schemas.manifest import SampleManifest
+from schemas.weld_document import (TOE_FIGURES, Figure, FigureStatistics, Finding, GrooveFigures, SectionToes,
+                                   ToeFigures, WeldGeometry, WeldLineFound, WeldSection, WeldSummary)
+from tasks.frames import apply, invert, rotate
 from tasks.weld_acceptance import judge_weld
-from tasks.weld_fits import SectionSettings
-from tasks.weld_geometry import TOE_SIDES, SectionMeasurement, along_weld_statistics, measure_weld_line
+from tasks.weld_fits import Measured, SectionSettings
+from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
 __all__ = ["weld", "weld_view", "MEASURABLE_JOINTS"]
 
@@ -46,43 +50,49 @@ def weld_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
             "default_acceptance_sha256": sha256_file(DEFAULT_ACCEPTANCE_FILE)}
 
 
-def _toe_json(toe) -> dict[str, Any] | None:
+def _figure(m: Measured, digits: int = 4) -> Figure:
+    return Figure(**m.as_dict(digits))
+
+
+def _toe_figures(toe) -> ToeFigures | None:
     if toe is None:
         return None
-    out = {"side": toe.side, "position_u_mm": round(toe.position_u_mm, 4),
-           "position_sigma_mm": None if not math.isfinite(toe.position_sigma_mm) else round(toe.position_sigma_mm, 4),
-           "flank_angle_deg": toe.flank_angle_deg.as_dict(3), "toe_radius_mm": toe.radius.as_dict(),
-           "undercut_depth_mm": toe.undercut_depth.as_dict(), "fit_rms_mm": round(toe.rms_mm, 5),
-           "points": toe.n_points, "treated": toe.groove is not None}
-    if toe.groove is not None:
-        g = toe.groove
-        out["groove"] = {"depth_mm": g.depth.as_dict(), "width_mm": g.width.as_dict(), "radius_mm": g.radius.as_dict(),
-                         "toe_within_groove": g.toe_within, "fit_rms_mm": round(g.rms_mm, 5), "points": g.n_points}
-    if toe.note:
-        out["note"] = toe.note
-    return out
+    g = toe.groove
+    groove = None if g is None else GrooveFigures(
+        depth_mm=_figure(g.depth), width_mm=_figure(g.width), radius_mm=_figure(g.radius), toe_within_groove=g.toe_within,
+        fit_rms_mm=round(g.rms_mm, 5), points=g.n_points)
+    return ToeFigures(side=toe.side, position_u_mm=round(toe.position_u_mm, 4),
+                      position_sigma_mm=None if not math.isfinite(toe.position_sigma_mm) else round(toe.position_sigma_mm, 4),
+                      flank_angle_deg=_figure(toe.flank_angle_deg, 3), toe_radius_mm=_figure(toe.radius),
+                      undercut_depth_mm=_figure(toe.undercut_depth), fit_rms_mm=round(toe.rms_mm, 5), points=toe.n_points,
+                      treated=g is not None, groove=groove, note=toe.note or None)
 
 
-def _section_json(sec: SectionMeasurement, verdict) -> dict[str, Any]:
-    return {"line": sec.line, "position_mm": round(sec.position_mm, 3),
-            "centre_specimen_mm": [round(v, 4) for v in sec.centre_mm], "points": sec.n_points,
-            "reinforcement_height_mm": sec.height.as_dict(), "reinforcement_width_mm": sec.width.as_dict(),
-            "axial_misalignment_mm": sec.axial_misalignment.as_dict(),
-            "angular_misalignment_deg": sec.angular_misalignment_deg.as_dict(),
-            "toes": {side: _toe_json(t) for side, t in zip(TOE_SIDES, sec.toes)},
-            "passed": None if verdict is None else verdict.passed,
-            "violations": [] if verdict is None else [v.__dict__ for v in verdict.violations],
-            "verdict": None if verdict is None else verdict.verdict,
-            "uncertain": [] if verdict is None else [v.__dict__ for v in verdict.uncertain],
-            **({"note": sec.note} if sec.note else {})}
+def _finding(v) -> Finding:
+    return Finding(line=v.line, position_mm=v.position_mm, toe=v.toe, figure=v.figure, value=v.value, limit=v.limit,
+                   sigma=v.sigma)
 
 
-def _statistics(sections: list[SectionMeasurement]) -> dict[str, Any]:
+def _section(sec: SectionMeasurement, verdict) -> WeldSection:
+    return WeldSection(line=sec.line, position_mm=round(sec.position_mm, 3),
+                       centre_specimen_mm=tuple(round(v, 4) for v in sec.centre_mm), points=sec.n_points,
+                       reinforcement_height_mm=_figure(sec.height), reinforcement_width_mm=_figure(sec.width),
+                       axial_misalignment_mm=_figure(sec.axial_misalignment),
+                       angular_misalignment_deg=_figure(sec.angular_misalignment_deg),
+                       toes=SectionToes(minus=_toe_figures(sec.toes[0]), plus=_toe_figures(sec.toes[1])),
+                       passed=None if verdict is None else verdict.passed,
+                       violations=[] if verdict is None else [_finding(v) for v in verdict.violations],
+                       verdict=None if verdict is None else verdict.verdict,
+                       uncertain=[] if verdict is None else [_finding(v) for v in verdict.uncertain],
+                       note=sec.note or None)
+
+
+def _statistics(sections: list[SectionMeasurement]) -> dict[str, FigureStatistics]:
     where = [{"line": s.line, "position_mm": round(s.position_mm, 3)} for s in sections]
-    figures: dict[str, Any] = {}
+    figures: dict[str, FigureStatistics] = {}
 
     def per_section(name, get):
-        figures[name] = along_weld_statistics(np.array([get(s) for s in sections], float), where)
+        figures[name] = FigureStatistics(**along_weld_statistics(np.array([get(s) for s in sections], float), where))
 
     per_section("reinforcement_height_mm", lambda s: s.height.value)
     per_section("reinforcement_width_mm", lambda s: s.width.value)
@@ -98,28 +108,36 @@ def _statistics(sections: list[SectionMeasurement]) -> dict[str, Any]:
                              g.depth.value if g else math.nan, g.width.value if g else math.nan,
                              g.radius.value if g else math.nan])
     rows = np.array(rows, float).reshape(-1, 6)
-    for k, name in enumerate(("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "groove_depth_mm",
-                              "groove_width_mm", "groove_radius_mm")):
-        figures[name] = along_weld_statistics(rows[:, k], toe_where)
+    for k, name in enumerate(TOE_FIGURES):
+        figures[name] = FigureStatistics(**along_weld_statistics(rows[:, k], toe_where))
     return figures
+
+
+def _no_toes(ctx) -> None:
+    WELD_TOES.write(ctx.out, WeldToes(points_mm=np.zeros((0, 3)), polyline=np.zeros(0, np.int64),
+                                      position_mm=np.zeros(0)))
+
+
+def _not_measured(ctx, document: WeldGeometry) -> dict[str, Any]:
+    WELD_GEOMETRY.write(ctx.out, document)
+    _no_toes(ctx)
+    return {"measured": False, "why_not": document.why_not}
 
 
 def weld(ctx) -> dict[str, Any]:
     s = ctx.settings
     manifest = ctx.manifest
     if manifest.weld is None:  # imported scans of a part the manifest says nothing of
-        why = "the manifest describes no weld (a sample of imported scans): nothing to measure"
-        WELD_GEOMETRY.write(ctx.out, {"joint": None, "treatment": None, "measured": False, "why_not": why,
-                                      "lines": [], "sections": []})
-        return {"measured": False, "why_not": why}
+        return _not_measured(ctx, WeldGeometry(
+            measured=False, why_not="the manifest describes no weld (a sample of imported scans): nothing to measure",
+            joint=None, treatment=None))
     joint = getattr(manifest.weld, "joint", "double-sided butt")
     treatment = manifest.weld.treatment
     limits = s.acceptance if s.acceptance is not None else load_acceptance_limits(None)
     rule = limits.rule_for(joint, treatment)
-    body: dict[str, Any] = {"joint": joint, "treatment": treatment, "frame": "specimen (nominal placement, lines refined on the data)",
-                            "acceptance": None if rule is None else rule.model_dump(mode="json"),
-                            "acceptance_source": "settings (weld.acceptance)" if s.acceptance is not None
-                            else "data_catalog/weld_acceptance.yaml"}
+    head = dict(joint=joint, treatment=treatment, frame="specimen (nominal placement, lines refined on the data)",
+                acceptance=rule, acceptance_source="settings (weld.acceptance)" if s.acceptance is not None
+                else "data_catalog/weld_acceptance.yaml")
     T = weld_frame(manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
     why = None
     if joint not in MEASURABLE_JOINTS:
@@ -127,47 +145,52 @@ def weld(ctx) -> dict[str, Any]:
     elif T is None:
         why = "no setup states the specimen's nominal placement (T_world_specimen_nominal): the weld lines cannot be found"
     if why:
-        WELD_GEOMETRY.write(ctx.out, {**body, "measured": False, "why_not": why, "lines": [], "sections": []})
-        return {"measured": False, "why_not": why}
+        return _not_measured(ctx, WeldGeometry(measured=False, why_not=why, **head))
     cloud = SPECIMEN.read(ctx.inputs["segment"])
     keep = cloud.measured.astype(bool)
-    T_inv = np.linalg.inv(T)
-    points = cloud.points[keep] @ T_inv[:3, :3].T + T_inv[:3, 3]
-    normals = cloud.normals[keep].astype(np.float64) @ T_inv[:3, :3].T
+    T_specimen_common = invert(T)
+    points = apply(T_specimen_common, cloud.points[keep])
+    normals = rotate(T_specimen_common, cloud.normals[keep].astype(np.float64))
     settings = SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
                                toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
                                groove_plate_gap_mm=s.groove_plate_gap_mm,
                                undercut_min_depth_mm=s.undercut_min_depth_mm,
                                height_half_width_mm=s.height_half_width_mm, min_points=s.min_points)
     treated = treatment != "as-welded"
-    lines, sections = [], []
-    for line in manifest.weld_lines():
-        found = measure_weld_line(points, normals, np.asarray(line.points_mm, np.float64), name=line.name,
-                                  step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
-                                  reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, min_normal_cos=s.min_normal_cos,
-                                  settings=settings, treated=treated)
-        lines.append({"name": line.name, "sections": len(found.sections), "offset_mm": round(found.offset_mm, 4),
-                      "turn_deg": round(found.turn_deg, 4), "face_normal": [round(v, 5) for v in found.normal],
-                      "across": [round(v, 5) for v in found.across],
-                      "measured_extent_mm": [round(v, 3) for v in found.extent_mm]})
-        sections += found.sections
+    found_lines = [measure_weld_line(points, normals, np.asarray(line.points_mm, np.float64), name=line.name,
+                                     step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
+                                     reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, min_normal_cos=s.min_normal_cos,
+                                     settings=settings, treated=treated)
+                   for line in manifest.weld_lines()]
+    lines = [WeldLineFound(name=f.line, sections=len(f.sections), offset_mm=round(f.offset_mm, 4),
+                           turn_deg=round(f.turn_deg, 4), face_normal=tuple(round(v, 5) for v in f.normal),
+                           across=tuple(round(v, 5) for v in f.across),
+                           measured_extent_mm=tuple(round(v, 3) for v in f.extent_mm)) for f in found_lines]
+    sections = [sec for f in found_lines for sec in f.sections]
     verdict = judge_weld(sections, rule) if rule is not None else None
-    failing = [] if verdict is None else [v.__dict__ for sv in verdict.sections for v in sv.violations]
-    uncertain = [] if verdict is None else [v.__dict__ for sv in verdict.sections if sv.passed for v in sv.uncertain]
-    section_rows = [_section_json(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)]
-    summary = {"sections": len(sections),
-               "sections_measured": None if verdict is None else verdict.n_measured,
-               "sections_not_measured": None if verdict is None else verdict.n_not_measured,
-               "failing": None if verdict is None else verdict.n_failing,
-               "sections_uncertain": None if verdict is None else verdict.n_uncertain,
-               "passed": None if verdict is None else verdict.passed,
-               "verdict": ("no acceptance rule for this joint and treatment" if verdict is None
-                           else "pass" if verdict.passed else "fail")}
-    body.update({"measured": True, "lines": lines, "summary": summary, "statistics": _statistics(sections),
-                 "failing": failing, "uncertain": uncertain, "sections": section_rows})
-    WELD_GEOMETRY.write(ctx.out, body)
-    stats = body["statistics"]
-    return {**summary, "failing_first": failing[:5], "uncertain_first": uncertain[:5],
-            "toe_radius_min_mm": stats["toe_radius_mm"].get("min"), "flank_angle_max_deg": stats["flank_angle_deg"].get("max"),
-            "height_max_mm": stats["reinforcement_height_mm"].get("max"),
-            "groove_depth_min_mm": stats["groove_depth_mm"].get("min")}
+    failing = [] if verdict is None else [_finding(v) for sv in verdict.sections for v in sv.violations]
+    uncertain = [] if verdict is None else [_finding(v) for sv in verdict.sections if sv.passed for v in sv.uncertain]
+    summary = WeldSummary(sections=len(sections),
+                          sections_measured=None if verdict is None else verdict.n_measured,
+                          sections_not_measured=None if verdict is None else verdict.n_not_measured,
+                          failing=None if verdict is None else verdict.n_failing,
+                          sections_uncertain=None if verdict is None else verdict.n_uncertain,
+                          passed=None if verdict is None else verdict.passed,
+                          verdict=("no acceptance rule for this joint and treatment" if verdict is None
+                                   else "pass" if verdict.passed else "fail"))
+    statistics = _statistics(sections)
+    WELD_GEOMETRY.write(ctx.out, WeldGeometry(
+        measured=True, lines=lines, summary=summary, statistics=statistics, failing=failing, uncertain=uncertain,
+        sections=[_section(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)],
+        **head))
+    # the toes as polylines in the common frame, at full precision (the FE model grades its elements toward them)
+    toes = toe_polylines(found_lines)
+    WELD_TOES.write(ctx.out, WeldToes(
+        points_mm=np.vstack([apply(T, q) for *_, q in toes] or [np.zeros((0, 3))]),
+        polyline=np.concatenate([np.full(len(q), k, np.int64) for k, (*_, q) in enumerate(toes)] or [np.zeros(0, np.int64)]),
+        position_mm=np.concatenate([p for _, _, p, _ in toes] or [np.zeros(0)])))
+    return {**summary.model_dump(), "failing_first": [f.model_dump() for f in failing[:5]],
+            "uncertain_first": [f.model_dump() for f in uncertain[:5]],
+            "toe_radius_min_mm": statistics["toe_radius_mm"].min, "flank_angle_max_deg": statistics["flank_angle_deg"].max,
+            "height_max_mm": statistics["reinforcement_height_mm"].max,
+            "groove_depth_min_mm": statistics["groove_depth_mm"].min}

@@ -16,7 +16,7 @@ from schemas.truth import Material, PointLabel
 from simulator.coverage import spread_off_line_mm
 from simulator.preview import project_to_pass
 from simulator.scanner import fan_directions
-from simulator.transforms import apply
+from tasks.frames import apply
 from tasks.ingest import profile_points
 
 

@@ -1,6 +1,9 @@
-"""Where the weld lies in the reconstruction: the manifest's weld lines (specimen frame) carried
-into the common frame through each setup's nominal placement and its first pass's pose. Used by
-the stages that treat the weld apart (``merge`` keeps it fine, ``volume`` grades its elements)."""
+"""Placements: where the specimen, its weld lines and its weld zone lie in the reconstruction's
+common frame. The manifest's weld lines (specimen frame) are carried into the common frame through
+a setup's nominal placement and its first pass's pose; the frame the weld is measured in is the
+first placed setup's (``weld_frame``), and the weld zone is the one around its lines
+(``sample_weld_zone``): the merge keeps it at full resolution, the FE model names its surface, the
+QA page draws it."""
 
 from __future__ import annotations
 
@@ -9,15 +12,17 @@ from typing import Any
 import numpy as np
 
 from schemas.manifest import SampleManifest
+from tasks.frames import apply
+from tasks.weld_zone import WeldZone, weld_zone
 
-__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame"]
+__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame", "sample_weld_zone"]
 
 
 def weld_lines_common(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[np.ndarray, float]]:
     """Per setup that states its nominal placement and per weld line: the line's (k, 3) points in
     the common frame, mm, and the setup's placement tolerance, mm (how far the line may be off)."""
     lines = [np.asarray(line.points_mm, np.float64) for line in manifest.weld_lines()]
-    return [(points @ T[:3, :3].T + T[:3, 3], float(setup.placement_tolerance_mm))
+    return [(apply(T, points), float(setup.placement_tolerance_mm))
             for setup, T in T_common_specimen(manifest, T_common_pass) for points in lines]
 
 
@@ -34,6 +39,19 @@ def weld_frame(manifest: SampleManifest, T_common_pass: np.ndarray) -> np.ndarra
     frame the weld is measured in (stages weld, volume, qa_report). None: no setup is placed."""
     placed = T_common_specimen(manifest, T_common_pass)
     return placed[0][1] if placed else None
+
+
+def sample_weld_zone(manifest: SampleManifest, T_common_pass: np.ndarray, radius_mm: float, *,
+                     widened: bool = False) -> WeldZone:
+    """The weld zone in the common frame: within ``radius_mm`` of the weld lines where the weld
+    frame (the first placed setup) puts them; ``widened``: plus that setup's placement tolerance
+    (the merge, which runs before the weld is found on the data). Empty where no setup is placed."""
+    placed = T_common_specimen(manifest, T_common_pass)
+    if not placed or radius_mm <= 0:
+        return WeldZone(())
+    setup, T = placed[0]
+    radius = radius_mm + (float(setup.placement_tolerance_mm) if widened else 0.0)
+    return weld_zone([apply(T, np.asarray(line.points_mm, np.float64)) for line in manifest.weld_lines()], radius)
 
 
 def weld_lines_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:

@@ -1,11 +1,12 @@
-"""Rigid transforms as 4x4 numpy arrays (mm). ``T_a_b`` maps points from frame b to frame a."""
+"""Rigid transforms as 4x4 numpy arrays (mm), the one home of the project's frame arithmetic.
+``T_a_b`` maps points from frame b to frame a: ``apply(T_a_b, points_b)`` gives ``points_a``."""
 
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["make_pose", "rotation_deg", "translation", "invert", "apply", "frame_from_axes"]
+__all__ = ["make_pose", "rotation_deg", "translation", "invert", "apply", "apply_each", "rotate", "frame_from_axes"]
 
 
 def make_pose(rotation: np.ndarray, t_mm: np.ndarray) -> np.ndarray:
@@ -39,6 +40,16 @@ def invert(T: np.ndarray) -> np.ndarray:
 def apply(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply one pose (4, 4) to points (..., 3)."""
     return points @ T[:3, :3].T + T[:3, 3]
+
+
+def apply_each(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply pose ``T[k]`` (n, 4, 4) to point ``points[k]`` (n, 3)."""
+    return np.einsum("nij,nj->ni", T[:, :3, :3], points) + T[:, :3, 3]
+
+
+def rotate(T: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """Turn directions (..., 3) by one pose's rotation (4, 4); no translation."""
+    return vectors @ T[:3, :3].T
 
 
 def frame_from_axes(x_axis, y_axis, z_axis, origin) -> np.ndarray:

@@ -1,0 +1,185 @@
+"""The JSON documents the stages write besides their arrays: the registration's and the
+refinement's summaries (``registration.json``, ``refine.json``), the FE model's (``volume.json``),
+the consistency checks and the sample's report (``report.json``). Each is written and read only
+through its model (``flows/stages/outputs.py``); the weld's is ``schemas.weld_document``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import ConfigDict, Field
+
+from schemas.common import StrictModel
+from schemas.weld_document import FigureStatistics, Finding, WeldLineFound
+
+__all__ = ["PassPair", "SetupEvidence", "RegistrationSummary", "SurfacePair", "SurfaceMatch", "RefineSummary",
+           "SolidChecks", "QualityStatistics", "ElementQuality", "VolumeSets", "FEModelSummary", "Check",
+           "WeldReport", "Report", "STAGE_NAME"]
+
+# every stage's one name (the registry, flows/stages/__init__.py, declares them in this order)
+STAGE_NAME = Literal["denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh", "export",
+                     "volume", "report", "qa_report"]
+
+
+# --- registration.json ---
+class PassPair(StrictModel):
+    a: str
+    b: str
+    common_targets: int
+
+
+class SetupEvidence(StrictModel):
+    """Why a turned setup's match is no chance agreement: the targets it brought together against
+    the most a clearly different transform did."""
+
+    a: str
+    b: str
+    targets: int
+    runner_up: int
+
+
+class RegistrationSummary(StrictModel):
+    schema_version: Literal["1"] = "1"
+    method: str | None = None  # set where no target registration ran (a sample registered on its surfaces)
+    pairs: list[PassPair]
+    pairs_below_min_common: list[PassPair]
+    pass_rms_mm: dict[str, float | None]
+    between_setups: list[SetupEvidence]
+
+
+# --- refine.json ---
+class SurfacePair(StrictModel):
+    a: str
+    b: str
+    points: int
+    rms_mm: float | None
+
+
+class SurfaceMatch(StrictModel):
+    """A pair of scans tried by the global surface registration."""
+
+    a: str
+    b: str
+    accepted: bool
+    reason: str
+    fitness: float
+    rms_mm: float | None
+    runner_up_fitness: float
+    matches: int
+
+
+class RefineSummary(StrictModel):
+    schema_version: Literal["1"] = "1"
+    method: str | None = None  # a sample registered on its surfaces: how
+    surface_pairs: list[SurfacePair]
+    step_mm: list[float]
+    pairs: list[SurfaceMatch] | None = None  # the global surface registration's pairs
+    tree: list[tuple[str, str]] | None = None  # the pairs that chained the scans together
+
+
+# --- volume.json ---
+class SolidChecks(StrictModel):
+    tetrahedra: int
+    nodes: int
+    boundary_faces: int
+    weld_zone_faces: int
+    components: int
+    negative_or_flat: int
+    open_boundary_edges: int
+    volume_mm3: float
+    surface_volume_mm3: float
+    volume_difference: float | None  # None: a surface of no volume
+
+
+class QualityStatistics(StrictModel):
+    worst: float
+    p1: float
+    median: float
+    p99: float
+
+
+class ElementQuality(StrictModel):
+    """The figures an FE analyst asks for (the per-element values are the volume stage's arrays)."""
+
+    min_dihedral_deg: QualityStatistics
+    aspect_ratio: QualityStatistics
+    below_10_deg: int
+
+
+class VolumeSets(StrictModel):
+    elements: str
+    weld_zone_nodes: str
+    weld_zone_surface: str
+
+
+class FEModelSummary(StrictModel):
+    """``volume.json``: the FE model made (with its checks and quality), or why not."""
+
+    schema_version: Literal["1"] = "1"
+    made: bool
+    why: str | None = None
+    surface_triangles: int | None = None
+    meshed_triangles: int | None = None
+    surface_remeshed: bool | None = None
+    solid: SolidChecks | None = None
+    quality: ElementQuality | None = None
+    weld_lines: int | None = None
+    toe_lines: int | None = None
+    toe_points: int | None = None
+    sets: VolumeSets | None = None
+
+
+# --- report.json ---
+class Check(StrictModel):
+    """One consistency check of the run: ``result`` "ok" or "flagged", ``what`` in words."""
+
+    check: str
+    pass_: str = Field(alias="pass")  # the pass it concerns, or "all"
+    result: Literal["ok", "flagged"]
+    what: str
+    measured: Any = None
+
+    model_config = ConfigDict(**StrictModel.model_config, populate_by_name=True)
+
+
+class WeldReport(StrictModel):
+    """The weld's part of the report (the per-section values stay in ``weld_geometry.json``)."""
+
+    measured: bool
+    why_not: str | None = None
+    joint: str | None = None
+    treatment: str | None = None
+    acceptance_source: str | None = None
+    acceptance_rule_source: str | None = None
+    sections: int | None = None
+    sections_measured: int | None = None
+    sections_not_measured: int | None = None
+    failing: int | None = None
+    sections_uncertain: int | None = None
+    passed: bool | None = None
+    verdict: str | None = None
+    failing_sections: list[Finding] = []
+    uncertain_sections: list[Finding] = []
+    lines: list[WeldLineFound] = []
+    statistics: dict[str, FigureStatistics] = {}
+
+
+class Report(StrictModel):
+    """``report.json``: a function of the stages' outputs and records only (no times, no paths,
+    no cache flags: those are in the audit trail), so the same inputs give the same bytes."""
+
+    schema_version: Literal["1"] = "1"
+    sample_id: str
+    passes: list[str]
+    config: dict[str, Any]
+    stages: dict[STAGE_NAME, Any]  # what each stage measured (per pass: a list)
+    registration: RegistrationSummary
+    refinement: RefineSummary
+    registration_method: dict[str, str]  # per pass: "targets", "surfaces from given poses", ...
+    mesh: dict[str, Any]
+    volume_mesh: FEModelSummary
+    weld: WeldReport
+    checks: list[Check]
+    deliverables: dict[str, str]  # results/ file name -> sha256
+    stage_keys: dict[STAGE_NAME, str | list[str]]
