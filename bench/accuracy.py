@@ -70,7 +70,7 @@ def mesh_to_truth(sample: Path, run: Path, vertices: np.ndarray) -> dict:
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR
     from simulator.evaluate import fit_gauge
-    from tasks.merge import PolylineZone
+    from tasks.weld_zone import PolylineZone
 
     refined = load_arrays(latest_stage(run, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
     positions = refined["track_positions_mm"]
@@ -120,7 +120,7 @@ def near_true_toes(sample: Path, vertices_specimen: np.ndarray, radius_mm: float
     (``truth/toes.json``); None for a part without one (the dog-bone presets)."""
     from data_catalog.truth import TRUTH_DIR, read_true_toes
     from simulator.run import TOES_NAME
-    from tasks.merge import PolylineZone
+    from tasks.weld_zone import PolylineZone
 
     path = Path(sample) / TRUTH_DIR / TOES_NAME
     if not path.is_file():

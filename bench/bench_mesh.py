@@ -43,7 +43,7 @@ def main() -> int:
     from bench.accuracy import emit, latest_stage, mesh_to_truth
     from data_catalog.manifests import load_manifest
     from flows.reconstruct import load_config
-    from flows.stages.merge import weld_zones
+    from flows.stages.placement import sample_weld_zone
     from data_catalog.stages import load_arrays
     from tasks.merge import MergeResult, coarsen_flat_cells
     from tasks.mesh import mesh_report, screened_poisson
@@ -92,12 +92,12 @@ def main() -> int:
 
     t = time.perf_counter()
     T_all = load_arrays(latest_stage(run, "refine") / "refined.zarr", "T_common_pass")["T_common_pass"]
-    zones = weld_zones(load_manifest(args.sample), T_all, mc.weld_zone_mm)
+    zone = sample_weld_zone(load_manifest(args.sample), T_all, mc.weld_zone_mm, widened=True)
     adaptive = coarsen_flat_cells(
         MergeResult(points_mm=points, normals=normals, sensor_positions_mm=None, counts=counts, cells=cells,
                     cell_mm=cell),
         factor=mc.coarse_factor, max_normal_deg=mc.flat_normal_deg, max_deviation_mm=mc.flat_deviation_mm,
-        fine_zones=zones)
+        fine_zone=zone)
     coarsen_s = time.perf_counter() - t
     t = time.perf_counter()
     ours = screened_poisson(adaptive.points_mm, adaptive.normals, depth=ms.poisson_depth,

@@ -12,7 +12,8 @@ hashes, so ``verify`` re-hashes the artefacts too and says which one changed.
 Kinds: ``run-started`` (who/what started the run: CLI, deployment, schedule; Prefect run ids),
 ``stage`` (a stage's provenance record: inputs, outputs, parameters, code version, host, times;
 ``cached`` when the outputs were reused), ``stage-recomputed`` (a cached artefact failed its hash
-and was set aside), ``run-finished`` / ``run-failed``.
+and was set aside), ``run-finished`` / ``run-failed`` / ``run-stopped`` (ended after a named stage,
+nothing published).
 
 Appends from the flow's worker threads and processes are serialised by an exclusive lock on the
 trail file.
@@ -276,10 +277,10 @@ def verify_trail(run_dir: Path, *, artefacts: bool = True, heads: dict[str, str]
         for rel, digest in _artefacts(entry).items():
             expected[rel] = (digest, number)
     runs = [(n, e.get("kind")) for n, e in enumerate(entries, start=1)
-            if e.get("kind") in ("run-started", "run-finished", "run-failed")]
+            if e.get("kind") in ("run-started", "run-finished", "run-failed", "run-stopped")]
     if runs and runs[-1][1] == "run-started":
-        problems.append(AuditProblem(f"trail line {runs[-1][0]} (run-started)", "the last run has no run-finished or "
-                                     "run-failed entry (it is still running, it was killed, or the trail was cut)",
+        problems.append(AuditProblem(f"trail line {runs[-1][0]} (run-started)", "the last run has no run-finished, "
+                                     "run-failed or run-stopped entry (it is still running, it was killed, or the trail was cut)",
                                      "unfinished-run"))
     problems += _unrecorded(run_dir, expected)
     held = {e.get("hash"): n for n, e in enumerate(entries, start=1)}

@@ -208,6 +208,12 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     load_config(args.config)
     check_run_folder(out, manifest.sample_id)
+    stop_after = getattr(args, "stop_after", None)
+    if stop_after is not None:
+        from flows.stages import STAGE_NAMES
+
+        if stop_after not in STAGE_NAMES:
+            raise ValueError(f"--stop-after {stop_after}: no such stage; the stages are {', '.join(STAGE_NAMES)}")
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
     if dask and not dask.startswith("local:"):
         check_dask_scheduler(dask)
@@ -217,7 +223,8 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
 
     _log_to_file(out / "logs", "reconstruct")
     n_passes = len(manifest.passes())
-    expected = [(s.name, n_passes if s.per_pass else 1) for s in STAGES]
+    upto = STAGES[:[s.name for s in STAGES].index(stop_after) + 1] if stop_after else STAGES
+    expected = [(s.name, n_passes if s.per_pass else 1) for s in upto]
     with contextlib.ExitStack() as stack:
         # the run's own temporary API server, which the kernel stops if this process dies
         # (Prefect's own would outlive a kill -9); Dask workers report to it too
@@ -226,7 +233,11 @@ def _cmd_reconstruct(args: argparse.Namespace) -> int:
             print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
         stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
         run = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
-                                 dask=dask, follow_timeout_s=follow)
+                                 dask=dask, follow_timeout_s=follow, stop_after=stop_after)
+    if run.report is None:
+        print(f"stopped after stage {stop_after}: " + ", ".join(f"{n} ({'cached' if run.cached[n] else f'{run.seconds[n]:.1f} s'})"
+                                                          for n in run.refs) + f"; nothing published in {out}")
+        return 0
     _print_report(run, out)
     return 0
 
@@ -525,6 +536,8 @@ def _parser() -> argparse.ArgumentParser:
     rec.add_argument("--dask", metavar="ADDRESS", help="run the per-pass work on a Dask cluster: a scheduler "
                                                        "address, or local:N for N local worker processes "
                                                        "(default: $WELDRECON_DASK, else threads here)")
+    rec.add_argument("--stop-after", metavar="STAGE", help="run the stages up to and including STAGE (see "
+                     "`weldrecon stages`) and stop; nothing is published")
     rec.add_argument("--follow", action="store_true", help="follow a scan in progress: start each pass's stages as "
                      "soon as its store is complete on disk (the manifest may come first)")
     rec.add_argument("--follow-timeout", type=float, default=1800.0, metavar="S",

@@ -27,7 +27,7 @@ from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
 from flows.preflight import (check_dask_scheduler, check_out_dir, check_run_folder, load_config, trail_problems,
                              wait_for_file)
-from flows.stages import STAGES, Stage, StageFailed, StageRef, code_version, run_stage
+from flows.stages import STAGE_NAMES, STAGES, Stage, StageFailed, StageRef, code_version, run_stage
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
 from flows.stages.report import RESULTS, publish
@@ -244,7 +244,7 @@ class RunResult:
     published files (name -> path and sha256), every stage's refs, which stages were all cached,
     the seconds each stage's bodies took, and the trail's head."""
 
-    report: Report
+    report: Report | None  # None: a run stopped after a named stage (nothing published)
     outputs: dict[str, dict[str, str]]
     refs: dict[str, Any]
     cached: dict[str, bool]
@@ -312,7 +312,8 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
 @flow(name="reconstruct-sample", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=False)
 def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = None, started_by: str | None = None,
                        dask: str | None = None, follow_timeout_s: float | None = None,
-                       sample_id: str | None = None, trail_head: str | None = None) -> RunResult:
+                       sample_id: str | None = None, trail_head: str | None = None,
+                       stop_after: str | None = None) -> RunResult:
     """Reconstruct one sample folder (manifest + passes) into ``out_dir``.
 
     The manifest and the pass files' sizes and paths are checked before any work; every stage
@@ -325,7 +326,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     another is refused, and so is a run folder that holds another sample's runs. ``trail_head``:
     the hash of the run-finished entry the caller kept (the catalog's); a trail that no longer holds
     it, or is otherwise not intact, is recorded as such (``trail-problems-found``) before this run
-    appends to it, and ``audit verify`` names that entry from then on.
+    appends to it, and ``audit verify`` names that entry from then on. ``stop_after``: run the
+    stages up to and including this one (registry order) and stop: nothing is published, the
+    trail records "run-stopped", the result has no report.
 
     The deliverables, the report and the settings they were made with are published into
     ``out_dir/results/`` as one unit, and the run-finished entry that records them is appended
@@ -335,7 +338,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     dask = dask or os.environ.get("WELDRECON_DASK") or None
     if dask and not _on_dask():
         return reconstruct_sample.with_options(task_runner=task_runner(dask))(
-            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id, trail_head)
+            sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id, trail_head, stop_after)
+    if stop_after is not None and stop_after not in STAGE_NAMES:
+        raise ValueError(f"stop after {stop_after!r}: no such stage; the stages are {', '.join(STAGE_NAMES)}")
     log = get_run_logger()
     for stage in STAGES:  # hash the code now, as imported: an edit during a long run is not credited to it
         code_version(stage)
@@ -374,7 +379,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     try:
         if follow_timeout_s is not None:
             pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log))
-        for stage in STAGES:
+        for stage in STAGES[:STAGE_NAMES.index(stop_after) + 1] if stop_after else STAGES:
             if stage.name in pending:  # submitted as its passes landed
                 continue
             if not stage.per_pass:  # the per-pass stages all finish first, failures named in registry order
@@ -390,6 +395,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         for name in list(pending):
             outputs_of(name)
         cached = {n: all(r.cached for r in each(v)) for n, v in refs.items()}
+        seconds = {n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()}
+        if stop_after is not None:
+            stopped = audit.append(out, "run-stopped", sample_id=manifest.sample_id, after=stop_after, cached=cached)
+            return RunResult(report=None, outputs={}, refs=refs, cached=cached, seconds=seconds,
+                             trail_head=TrailHead(seq=stopped["seq"], hash=stopped["hash"]))
         with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
             published = publish(out, manifest.sample_id, refs["report"], refs,
                                 config.model_dump_json(indent=2) + "\n", audit_status(out))
@@ -402,6 +412,5 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         raise
     report = REPORT.read_path(Path(published[REPORT.name]["path"]))
     _link_the_reports(manifest.sample_id, report, published, log)
-    return RunResult(report=report, outputs=published, refs=refs,
-                     cached=cached, seconds={n: sum(r.metrics.get("seconds", 0.0) for r in each(v)) for n, v in refs.items()},
+    return RunResult(report=report, outputs=published, refs=refs, cached=cached, seconds=seconds,
                      trail_head=TrailHead(seq=finished["seq"], hash=finished["hash"]))

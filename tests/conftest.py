@@ -39,7 +39,9 @@ def _reconstructed(sample: Path, out: Path):
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import reconstruct_sample
 
-    return out, reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest")
+    from tests.flows.samples import as_published
+
+    return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest"))
 
 
 def tjoint_test_config(*, wall_stickers: bool = True):

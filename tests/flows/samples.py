@@ -21,3 +21,15 @@ def copy_sample(ci_sample: Path, dst: Path, keep: list[str] | None = None) -> Pa
             shutil.copytree(ci_sample / p["file"], dst / p["file"])
     (dst / "manifest.json").write_text(json.dumps(manifest))
     return dst
+
+
+def as_published(run) -> dict:
+    """A run's result as a plain dict: the published ``report.json`` as it reads in JSON (what a
+    consumer outside weldrecon sees) with the run's own facts beside it (outputs, refs, cached,
+    seconds, trail_head, stage_paths), for tests that check the published document's shape."""
+    import json as _json
+
+    body = {} if run.report is None else _json.loads(run.report.model_dump_json(by_alias=True))
+    return {**body, "outputs": run.outputs, "refs": run.refs, "cached": run.cached, "seconds": run.seconds,
+            "trail_head": {"seq": run.trail_head.seq, "hash": run.trail_head.hash},
+            "stage_paths": {n: run.stage_path(n) for n in run.refs}}

@@ -14,6 +14,7 @@ import zarr
 
 from data_catalog.manifests import ManifestError
 from tests.flows.samples import copy_sample
+from tests.flows.samples import as_published
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -23,7 +24,7 @@ os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 def _reconstruct(sample, out, config=CI_CONFIG):
     from flows.reconstruct import reconstruct_sample
 
-    return reconstruct_sample(str(sample), str(out), config)
+    return as_published(reconstruct_sample(str(sample), str(out), config))
 
 
 def _tree(path: Path) -> dict[str, bytes]:

@@ -16,7 +16,7 @@ from data_catalog.truth import read_true_toes
 from flows.stages.outputs import MESH, REFINED, REGISTRATION
 from simulator.evaluate import fit_gauge, pass_misalignment
 from simulator.run import simulate
-from tasks.merge import PolylineZone
+from tasks.weld_zone import PolylineZone
 from tests.conftest import tjoint_test_config
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")

@@ -20,6 +20,7 @@ from data_catalog.hashing import sha256_file
 from flows.stages import STAGE_NAMES
 from flows.stages.outputs import MERGED
 from tests.flows.cli import run_cli
+from tests.flows.samples import as_published
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -120,7 +121,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, six_sample
 
     run, report = run_copy
     _flip_byte(_merged_chunk(run, report))
-    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest")
+    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest"))
     assert again["cached"]["merge"] is False  # recomputed
     assert again["cached"]["registration"] is True and again["cached"]["refine"] is True
     assert again["stage_keys"]["merge"] == report["stage_keys"]["merge"]  # same inputs, same key
@@ -156,7 +157,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sa
     assert not (run / "results").exists()
     left = list((run / "stages" / "mesh").glob(".build-*"))
     assert left  # the killed run's half-built mesh
-    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest")
+    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest"))
     stl = f"{report['sample_id']}.stl"
     assert again["outputs"][stl]["sha256"] == report["outputs"][stl]["sha256"]
     assert again["stage_keys"] == report["stage_keys"]
@@ -313,8 +314,8 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
     lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
     assert json.loads(lines[report["trail_head"]["seq"]])["hash"] == report["trail_head"]["hash"]
     (run / TRAIL).write_bytes(b"".join(lines[:report["trail_head"]["seq"]]))
-    again = reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest",
-                               trail_head=report["trail_head"]["hash"])
+    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest",
+                                            trail_head=report["trail_head"]["hash"]))
     assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
     found = [e for e in read_trail(run) if e["kind"] == "trail-problems-found"]
     assert len(found) == 1

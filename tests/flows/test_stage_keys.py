@@ -80,7 +80,7 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_
     code = _code_copy(tmp_path / "code", HELPER_EDIT)
     script = (f"import json; from flows.reconstruct import reconstruct_sample; "
               f"r = reconstruct_sample({str(six_sample)!r}, {str(run)!r}, {CI_CONFIG!r}, started_by='pytest edited'); "
-              f"print(json.dumps({{'cached': r['cached'], 'keys': r['stage_keys']}}))")
+              f"print(json.dumps({{'cached': r.cached, 'keys': r.report.stage_keys}}))")
     again = json.loads(_run_python(code, script))
     entries = read_trail(run)
     last = max(i for i, e in enumerate(entries) if e["kind"] == "run-started")

@@ -129,7 +129,7 @@ def test_scans_without_stickers_register_on_their_surfaces(poses, tmp_path):
     # no profiles, times or targets to check on imported scans; the FE model's check is there
     assert [c["check"] for c in report["checks"]] == ["FE model"]
     if poses == "none":  # only neighbours overlap; a pose found between others (a look-alike) is refused
-        pairs = report["registration"]["refinement"]["pairs"]
+        pairs = report["refinement"]["pairs"]
         assert sorted((p["b"], p["a"]) for p in pairs if p["accepted"]) == [("view0", "view1"), ("view1", "view2"),
                                                                            ("view2", "view3")]
     worst = np.max(errors, axis=0)

@@ -15,7 +15,7 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import load_manifest
 from data_catalog.stages import StageStore
 from flows.stages import StageRef, run_stage, stage
-from flows.stages.outputs import MESH, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, Mesh
+from flows.stages.outputs import ELEMENT_QUALITY, MESH, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, Mesh
 from flows.stages.report import fe_model_check, publish
 from schemas.reconstruction import ReconstructionConfig
 from tests.tasks.test_volume_mesh import box_surface
@@ -41,9 +41,9 @@ def test_an_open_surface_gets_no_model_and_says_why(ci_inputs, ci_sample, tmp_pa
     mesh = _mesh_ref(tmp_path / "mesh" / "open", vertices, triangles[~top])
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=ReconstructionConfig(), inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == [VOLUME_SUMMARY.name]  # the model files left out, the stage recorded
+    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name])  # the model files left out, the stage recorded
     summary = VOLUME_SUMMARY.read(ref)
-    assert summary["made"] is False and "not closed" in summary["why"] and "16 boundary edges" in summary["why"]
+    assert summary.made is False and "not closed" in summary.why and "16 boundary edges" in summary.why
     assert ref.metrics["made"] is False
     # publishing what was made: the STL and PLY of export, no .inp or .vtu
     export = tmp_path / "export"
@@ -70,11 +70,11 @@ def test_a_closed_surface_becomes_the_model_files(ci_inputs, ci_sample, tmp_path
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 4.0, "weld_size_mm": 2.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == sorted([VOLUME_INP.name, VOLUME_VTU.name, VOLUME_SUMMARY.name])
+    assert sorted(ref.outputs) == sorted([VOLUME_INP.name, VOLUME_VTU.name, VOLUME_SUMMARY.name, ELEMENT_QUALITY.name])
     summary = VOLUME_SUMMARY.read(ref)
-    assert summary["made"] and summary["solid"]["components"] == 1
-    assert abs(summary["solid"]["volume_difference"]) < 1e-6
-    assert summary["weld_lines"] == len(manifest.weld_lines())  # where the first placed setup puts them
+    assert summary.made and summary.solid.components == 1
+    assert abs(summary.solid.volume_difference) < 1e-6
+    assert summary.weld_lines == len(manifest.weld_lines())  # where the first placed setup puts them
 
 
 def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci_sample, tmp_path):
@@ -88,10 +88,10 @@ def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 8.0, "weld_size_mm": 8.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == [VOLUME_SUMMARY.name]  # no model files
+    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name])  # no model files
     summary = VOLUME_SUMMARY.read(ref)
-    assert summary["made"] is False
+    assert summary.made is False
     assert re.search(r"not one valid solid: volume .* mm3 differs from the surface's .* mm3 by .* %, over "
-                     r"volume.max_volume_difference 0.50 %", summary["why"]), summary["why"]
-    check = fe_model_check(ref)
-    assert check["result"] == "flagged" and check["what"].startswith("not made: the volume mesh is not one valid solid")
+                     r"volume.max_volume_difference 0.50 %", summary.why), summary.why
+    check = fe_model_check(VOLUME_SUMMARY.read(ref))
+    assert check.result == "flagged" and check.what.startswith("not made: the volume mesh is not one valid solid")

@@ -39,8 +39,8 @@ def test_ci_weld_figures_against_the_drawn_weld(weld_run):
     2026-11-25, the plate line under stickers: radius 0.09 / 0.26, flank 2.5 / 6.1, height
     0.029 / 0.069, width 0.068 / 0.22, undercut worst 0.014 mm.)"""
     refs, geometry, errors = weld_run
-    assert geometry["measured"] and geometry["summary"]["sections"] >= 70
-    assert geometry["summary"]["sections_not_measured"] <= 2
+    assert geometry.measured and geometry.summary.sections >= 70
+    assert geometry.summary.sections_not_measured <= 2
     assert errors["toe_radius_mm"]["median_abs"] <= 0.2 and errors["toe_radius_mm"]["p90_abs"] <= 0.4
     assert errors["flank_angle_deg"]["median_abs"] <= 4.0 and errors["flank_angle_deg"]["p90_abs"] <= 9.0
     assert errors["reinforcement_height_mm"]["median_abs"] <= 0.08
@@ -58,32 +58,32 @@ def test_ci_misalignment_and_the_weld_line_found(weld_run, ci_sample):
     (the ci's placement is off by up to 5 mm and 2 deg: the lines are found on the data)."""
     _, geometry, _ = weld_run
     truth = read_weld_truth(ci_sample / TRUTH_DIR / WELD_TRUTH_NAME)
-    for line in geometry["lines"]:
-        rows = [s for s in geometry["sections"] if s["line"] == line["name"]]
-        sign = 1.0 if line["face_normal"][2] > 0 else -1.0  # figures are along the face's outward normal
-        angular = np.array([s["angular_misalignment_deg"]["value"] for s in rows]) * sign
-        axial = np.array([s["axial_misalignment_mm"]["value"] for s in rows]) * sign
-        assert abs(np.median(angular) - truth.angular_misalignment_deg) <= 0.1, line["name"]
-        assert abs(np.median(axial) - truth.axial_misalignment_mm) <= 0.1, line["name"]
-        assert line["sections"] >= 35
+    for line in geometry.lines:
+        rows = [s for s in geometry.sections if s.line == line.name]
+        sign = 1.0 if line.face_normal[2] > 0 else -1.0  # figures are along the face's outward normal
+        angular = np.array([s.angular_misalignment_deg.value for s in rows]) * sign
+        axial = np.array([s.axial_misalignment_mm.value for s in rows]) * sign
+        assert abs(np.median(angular) - truth.angular_misalignment_deg) <= 0.1, line.name
+        assert abs(np.median(axial) - truth.axial_misalignment_mm) <= 0.1, line.name
+        assert line.sections >= 35
 
 
 def test_ci_weld_file_carries_uncertainties_verdicts_and_statistics(weld_run):
     refs, geometry, _ = weld_run
-    assert geometry["treatment"] == "as-welded" and "ISO 5817" in geometry["acceptance"]["source"]
-    section = next(s for s in geometry["sections"] if s["passed"] is not None and s["toes"]["minus"])
+    assert geometry.treatment == "as-welded" and "ISO 5817" in geometry.acceptance.source
+    section = next(s for s in geometry.sections if s.passed is not None and s.toes.minus)
     for figure in ("reinforcement_height_mm", "reinforcement_width_mm", "axial_misalignment_mm",
                    "angular_misalignment_deg"):
-        assert section[figure]["value"] is not None and section[figure]["sigma"] is not None, figure
-    toe = section["toes"]["minus"]
-    assert toe["toe_radius_mm"]["sigma"] is not None and toe["flank_angle_deg"]["sigma"] is not None
-    stats = geometry["statistics"]["toe_radius_mm"]
-    assert stats["min"] <= stats["p5"] <= stats["median"] <= stats["p95"] <= stats["max"]
-    assert set(stats["min_at"]) == {"line", "position_mm", "toe"}
-    assert geometry["summary"]["verdict"] in ("pass", "fail")
-    assert geometry["summary"]["failing"] == sum(not s["passed"] for s in geometry["sections"] if s["passed"] is not None)
+        assert section.figure(figure).value is not None and section.figure(figure).sigma is not None, figure
+    toe = section.toes.minus
+    assert toe.toe_radius_mm.sigma is not None and toe.flank_angle_deg.sigma is not None
+    stats = geometry.statistics.toe_radius_mm
+    assert stats.min <= stats.p5 <= stats.median <= stats.p95 <= stats.max
+    assert stats.min_at is not None and stats.min_at.toe in ("minus", "plus")
+    assert geometry.summary.verdict in ("pass", "fail")
+    assert geometry.summary.failing == sum(not s.passed for s in geometry.sections if s.passed is not None)
     # uncertain sections (a figure within its 1-sigma of a limit, or not measured) are said apart
-    assert {s["verdict"] for s in geometry["sections"]} <= {"pass", "fail", "uncertain", "not measured"}
-    assert geometry["summary"]["sections_uncertain"] == sum(s["verdict"] == "uncertain" for s in geometry["sections"])
-    assert len(geometry["uncertain"]) == sum(len(s["uncertain"]) for s in geometry["sections"] if s["passed"])
-    assert refs["weld"].metrics["sections"] == geometry["summary"]["sections"]
+    assert {s.verdict for s in geometry.sections} <= {"pass", "fail", "uncertain", "not measured"}
+    assert geometry.summary.sections_uncertain == sum(s.verdict == "uncertain" for s in geometry.sections)
+    assert len(geometry.uncertain) == sum(len(s.uncertain) for s in geometry.sections if s.passed)
+    assert refs["weld"].metrics["sections"] == geometry.summary.sections

@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
-from flows.stages.merge import merge_view, weld_zones
+from flows.stages.merge import merge_view
+from flows.stages.placement import sample_weld_zone
+from tests.flows.samples import as_published
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -97,7 +99,8 @@ def test_the_simulator_writes_1_1_and_a_1_0_manifest_loads_with_the_same_lines_a
     assert merge_view(old) == merge_view(new)
     T = np.tile(np.eye(4), (len(new.passes()), 1, 1))
     T[:, :3, 3] = [12.5, -3.0, 0.25]
-    assert weld_zones(old, T, 15.0) == weld_zones(new, T, 15.0) and len(weld_zones(new, T, 15.0)) == 4
+    assert sample_weld_zone(old, T, 15.0, widened=True) == sample_weld_zone(new, T, 15.0, widened=True)
+    assert len(sample_weld_zone(new, T, 15.0, widened=True).zones) == 2  # the weld frame's two lines
     # and it stays 1.0 when written back: a loaded manifest is what the file says
     assert json.loads(old.model_dump_json())["weld"] == _as_1_0(ci)["weld"]
 
@@ -196,7 +199,7 @@ def test_a_plate_reconstructs_with_the_dog_bones_weld_zone(six_sample, six_run, 
              "thickness_mm": dog["thickness_mm"]}
     sample = copy_sample(six_sample, tmp_path / "plate")
     (sample / "manifest.json").write_text(json.dumps({**raw, "specimen": plate}))
-    report = reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest")
+    report = as_published(reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest"))
     dog_merge, plate_merge = six_run[1]["stages"]["merge"], report["stages"]["merge"]
     assert plate_merge["weld_zone_points_out"] > 0
     assert plate_merge["weld_zone_points_out"] == dog_merge["weld_zone_points_out"]

@@ -164,7 +164,8 @@ def test_flat_cells_coarsen_and_bent_cells_stay_fine():
 def test_cells_in_a_weld_line_zone_stay_fine_even_where_flat():
     """The weld's zone from the manifest: the zone round a line across a flat plate keeps its fine
     cells; outside it the plate coarsens as before, and nothing is lost."""
-    from tasks.merge import PolylineZone, coarsen_flat_cells
+    from tasks.merge import coarsen_flat_cells
+    from tasks.weld_zone import PolylineZone, WeldZone
 
     rng = np.random.default_rng(4)
     points = np.column_stack([rng.uniform(0.0, 20.0, (200_000, 2)), rng.normal(0, 0.001, 200_000)])
@@ -172,7 +173,7 @@ def test_cells_in_a_weld_line_zone_stay_fine_even_where_flat():
     fine = merge_box_grid(points, cell_mm=0.1, normals=normals)
     zone = PolylineZone(points_mm=((10.0, -1.0, 0.0), (10.0, 21.0, 0.0)), radius_mm=2.0)
     plain = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01)
-    zoned = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01, fine_zones=(zone,))
+    zoned = coarsen_flat_cells(fine, factor=4, max_normal_deg=4.0, max_deviation_mm=0.01, fine_zone=WeldZone((zone,)))
     assert plain.fine.sum() < 0.01 * len(plain.fine) and not plain.in_zone.any()
     assert zoned.counts.sum() == len(points)
     x = zoned.points_mm[:, 0]
@@ -188,7 +189,7 @@ def test_polyline_zone_distance_against_brute_force():
     """The zone's distance to a bent 3-D polyline (a fillet weld's toe round a corner) equals the
     least distance to a dense sampling of its segments, inside and outside the zone's bounding
     box; ``contains`` is that distance against the radius."""
-    from tasks.merge import PolylineZone
+    from tasks.weld_zone import PolylineZone
 
     rng = np.random.default_rng(7)
     vertices = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 5.0], [30.0, 40.0, 5.0], [10.0, 60.0, -5.0]])

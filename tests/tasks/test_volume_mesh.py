@@ -59,9 +59,9 @@ def plate():
 def test_the_box_is_one_positive_solid_of_its_volume(plate):
     vertices, triangles, solid = plate
     checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
-    assert checks["components"] == 1 and checks["negative_or_flat"] == 0 and checks["open_boundary_edges"] == 0
-    assert checks["surface_volume_mm3"] == pytest.approx(np.prod(BOX), rel=1e-9)
-    assert abs(checks["volume_difference"]) < 1e-6  # flat faces: the remeshed surface is the box itself
+    assert checks.components == 1 and checks.negative_or_flat == 0 and checks.open_boundary_edges == 0
+    assert checks.surface_volume_mm3 == pytest.approx(np.prod(BOX), rel=1e-9)
+    assert abs(checks.volume_difference) < 1e-6  # flat faces: the remeshed surface is the box itself
     assert np.all(signed_volumes(solid.points, solid.tetrahedra) > 0)
     # the boundary is the box's surface, wound outward: its signed volume is the solid's
     b = solid.boundary_triangles()
@@ -164,8 +164,8 @@ def test_quality_of_the_regular_tetrahedron_and_a_sliver():
     assert dihedral[0] == pytest.approx(np.degrees(np.arccos(1 / 3)), abs=1e-9) and aspect[0] == pytest.approx(1.0)
     assert dihedral[1] < 3 and aspect[1] > 10
     summary = quality_summary(dihedral, aspect)
-    assert summary["min_dihedral_deg"]["worst"] == pytest.approx(dihedral[1], abs=1e-4)
-    assert summary["below_10_deg"] == 1
+    assert summary.min_dihedral_deg.worst == pytest.approx(dihedral[1], abs=1e-4)
+    assert summary.below_10_deg == 1
 
 
 def test_solid_checks_see_two_bodies_and_a_flipped_element():
@@ -176,11 +176,11 @@ def test_solid_checks_see_two_bodies_and_a_flipped_element():
                      boundary_element=np.concatenate([one.boundary_element, one.boundary_element + len(one.tetrahedra)]),
                      boundary_face=np.tile(one.boundary_face, 2), weld_zone_face=np.tile(one.weld_zone_face, 2))
     checks = solid_checks(two, 2000.0)
-    assert checks["components"] == 2 and checks["negative_or_flat"] == 0
+    assert checks.components == 2 and checks.negative_or_flat == 0
     flipped = VolumeMesh(points=two.points, tetrahedra=two.tetrahedra[:, [0, 2, 1, 3]],
                          boundary_element=two.boundary_element, boundary_face=two.boundary_face,
                          weld_zone_face=two.weld_zone_face)
-    assert solid_checks(flipped, 2000.0)["negative_or_flat"] == len(two.tetrahedra)
+    assert solid_checks(flipped, 2000.0).negative_or_flat == len(two.tetrahedra)
 
 
 def test_an_open_surface_is_refused():
@@ -238,6 +238,6 @@ def test_a_surface_gmsh_cannot_reparametrise_keeps_its_own_triangles(monkeypatch
     solid = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, **SIZES)
     assert not solid.surface_remeshed
     checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
-    assert checks["components"] == 1 and checks["negative_or_flat"] == 0 and abs(checks["volume_difference"]) < 1e-9
+    assert checks.components == 1 and checks.negative_or_flat == 0 and abs(checks.volume_difference) < 1e-9
     # the boundary is the input surface itself
-    assert checks["boundary_faces"] == len(triangles)
+    assert checks.boundary_faces == len(triangles)
