@@ -25,7 +25,7 @@ test: setup
 bench: setup
 	$(BIN)/python bench/bench_simulator.py
 
-# a scheduled service on this machine (Prefect server on 127.0.0.1, process pool, worker): see README
+# a scheduled service on this machine (Prefect server on 127.0.0.1, process pool, worker): see docs/operations.md
 service-up: setup
 	deploy/service.sh up
 

@@ -769,7 +769,7 @@ for _name, _needle, _what, _edit, *_expect in [
      manifest_bytes(_dup_key)),
     ("missing-sample-id", "sample_id", "no sample_id", field_edit("sample_id", DELETE)),
     ("missing-scanner", "scanner", "no scanner section", field_edit("scanner", DELETE)),
-    ("missing-units", "units", "no units field (the README says it is required)", field_edit("units", DELETE)),
+    ("missing-units", "units", "no units field (docs/file-formats.md says it is required)", field_edit("units", DELETE)),
     ("missing-schema-version", "schema_version", "no schema_version field",
      field_edit("schema_version", DELETE)),
     ("extra-field", "operator", "an extra top-level field 'operator'", field_edit("operator", "bob")),

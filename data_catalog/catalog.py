@@ -2,7 +2,7 @@
 
 An embedded SQLite database (``<workspace>/catalog.sqlite``, WAL mode): no server, safe for the
 threads and processes of one machine. Several machines sharing one catalog need a database
-server instead (see the README); the schema is plain SQL.
+server instead (see docs/operations.md); the schema is plain SQL.
 
 A sample is registered from its folder (manifest + passes). Its *fingerprint* is the sha256 of
 the manifest file and of every pass file's content: a sample is due for reconstruction when it is

@@ -1,4 +1,4 @@
-"""The import rules of the layout (README, "may import"), enforced on the source: every import
+"""The import rules of the layout (docs/architecture.md, "may import"), enforced on the source: every import
 statement of every module, at top level or inside a function."""
 
 from __future__ import annotations

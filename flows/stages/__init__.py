@@ -104,7 +104,7 @@ def run_in_process(*, store, sample_dir, manifest, config, upto: str | None = No
 
 
 def stage_table() -> str:
-    """The registry as a Markdown table (``weldrecon stages``; the README holds the same)."""
+    """The registry as a Markdown table (``weldrecon stages``; docs/reconstruction.md holds the same)."""
     rows = ["| stage | runs | needs | settings | writes | what |", "|---|---|---|---|---|---|"]
     for s in STAGES:
         settings = {None: "-", "*": "all"}.get(s.settings, f"`{s.settings}`")
