@@ -11,7 +11,7 @@ from schemas.acceptance import AcceptanceLimits
 from schemas.common import StrictModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
-           "MergeConfig", "SegmentConfig", "MeshConfig", "WeldGeometryConfig", "VolumeConfig", "QaReportConfig", "ReconstructionConfig"]
+           "MergeConfig", "SegmentConfig", "PoissonConfig", "WeldGeometryConfig", "VolumeConfig", "QaReportConfig", "ReconstructionConfig"]
 
 
 class DenoiseConfig(StrictModel):
@@ -167,7 +167,7 @@ class SegmentConfig(StrictModel):
         "out to its bounding cube: no watertight mesh)"))
 
 
-class MeshConfig(StrictModel):
+class PoissonConfig(StrictModel):
     poisson_depth: int = Field(default=12, ge=4, le=14, description="octree depth (paper: 12)")
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
     point_weight: float = Field(default=4.0, ge=0, le=100)
@@ -271,7 +271,7 @@ class ReconstructionConfig(StrictModel):
     refine: RefineConfig = RefineConfig()
     merge: MergeConfig = MergeConfig()
     segment: SegmentConfig = SegmentConfig()
-    mesh: MeshConfig = MeshConfig()
+    mesh: PoissonConfig = PoissonConfig()
     weld: WeldGeometryConfig = WeldGeometryConfig()
     volume: VolumeConfig = VolumeConfig()
     qa_report: QaReportConfig = QaReportConfig()

@@ -20,7 +20,7 @@ __all__ = [
     "WidthPass",
     "ScanPlanConfig",
     "PlacementConfig",
-    "MeshConfig",
+    "TrueMeshConfig",
     "TJointConfig",
     "SimulationConfig",
 ]
@@ -220,7 +220,7 @@ class PlacementConfig(StrictModel):
     yaw_deg: float = Field(default=2.0, ge=0, le=20)
 
 
-class MeshConfig(StrictModel):
+class TrueMeshConfig(StrictModel):
     """Resolution of the true surface mesh the scanner is simulated against."""
 
     plate_dx_mm: float = Field(default=1.0, gt=0, le=20)
@@ -278,7 +278,7 @@ class SimulationConfig(StrictModel):
     robot: RobotConfig = RobotConfig()
     plan: ScanPlanConfig = ScanPlanConfig()
     placement: PlacementConfig = PlacementConfig()
-    mesh: MeshConfig = MeshConfig()
+    mesh: TrueMeshConfig = TrueMeshConfig()
     tjoint: TJointConfig | None = Field(default=None, description=(
         "simulate a T-joint (simulator.tjoint) instead of the dog-bone of ``specimen``"))
     chunk_profiles: int = Field(default=256, ge=1, le=100000, description="profiles per zarr chunk and per render batch")

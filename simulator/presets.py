@@ -13,7 +13,7 @@
 
 from __future__ import annotations
 
-from schemas.simulation import (FixtureConfig, MeshConfig, PlacementConfig, RobotConfig, ScanPlanConfig,
+from schemas.simulation import (FixtureConfig, TrueMeshConfig, PlacementConfig, RobotConfig, ScanPlanConfig,
                                 ScannerConfig, SimulationConfig, SpecimenConfig, StickerConfig, TJointConfig,
                                 WeldConfig, WidthPass)
 
@@ -35,7 +35,7 @@ def _demo() -> SimulationConfig:
         weld=WeldConfig(treatment="hfmi-treated"),
         scanner=ScannerConfig(points_per_profile=192, x_spacing_mm=0.2133),
         robot=RobotConfig(profile_spacing_mm=0.5),
-        mesh=MeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.1, toe_dx_mm=0.05, across_nodes=500, wall_rows=21),
+        mesh=TrueMeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.1, toe_dx_mm=0.05, across_nodes=500, wall_rows=21),
         chunk_profiles=256,
     )
 
@@ -55,7 +55,7 @@ def _ci() -> SimulationConfig:
         plan=ScanPlanConfig(vertical_offsets_mm=[-15.0, 0.0, 15.0], side_rolls_deg=[45.0],
                             width_passes=[WidthPass(x_mm=-20.0), WidthPass(x_mm=20.0)]),
         placement=PlacementConfig(translation_mm=5.0, yaw_deg=2.0),
-        mesh=MeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.15, toe_dx_mm=0.08, across_nodes=160, wall_rows=9),
+        mesh=TrueMeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.15, toe_dx_mm=0.08, across_nodes=160, wall_rows=9),
         chunk_profiles=128,
     )
 
@@ -72,7 +72,7 @@ def _tjoint(setups: list[str], sample_id: str, preset: str) -> SimulationConfig:
         robot=RobotConfig(profile_spacing_mm=0.32),
         plan=ScanPlanConfig(setups=setups, margin_mm=40.0),
         placement=PlacementConfig(translation_mm=5.0, yaw_deg=2.0),
-        mesh=MeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.1, toe_dx_mm=0.05, wall_rows=13),
+        mesh=TrueMeshConfig(plate_dx_mm=1.0, weld_dx_mm=0.1, toe_dx_mm=0.05, wall_rows=13),
         chunk_profiles=128,
     )
 

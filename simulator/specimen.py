@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from schemas.simulation import MeshConfig, SpecimenConfig, WeldConfig
+from schemas.simulation import TrueMeshConfig, SpecimenConfig, WeldConfig
 from simulator.weld import WeldCap, draw_weld_cap
 
 __all__ = ["Face", "SurfaceMesh", "Specimen", "build_specimen"]
@@ -80,7 +80,7 @@ def _z_shift(x: np.ndarray, centre: float, axial_mm: float, angular_deg: float) 
     return blend * (axial_mm + np.maximum(x - centre, 0) * np.tan(np.radians(angular_deg)))
 
 
-def _x_nodes(length: float, weld_half: float, toe_band: tuple[float, float], mesh: MeshConfig) -> np.ndarray:
+def _x_nodes(length: float, weld_half: float, toe_band: tuple[float, float], mesh: TrueMeshConfig) -> np.ndarray:
     """Node positions along x: fine at the toes, finer in the weld zone, coarse on the plates."""
 
     def spacing(x: float) -> float:
@@ -124,7 +124,7 @@ def _wall_roughness(rng: np.random.Generator, ring_s: np.ndarray, z_frac: np.nda
     return rough + cfg.cut_taper_mm * (z_frac[None, :] - 0.5)
 
 
-def build_specimen(cfg: SpecimenConfig, weld_cfg: WeldConfig, mesh_cfg: MeshConfig,
+def build_specimen(cfg: SpecimenConfig, weld_cfg: WeldConfig, mesh_cfg: TrueMeshConfig,
                    rng: np.random.Generator, *, weld_centre_x_mm: float = 0.0) -> Specimen:
     """Draw the welds and misalignment, then mesh the closed specimen surface."""
     y_extent = cfg.grip_width_mm / 2

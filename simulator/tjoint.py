@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas.manifest import TJointSpecimen, WeldLine
-from schemas.simulation import MeshConfig, SimulationConfig, TJointConfig, WeldConfig
+from schemas.simulation import TrueMeshConfig, SimulationConfig, TJointConfig, WeldConfig
 from schemas.truth import TrueToeLine
 from simulator.robot import PlannedPass, _sensor_frame
 from simulator.scene import StickerSet
@@ -152,7 +152,7 @@ def _half_outline(tj: TJointConfig, f: _Fillet, y: float, fr: dict[str, np.ndarr
     return nodes, faces, toe_b, toe_s
 
 
-def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: MeshConfig, rng: np.random.Generator) -> TJoint:
+def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: TrueMeshConfig, rng: np.random.Generator) -> TJoint:
     """Draw both fillet welds and mesh the closed T-joint surface."""
     fillets = {+1: _draw_fillet(tj, weld, rng), -1: _draw_fillet(tj, weld, rng)}
     L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm

@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
 from tasks.weld_zone import weld_zone
 
-__all__ = ["VolumeMesh", "VolumeMeshError", "tetrahedralize", "element_quality", "solid_checks", "polyline_samples",
+__all__ = ["VolumeMesh", "VolumeMeshError", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
@@ -128,9 +128,9 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     volumes = signed_volumes(points, tets)
     flip = volumes < 0
     tets[flip] = tets[flip][:, [0, 2, 1, 3]]
-    element, face = _boundary_faces(tets)
-    centroids = points[np.take_along_axis(tets[element], np.asarray(_FACES)[face - 1], axis=1)].mean(axis=1)
-    in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).contains(centroids)  # the one weld zone (tasks.weld_zone)
+    element, face = boundary_faces(tets)
+    faces = np.take_along_axis(tets[element], np.asarray(_FACES)[face - 1], axis=1)
+    in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
                       weld_zone_face=in_zone, surface_remeshed=remeshed)
 
@@ -256,7 +256,7 @@ def _face_keys(tets: np.ndarray) -> np.ndarray:
     return faces
 
 
-def _boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(element, Abaqus face number) of every face only one tetrahedron has, in element order."""
     faces = _face_keys(tets)
     _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)

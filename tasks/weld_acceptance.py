@@ -107,7 +107,7 @@ def judge_weld(sections: list[SectionMeasurement], rule: AcceptanceRule) -> Weld
             add(None, "axial_misalignment_mm", sec.axial_misalignment, rule.axial_misalignment_mm, True)
             add(None, "angular_misalignment_deg", sec.angular_misalignment_deg, rule.angular_misalignment_deg, True)
             for toe in sec.toes:
-                add(toe.side, "toe_radius_mm", toe.radius, rule.toe_radius_mm)
+                add(toe.side, "toe_radius_mm", toe.notch_radius, rule.toe_radius_mm)
                 add(toe.side, "flank_angle_deg", toe.flank_angle_deg, rule.flank_angle_deg)
                 add(toe.side, "undercut_depth_mm", toe.undercut_depth, rule.undercut_depth_mm)
                 if toe.groove is None:

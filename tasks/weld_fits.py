@@ -94,7 +94,7 @@ class ToeFit:
     position_u_mm: float  # as welded: where the flank meets the plate; treated: where the groove meets the weld
     position_sigma_mm: float  # 1-sigma of position_u_mm
     flank_angle_deg: Measured
-    radius: Measured  # the toe fillet's (as welded) or the groove's (treated)
+    notch_radius: Measured  # the notch radius at the toe: the toe fillet's (as welded), the groove's (treated)
     undercut_depth: Measured
     groove: GrooveFit | None
     rms_mm: float
@@ -294,7 +294,7 @@ def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: st
     sd = np.sqrt(np.clip(np.diag(cov), 0, None))
     return ToeFit(side=side, position_u_mm=float(p[0]), position_sigma_mm=float(sd[0]),
                   flank_angle_deg=Measured(math.degrees(p[1]), math.degrees(sd[1])),
-                  radius=Measured(float(p[2]), float(sd[2])),
+                  notch_radius=Measured(float(p[2]), float(sd[2])),
                   undercut_depth=Measured(float(p[4]), float(sd[4])) if undercut else Measured(0.0, 0.0),
                   groove=None, rms_mm=rms, n_points=len(w))
 
@@ -449,5 +449,5 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
                        toe_within=toe_within, rms_mm=rms, n_points=len(gv))
     # where the groove leaves its circle is known to the points' spacing there (uniform: /sqrt 12)
     spacing = float(np.median(np.diff(np.sort(v[np.abs(v - v_meet) < 1.0])))) if np.count_nonzero(np.abs(v - v_meet) < 1.0) > 2 else _NAN
-    return ToeFit(side=side, position_u_mm=toe_v, position_sigma_mm=spacing / math.sqrt(12), flank_angle_deg=angle, radius=g_radius,
+    return ToeFit(side=side, position_u_mm=toe_v, position_sigma_mm=spacing / math.sqrt(12), flank_angle_deg=angle, notch_radius=g_radius,
                   undercut_depth=Measured(0.0, 0.0), groove=groove, rms_mm=rms, n_points=len(gv), note=note)

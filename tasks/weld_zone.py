@@ -67,6 +67,11 @@ class WeldZone:
             best = np.minimum(best, zone.distance_mm(p))
         return best
 
+    def faces_in(self, vertices_mm: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+        """(t,) bool: the triangles (t, 3) of ``vertices_mm`` (v, 3) whose centroid lies in the
+        zone: the faces the FE model names and the QA page colours."""
+        return self.contains(np.asarray(vertices_mm, np.float64)[np.asarray(triangles)].mean(axis=1))
+
     def __bool__(self) -> bool:
         return bool(self.zones)
 

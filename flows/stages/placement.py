@@ -15,7 +15,7 @@ from schemas.manifest import SampleManifest
 from tasks.frames import apply
 from tasks.weld_zone import WeldZone, weld_zone
 
-__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame", "sample_weld_zone"]
+__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame", "sample_weld_zone", "model_weld_zone"]
 
 
 def weld_lines_common(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[np.ndarray, float]]:
@@ -52,6 +52,14 @@ def sample_weld_zone(manifest: SampleManifest, T_common_pass: np.ndarray, radius
     setup, T = placed[0]
     radius = radius_mm + (float(setup.placement_tolerance_mm) if widened else 0.0)
     return weld_zone([apply(T, np.asarray(line.points_mm, np.float64)) for line in manifest.weld_lines()], radius)
+
+
+def model_weld_zone(manifest: SampleManifest, T_common_pass: np.ndarray, config) -> WeldZone:
+    """The weld zone the FE model names (``WELD_ZONE_SURFACE``: its boundary faces with their
+    centroid in it) and the QA page colours (the same test on the mesh's faces): within
+    ``volume.weld_zone_mm`` of the weld frame's lines, common frame. ``config``: the
+    ReconstructionConfig."""
+    return sample_weld_zone(manifest, T_common_pass, config.volume.weld_zone_mm)
 
 
 def weld_lines_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:

@@ -29,7 +29,7 @@ from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
 from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION,
                                   REGISTRATION_SUMMARY, REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
-from flows.stages.placement import sample_weld_zone, weld_frame, weld_lines_common
+from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.acceptance import AcceptanceRule
 from schemas.manifest import SampleManifest
 from schemas.weld_document import TOE_SIDES, Figure, Finding, WeldGeometry, WeldSection
@@ -196,7 +196,7 @@ def _graph(ctx) -> tuple[list[dict[str, str]], list[dict[str, Any]]]:
 def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
     mesh = MESH.read(ctx.inputs["mesh"])
     vertices, triangles = simplify_surface(mesh.vertices, mesh.triangles, max_triangles=ctx.settings.mesh_triangles)
-    near = zone.contains(vertices[triangles].mean(axis=1))  # the FE model's WELD_ZONE_SURFACE is this zone's faces
+    near = zone.faces_in(vertices, triangles)  # as the FE model's WELD_ZONE_SURFACE is chosen
     v = apply(T_view_common, vertices)
     radius = zone.zones[0].radius_mm if zone else 0.0
     caption = (f"The Poisson mesh ({len(mesh.triangles):,} triangles) simplified to {len(triangles):,} for the picture; "
@@ -375,7 +375,7 @@ def qa_report(ctx) -> dict[str, Any]:
     T_view_common, frame = _view_frame(ctx.manifest, T_common_pass, specimen.points[keep])
     surface = apply(T_view_common, specimen.points[keep])
     surface_normals = rotate(T_view_common, specimen.normals[keep].astype(np.float64))
-    zone = sample_weld_zone(ctx.manifest, T_common_pass, ctx.config.volume.weld_zone_mm)  # the FE model's zone
+    zone = model_weld_zone(ctx.manifest, T_common_pass, ctx.config)  # the FE model's WELD_ZONE_SURFACE
     lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
     lines_view = [apply(T_view_common, line)[:, :2] for line in lines_common[: len(ctx.manifest.weld_lines())]]
     maps, map_figures = _maps(ctx, T_view_common, T_common_pass, surface, surface_normals, lines_view)

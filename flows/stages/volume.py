@@ -17,7 +17,7 @@ import numpy as np
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
 from flows.stages.outputs import (ELEMENT_QUALITY, MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_TOES,
                                   ElementQualityArrays)
-from flows.stages.placement import sample_weld_zone
+from flows.stages.placement import model_weld_zone
 from schemas.stage_documents import FEModelSummary, SolidChecks, VolumeSets
 from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
@@ -33,11 +33,9 @@ def volume(ctx) -> dict[str, Any]:
         return _not_made(ctx, f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
                               f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
-    # the weld lines where the first placed setup puts them: each setup's lines are all of the
-    # part's, and the other setups' placements (by hand, within their tolerance) would only widen the zone
-    # the weld zone (placement.sample_weld_zone: the QA page draws the same): elements graded toward
-    # its lines, its boundary faces the named set
-    zone = sample_weld_zone(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass, s.weld_zone_mm)
+    # the weld zone (placement.model_weld_zone, the weld frame's lines; the QA page colours the same):
+    # elements graded toward its lines, its boundary faces the named set
+    zone = model_weld_zone(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass, ctx.config)
     lines = [np.asarray(z.points_mm, np.float64) for z in zone.zones]
     toes = WELD_TOES.read(ctx.inputs["weld"]).polylines()  # where the weld stage measured the toes
     try:

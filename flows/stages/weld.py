@@ -63,7 +63,7 @@ def _toe_figures(toe) -> ToeFigures | None:
         fit_rms_mm=round(g.rms_mm, 5), points=g.n_points)
     return ToeFigures(side=toe.side, position_u_mm=round(toe.position_u_mm, 4),
                       position_sigma_mm=None if not math.isfinite(toe.position_sigma_mm) else round(toe.position_sigma_mm, 4),
-                      flank_angle_deg=_figure(toe.flank_angle_deg, 3), toe_radius_mm=_figure(toe.radius),
+                      flank_angle_deg=_figure(toe.flank_angle_deg, 3), toe_radius_mm=_figure(toe.notch_radius),
                       undercut_depth_mm=_figure(toe.undercut_depth), fit_rms_mm=round(toe.rms_mm, 5), points=toe.n_points,
                       treated=g is not None, groove=groove, note=toe.note or None)
 
@@ -104,7 +104,7 @@ def _statistics(sections: list[SectionMeasurement]) -> dict[str, FigureStatistic
             if t is not None:
                 toe_where.append({"line": s.line, "position_mm": round(s.position_mm, 3), "toe": t.side})
                 g = t.groove
-                rows.append([t.radius.value, t.flank_angle_deg.value, t.undercut_depth.value,
+                rows.append([t.notch_radius.value, t.flank_angle_deg.value, t.undercut_depth.value,
                              g.depth.value if g else math.nan, g.width.value if g else math.nan,
                              g.radius.value if g else math.nan])
     rows = np.array(rows, float).reshape(-1, 6)

@@ -223,3 +223,33 @@ def test_the_weld_zone_stays_fine(run, ci_sample):
     assert near.sum() > 1000 and merged.fine[near].all()
     beyond = distance > reach + 1.0
     assert (~merged.fine[beyond]).sum() > 0.3 * beyond.sum()
+
+
+def test_the_fe_models_named_weld_zone_is_the_qa_pages_face_for_face(run, ci_sample):
+    """Two setups (top and bottom): every boundary face of the FE model is in WELD_ZONE_SURFACE
+    exactly when the QA page's weld zone (placement.model_weld_zone, faces by centroid) holds it;
+    the zone spans both faces of the part (both weld caps)."""
+    import meshio
+
+    from data_catalog.manifests import load_manifest
+    from flows.preflight import load_config
+    from flows.stages.placement import model_weld_zone, weld_frame
+    from tasks.volume_mesh import VolumeMesh, boundary_faces
+
+    out, report = run
+    inp = meshio.read(Path(report["outputs"][f"{report['sample_id']}.inp"]["path"]))
+    points, tets = inp.points, inp.cells_dict["tetra"]
+    element, face = boundary_faces(tets)
+    triangles = VolumeMesh(points, tets, element, face, np.zeros(len(element), bool)).boundary_triangles()
+    named = np.zeros(len(element), bool)
+    for number in (1, 2, 3, 4):
+        members = np.concatenate(inp.cell_sets.get(f"WELD_ZONE_S{number}", [np.zeros(0, np.int64)]))
+        named |= (face == number) & np.isin(element, members)
+    manifest = load_manifest(ci_sample)
+    zone = model_weld_zone(manifest, _refined(report).T_common_pass, load_config(CI_CONFIG))
+    qa = zone.faces_in(points, triangles)
+    assert named.sum() > 500 and np.array_equal(qa, named)
+    assert len(manifest.setups) == 2
+    normals = np.cross(points[triangles[:, 1]] - points[triangles[:, 0]], points[triangles[:, 2]] - points[triangles[:, 0]])
+    up = normals[named] @ weld_frame(manifest, _refined(report).T_common_pass)[:3, 2]  # the specimen's z: both caps
+    assert (up > 0).sum() > 100 and (up < 0).sum() > 100

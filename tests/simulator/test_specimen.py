@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from schemas.simulation import MeshConfig, SpecimenConfig, WeldConfig
+from schemas.simulation import TrueMeshConfig, SpecimenConfig, WeldConfig
 from simulator.specimen import build_specimen
 
 
 @pytest.fixture(scope="module")
 def specimen():
     return build_specimen(SpecimenConfig(), WeldConfig(treatment="hfmi-treated"),
-                          MeshConfig(across_nodes=200, toe_dx_mm=0.05, weld_dx_mm=0.1), np.random.default_rng(3))
+                          TrueMeshConfig(across_nodes=200, toe_dx_mm=0.05, weld_dx_mm=0.1), np.random.default_rng(3))
 
 
 def test_mesh_is_closed_and_outward(specimen):
@@ -35,7 +35,7 @@ def test_mesh_is_closed_and_outward(specimen):
 
 def test_dog_bone_outline():
     cfg = SpecimenConfig()
-    spec = build_specimen(cfg, WeldConfig(), MeshConfig(across_nodes=20), np.random.default_rng(0))
+    spec = build_specimen(cfg, WeldConfig(), TrueMeshConfig(across_nodes=20), np.random.default_rng(0))
     assert_allclose(spec.half_width(np.array([0.0, 89.0, 285.0])), [35.0, 35.0, 50.0])
     xs = np.linspace(90, 200, 500)
     assert np.all(np.diff(spec.half_width(xs)) >= -1e-12)  # widens monotonically toward the grips
@@ -59,7 +59,7 @@ def test_weld_cap_has_its_drawn_geometry(specimen):
 
 def test_flank_angle_is_the_drawn_one_and_is_measured():
     plain = WeldConfig(treatment="as-welded", undercut_probability=0.0, ripple_amplitude_mm=(0.0, 0.0))
-    specimen = build_specimen(SpecimenConfig(), plain, MeshConfig(across_nodes=20), np.random.default_rng(5))
+    specimen = build_specimen(SpecimenConfig(), plain, TrueMeshConfig(across_nodes=20), np.random.default_rng(5))
     cap = specimen.weld_top
     y = 10.0
     ya = np.array([y])

@@ -12,12 +12,12 @@ import pytest
 
 from data_catalog.manifests import load_manifest
 from data_catalog.truth import read_true_toes, read_truth, read_truth_pass
-from schemas.simulation import MeshConfig, TJointConfig, WeldConfig
+from schemas.simulation import TrueMeshConfig, TJointConfig, WeldConfig
 from simulator.presets import preset_config
 from simulator.specimen import Face
 from simulator.tjoint import build_tjoint, plan_tjoint_passes, tjoint_sticker_candidates
 
-MESH = MeshConfig(plate_dx_mm=2.0, weld_dx_mm=0.2, toe_dx_mm=0.1, wall_rows=5)
+MESH = TrueMeshConfig(plate_dx_mm=2.0, weld_dx_mm=0.2, toe_dx_mm=0.1, wall_rows=5)
 
 
 @pytest.fixture(scope="module")

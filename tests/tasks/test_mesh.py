@@ -17,7 +17,7 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from schemas.reconstruction import MeshConfig
+from schemas.reconstruction import PoissonConfig
 from tasks.mesh import (
     _canonical_order,
     estimate_normals,
@@ -29,7 +29,7 @@ from tasks.mesh import (
 REPO = Path(__file__).resolve().parents[2]
 RADIUS = 20.0
 SPHERE_VOLUME = 4.0 / 3.0 * np.pi * RADIUS**3
-CFG = MeshConfig()
+CFG = PoissonConfig()
 POISSON = {"samples_per_node": CFG.samples_per_node, "point_weight": CFG.point_weight, "scale": CFG.poisson_scale}
 
 

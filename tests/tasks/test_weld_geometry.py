@@ -63,9 +63,9 @@ def test_as_welded_toe_radius_flank_angle_height_and_width(noise, flank, radius)
     tol_r, tol_a, tol_h = (0.02, 1.0, 0.01) if noise == 0 else (0.05, 1.0, 0.02)
     for toe in section.toes:
         assert toe is not None and toe.groove is None
-        assert abs(toe.radius.value - radius) <= tol_r, (toe.side, toe.radius)
+        assert abs(toe.notch_radius.value - radius) <= tol_r, (toe.side, toe.notch_radius)
         assert abs(toe.flank_angle_deg.value - flank) <= tol_a, (toe.side, toe.flank_angle_deg)
-        assert np.isfinite(toe.radius.sigma) and np.isfinite(toe.flank_angle_deg.sigma)
+        assert np.isfinite(toe.notch_radius.sigma) and np.isfinite(toe.flank_angle_deg.sigma)
     assert abs(section.height.value - 2.0) <= tol_h
     assert abs(section.width.value - 16.0) <= 0.05
     assert abs(section.axial_misalignment.value) < 0.005 and abs(section.angular_misalignment_deg.value) < 0.05
