@@ -109,8 +109,61 @@ def load_arrays(path: Path, *names: str) -> dict[str, np.ndarray]:
 
 
 class StageStore:
-    def __init__(self, root: Path) -> None:
+    """A run folder's stages: ``stages/<stage>/<key>/`` each a finished stage's outputs and its
+    record. ``shared``: a stage cache shared by run folders (``$WELDRECON_STAGE_CACHE`` when not
+    given; None: none), laid out the same way: a stage this store lacks is copied in from it when
+    it holds the same key (verified by hash), and a stage made here is copied out to it, so that
+    runs of the same data and settings in other folders reuse the work."""
+
+    def __init__(self, root: Path, *, shared: Path | None | bool = True) -> None:
         self.root = Path(root)
+        if shared is True:
+            shared = Path(os.environ["WELDRECON_STAGE_CACHE"]) if os.environ.get("WELDRECON_STAGE_CACHE") else None
+        self.shared = None if not shared or Path(shared).resolve() == self.root.resolve() else Path(shared)
+
+    def fetch_shared(self, stage: str, key: str) -> StageRecord | None:
+        """Copy ``stage``/``key`` from the shared cache into this store (verified by hash there,
+        copied, moved into place atomically): its record, or None where the cache lacks it."""
+        if self.shared is None or self.path(stage, key).exists():
+            return None
+        cache = StageStore(self.shared, shared=False)
+        record, _ = cache.verified(stage, key)  # a damaged entry is set aside there, never copied
+        if record is None:
+            return None
+        build = self.build_dir(stage)
+        try:
+            shutil.copytree(cache.path(stage, key), build, dirs_exist_ok=True)
+            default_mode(build)
+            try:
+                os.rename(build, self.path(stage, key))
+            except OSError:
+                if not (self.path(stage, key) / RECORD_NAME).is_file():
+                    raise
+                shutil.rmtree(build, ignore_errors=True)  # another run of this folder got there first
+        except BaseException:
+            shutil.rmtree(build, ignore_errors=True)
+            raise
+        return self.lookup(stage, key)
+
+    def share(self, stage: str, key: str) -> None:
+        """Copy a committed stage of this store out to the shared cache (where it lacks it)."""
+        if self.shared is None:
+            return
+        cache = StageStore(self.shared, shared=False)
+        if cache.path(stage, key).exists():
+            return
+        build = None
+        try:
+            build = cache.build_dir(stage)
+            shutil.copytree(self.path(stage, key), build, dirs_exist_ok=True)
+            default_mode(build)
+            if not cache.path(stage, key).exists():
+                os.rename(build, cache.path(stage, key))
+            else:
+                shutil.rmtree(build, ignore_errors=True)
+        except OSError:  # the cache is a convenience: a full or read-only cache never fails a run
+            if build is not None:
+                shutil.rmtree(build, ignore_errors=True)
 
     def path(self, stage: str, key: str) -> Path:
         return self.root / "stages" / stage / key

@@ -20,6 +20,23 @@ def _traceback_logs_in_a_temporary_folder(tmp_path_factory):
     os.environ["WELDRECON_LOG_DIR"] = str(tmp_path_factory.mktemp("logs"))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _one_stage_cache_for_the_session(tmp_path_factory):
+    """Every run folder of the session (the flows, the command lines they start, the stage
+    tests) shares one stage cache (``$WELDRECON_STAGE_CACHE``, data_catalog.stages.StageStore):
+    a stage made once for the same data, settings and code is copied, verified, into the next
+    folder that needs it. Tests of recomputation itself turn it off (``no_stage_cache``)."""
+    import os
+
+    os.environ["WELDRECON_STAGE_CACHE"] = str(tmp_path_factory.mktemp("stage-cache"))
+
+
+@pytest.fixture
+def no_stage_cache(monkeypatch):
+    """This test's runs make every stage in their own folder (no shared stage cache)."""
+    monkeypatch.delenv("WELDRECON_STAGE_CACHE", raising=False)
+
+
 @pytest.fixture(scope="session")
 def ci_sample(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("ci") / "sample"
@@ -129,3 +146,21 @@ def _one_prefect_api_that_dies_with_pytest():
 
     with prefect_api_for_workers() as url:
         yield url
+
+
+# --- tiers: the suite runs fastest first, so that a failure says which layer it is in ---
+# 1: known answers on in-memory arrays and documents (tasks, schemas, the layout, the docs);
+# 2: storage and the simulated cell (data_catalog, simulator, deploy);
+# 3: stages through the runner and the flows end to end (flows).
+_TIERS = (("tests/tasks/", "tests/schemas/", "tests/test_layering.py", "tests/test_docs.py"),
+          ("tests/data_catalog/", "tests/simulator/", "tests/deploy/"),
+          ("tests/flows/",))
+
+
+def _tier(item) -> int:
+    path = Path(str(item.fspath)).resolve().relative_to(Path(__file__).resolve().parents[1]).as_posix()
+    return next((k for k, prefixes in enumerate(_TIERS) if path.startswith(prefixes)), len(_TIERS))
+
+
+def pytest_collection_modifyitems(session, config, items):
+    items.sort(key=_tier)  # stable: within a tier, the files' own order

@@ -275,6 +275,10 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     code = code_version(stage)
     key = cache_key(stage.name if item is None else f"{stage.name}/{item}", hashes, parameters, code)
     found, problem = store.verified(stage.name, key)
+    shared = None
+    if found is None and problem is None:  # not made in this folder: made by a run elsewhere?
+        found = store.fetch_shared(stage.name, key)
+        shared = None if found is None else str(store.shared)
     if problem is not None:
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
                      reason=f"cached outputs failed their hash check: {problem}; set aside and recomputed", **ids)
@@ -286,7 +290,8 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
         changed = sorted(k for k in set(now) | set(then) if now.get(k) != then.get(k)) if then else []
         if not changed:
             audit.append(store.root, "stage", stage=stage.name, item=item, cache_key=key, cached=True,
-                         record=found.model_dump(mode="json"), artefacts=now, **ids)
+                         record=found.model_dump(mode="json"), artefacts=now,
+                         **({"from_stage_cache": shared} if shared else {}), **ids)
             return _ref(stage.name, item, key, store, found, cached=True)
         aside = store.set_aside(stage.name, key, "tampered")
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
@@ -314,6 +319,7 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
                          host=socket.gethostname(), started=started, finished=datetime.now(UTC), metrics=metrics,
                          flow_run_id=ids["flow_run_id"])
     store.commit(build, record)
+    store.share(stage.name, key)
     committed = store.lookup(stage.name, key)
     audit.append(store.root, "stage", stage=stage.name, item=item, cache_key=key, cached=False,
                  record=committed.model_dump(mode="json"),
