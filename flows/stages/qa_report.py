@@ -13,9 +13,12 @@ the stickers, the registration graph, the mesh and its weld zone), ``tasks.cover
 ``tasks.weld_views`` (the sections drawn, the figures along the weld); the pictures are
 ``tasks.report_figures``. This body reads the inputs, calls those, renders the template, writes the page.
 
-The file is a function of the stages' outputs and records (same inputs, same bytes). The audit
-trail's state belongs to the moment of publication, not to the stage: the stage leaves a marked
-place (``AUDIT_MARK``) that ``flows.stages.report.publish`` fills with the trail's verification.
+The file is a function of the stages' outputs and records (same inputs, same bytes): the other
+stages' settings it shows or draws with (the weld's section step, width and reach, the FE model's
+weld zone) are read from the run's recorded settings (``report.json``), not from this stage's
+config. The audit trail's state belongs to the moment of publication, not to the stage: the stage
+leaves a marked place (``AUDIT_MARK``) that ``flows.stages.report.publish`` fills with the trail's
+verification.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, MESH, QA_REPORT, REFIN
                                   REGISTRATION_SUMMARY, REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.manifest import SampleManifest
-from schemas.reconstruction import WeldGeometryConfig
+from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, Finding, WeldGeometry
 from tasks.coverage import CoverageFigures, FaceAccumulator, coverage_figures
 from tasks.mesh import simplify_surface
@@ -226,12 +229,14 @@ def _quality_picture(ctx) -> list[dict[str, str]]:
 def qa_report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     report = REPORT.read(inputs["report"])
+    # the other stages' settings as the run recorded them (report.json), so the page is a function of its inputs
+    recorded = ReconstructionConfig.model_validate(report.config)
     T_common_pass = np.asarray(REFINED.open(inputs["refine"]).T_common_pass[...], np.float64)
     specimen = SPECIMEN.read(inputs["segment"])
     view = surface_view(specimen.points, specimen.normals, specimen.measured,
                         T_common_specimen=weld_frame(ctx.manifest, T_common_pass))
     frame = "the specimen frame (the drawing's)" if view.placed else "the points' principal axes (no nominal placement)"
-    zone = model_weld_zone(ctx.manifest, T_common_pass, ctx.config)  # the FE model's WELD_ZONE_SURFACE
+    zone = model_weld_zone(ctx.manifest, T_common_pass, recorded)  # the FE model's WELD_ZONE_SURFACE
     lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
     lines_view = plan_view_lines(lines_common[: len(ctx.manifest.weld_lines())], view.T_view_common)
     maps, map_figures = _maps(ctx, view, T_common_pass, lines_view)
@@ -240,7 +245,7 @@ def qa_report(ctx) -> dict[str, Any]:
     weld = report.weld
     weld_pictures = []
     if geometry.measured:
-        weld_pictures = _section_pictures(ctx, geometry, view.points_mm, ctx.config.weld) + _along_weld(geometry)
+        weld_pictures = _section_pictures(ctx, geometry, view.points_mm, recorded.weld) + _along_weld(geometry)
     volume = VOLUME_SUMMARY.read(inputs["volume"])
     checks = report.checks
     try:
@@ -252,7 +257,7 @@ def qa_report(ctx) -> dict[str, Any]:
         manifest=ctx.manifest, passes=len(ctx.names), setups=len(ctx.manifest.setups),
         checks=checks, flagged=[c for c in checks if c.result != "ok"], weld=weld, volume=volume,
         method_counts=sorted(Counter(report.registration_method.values()).items()),
-        weld_step=ctx.config.weld.section_step_mm,
+        weld_step=recorded.weld.section_step_mm,
         mesh=report.mesh, maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
         pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, view.T_view_common, zone),
         weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report.deliverables,
