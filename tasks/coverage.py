@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["FaceGrid", "FaceAccumulator", "FACES"]
+__all__ = ["FaceGrid", "FaceAccumulator", "FACES", "CoverageFigures", "coverage_figures"]
 
 FACES = (("top", 1.0), ("bottom", -1.0))
 
@@ -58,6 +58,18 @@ class FaceAccumulator:
         self._low = np.full(shape, np.inf)
         self._high = np.full(shape, -np.inf)
 
+    @classmethod
+    def around(cls, surface_mm: np.ndarray, surface_normals: np.ndarray, *, cell_mm: float,
+               margin_cells: int = 2) -> FaceAccumulator:
+        """An accumulator whose grid covers the surface's x, y extent (view frame, mm) and
+        ``margin_cells`` cells more on every side."""
+        surface = np.asarray(surface_mm, np.float64)
+        if surface.ndim != 2 or surface.shape[1] != 3 or not len(surface):
+            raise ValueError(f"surface_mm must be (m >= 1, 3); got shape {surface.shape}")
+        lo = surface[:, :2].min(axis=0) - margin_cells * cell_mm
+        hi = surface[:, :2].max(axis=0) + margin_cells * cell_mm
+        return cls(surface, surface_normals, lo_mm=tuple(lo), hi_mm=tuple(hi), cell_mm=cell_mm)
+
     def add(self, points_mm: np.ndarray, normals: np.ndarray) -> None:
         """One pass's points and normals (n, 3), view frame; NaN rows are skipped."""
         p = np.asarray(points_mm, np.float64).reshape(-1, 3)
@@ -91,3 +103,28 @@ class FaceAccumulator:
             spread = np.where(self._count[k] >= 2, self._high[k] - self._low[k], np.nan).reshape(self.rows, self.cols)
             out.append(FaceGrid(name, count, spread, self.origin, self.cell_mm))
         return out
+
+
+@dataclass(frozen=True)
+class CoverageFigures:
+    """The maps in figures: cells measured by a pass, by two or more; the disagreement (um, to
+    0.1) of the cells two or more passes measured: median, 95th percentile, largest (None: no such cell)."""
+
+    cells_seen: int
+    cells_two_or_more: int
+    disagreement_median_um: float | None
+    disagreement_p95_um: float | None
+    disagreement_max_um: float | None
+
+
+def coverage_figures(grids: list[FaceGrid]) -> CoverageFigures:
+    """The figures of the faces' grids (``FaceAccumulator.faces``)."""
+    if not grids:
+        raise ValueError("coverage_figures needs at least one face")
+    values = np.concatenate([g.spread_mm[np.isfinite(g.spread_mm)] for g in grids])
+    return CoverageFigures(
+        cells_seen=int(sum((g.passes > 0).sum() for g in grids)),
+        cells_two_or_more=int(sum((g.passes >= 2).sum() for g in grids)),
+        disagreement_median_um=round(float(np.median(values)) * 1000, 1) if len(values) else None,
+        disagreement_p95_um=round(float(np.percentile(values, 95)) * 1000, 1) if len(values) else None,
+        disagreement_max_um=round(float(values.max()) * 1000, 1) if len(values) else None)

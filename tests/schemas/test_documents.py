@@ -143,14 +143,26 @@ def test_the_command_line_summary_reads_the_report(capsys):
 
 
 def test_the_qa_pages_weld_figures_read_the_weld_document():
-    from flows.stages.qa_report import _along_weld, _chosen_sections
+    from flows.stages.qa_report import _along_weld
+    from tasks.weld_views import chosen_sections
 
     geometry = _geometry()
-    chosen = _chosen_sections(geometry, 2)
+    chosen = chosen_sections(geometry, 2)
     assert len(chosen) == 2 * len(geometry.line_names())
     assert all(s in geometry.sections for s in chosen)
     pictures = _along_weld(geometry)
     assert pictures and all(p["src"].startswith("data:image/png;base64,") for p in pictures)
+
+
+def test_the_report_records_the_runs_settings_as_the_config_model():
+    """The QA page draws the weld's sections and the FE model's weld zone with the settings the run
+    recorded (report.json), read back through the config model."""
+    from schemas.reconstruction import ReconstructionConfig
+
+    report = REPORT.read_path(DOCUMENTS / REPORT.name)
+    recorded = ReconstructionConfig.model_validate(report.config)
+    assert recorded.model_dump(mode="json") == report.config
+    assert recorded.weld.section_step_mm > 0 and recorded.volume.weld_zone_mm >= 0
 
 
 def test_the_batch_index_reads_the_published_report(tmp_path):

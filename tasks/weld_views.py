@@ -1,0 +1,151 @@
+"""The weld as the QA page draws it, from the weld document (``schemas.weld_document``): which
+cross-sections to draw (the failing first), each drawn section's measured points in its plane
+with its toes and the drawing's plate face, and each figure's values along the weld with its
+acceptance limits. Specimen frame, mm and degrees; the pictures are ``tasks.report_figures``'s
+``weld_section`` and ``along_weld``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from schemas.acceptance import AcceptanceRule
+from schemas.weld_document import TOE_SIDES, Figure, WeldGeometry, WeldLineFound, WeldSection
+from tasks.report_figures import AlongWeldSeries
+
+__all__ = ["TOE_SERIES", "SECTION_SERIES", "figure_value", "along_weld_series", "chosen_sections", "SectionCut",
+           "section_cut"]
+
+# the figures drawn along the weld: (name in the document, label, unit)
+TOE_SERIES = (("toe_radius_mm", "toe radius", "mm"), ("flank_angle_deg", "flank angle", "deg"),
+              ("undercut_depth_mm", "undercut", "mm"), ("groove_depth_mm", "groove depth", "mm"),
+              ("groove_width_mm", "groove width", "mm"))
+SECTION_SERIES = (("reinforcement_height_mm", "height", "mm"),
+                  ("reinforcement_width_mm", "width", "mm"),
+                  ("axial_misalignment_mm", "axial misal.", "mm"),
+                  ("angular_misalignment_deg", "angular misal.", "deg"))
+
+
+def figure_value(m: Figure | None) -> tuple[float, float]:
+    """A figure's (value, 1-sigma), NaN where not determined."""
+    if m is None or m.value is None:
+        return math.nan, math.nan
+    return float(m.value), math.nan if m.sigma is None else float(m.sigma)
+
+
+def _limits(rule: AcceptanceRule | None, figure: str) -> tuple[float | None, float | None]:
+    limits = None if rule is None else getattr(rule, figure)
+    return (None, None) if limits is None else (limits.min, limits.max)
+
+
+def _curve(rows: list[tuple[float, float, float, bool]]):
+    """(position, value, sigma, failing) rows -> four (n,) arrays: float, float, float, bool."""
+    arr = np.array(rows, dtype=object)
+    return arr[:, 0].astype(float), arr[:, 1].astype(float), arr[:, 2].astype(float), arr[:, 3].astype(bool)
+
+
+def along_weld_series(geometry: WeldGeometry) -> list[AlongWeldSeries]:
+    """Each figure along each weld line: per toe (``TOE_SERIES``; the groove's on a treated weld
+    only; a toe never measured left out) and per section (``SECTION_SERIES``), in that order, with
+    the acceptance rule's limits and the failing sections marked."""
+    if not geometry.measured:
+        raise ValueError(f"the weld was not measured ({geometry.why_not}): no figures along it")
+    sections = geometry.sections
+    failing = {(f.line, f.position_mm, f.figure) for f in geometry.failing}
+    series = []
+    treated = geometry.treatment != "as-welded"
+    for figure, label, unit in TOE_SERIES:
+        if figure.startswith("groove") and not treated:
+            continue
+        curves = {}
+        for line in geometry.line_names():
+            for side in TOE_SIDES:
+                rows = [(s.position_mm, *figure_value(getattr(s.toes, side).figure(figure)
+                                                      if getattr(s.toes, side) else None),
+                         (line, s.position_mm, figure) in failing) for s in sections if s.line == line]
+                if not rows or all(math.isnan(r[1]) for r in rows):
+                    continue
+                curves[f"{line} {side} toe"] = _curve(rows)
+        if curves:
+            series.append(AlongWeldSeries(label, unit, curves, *_limits(geometry.acceptance, figure)))
+    for figure, label, unit in SECTION_SERIES:
+        curves = {line: _curve([(s.position_mm, *figure_value(s.figure(figure)),
+                                 (line, s.position_mm, figure) in failing) for s in sections if s.line == line])
+                  for line in geometry.line_names()}
+        series.append(AlongWeldSeries(label, unit, curves, *_limits(geometry.acceptance, figure)))
+    return series
+
+
+def chosen_sections(geometry: WeldGeometry, per_line: int) -> list[WeldSection]:
+    """Up to ``per_line`` sections per weld line: the failing first (most violations first, then
+    along the line), then the uncertain, the rest filled evenly from the others along the line
+    (ends left out); each line's in order along it."""
+    if per_line < 0:
+        raise ValueError(f"per_line must not be negative; got {per_line}")
+    chosen = []
+    for line in geometry.line_names():
+        rows = [s for s in geometry.sections if s.line == line]
+        failing = sorted((s for s in rows if s.passed is False), key=lambda s: (-len(s.violations), s.position_mm))
+        uncertain = [s for s in rows if s.verdict == "uncertain"]
+        picked = (failing + uncertain)[:per_line]
+        rest = [s for s in rows if s not in picked]
+        want = per_line - len(picked)
+        if want > 0 and rest:
+            picked += [rest[int(round(k))] for k in np.linspace(0, len(rest) - 1, want + 2)[1:-1]] if len(rest) > want \
+                else rest
+        chosen += sorted({id(s): s for s in picked}.values(), key=lambda s: s.position_mm)
+    return chosen
+
+
+@dataclass(frozen=True)
+class SectionCut:
+    """A section's picture in its plane: the measured points ``u_mm`` across the weld and ``h_mm``
+    along the face normal from the section's centre, (n,) float64; ``toes`` (u, label) from the
+    toes' midpoint (none unless both toes were found); ``plate`` the drawing's plate face as
+    (u (2,), h (2,), label) lines; ``half_span_mm`` how far across to draw."""
+
+    u_mm: np.ndarray
+    h_mm: np.ndarray
+    toes: list[tuple[float, str]]
+    plate: list[tuple[np.ndarray, np.ndarray, str]]
+    half_span_mm: float
+
+
+def section_cut(points_mm: np.ndarray, section: WeldSection, line: WeldLineFound, *, half_width_mm: float,
+                reach_mm: float, bounds_mm: tuple[Sequence[float], Sequence[float]] | None = None,
+                margin_mm: float = 6.0) -> SectionCut:
+    """The points of ``points_mm`` ((n, 3), specimen frame, mm: the frame the weld was measured in)
+    within ``half_width_mm`` along the weld of ``section``'s centre, ``reach_mm`` across it and
+    ``reach_mm / 2`` along ``line``'s face normal; the drawing's plate face from the part's
+    bounding box (``bounds_mm``: min and max corner; None: no drawing) where the face normal is
+    within 60 deg of z; drawn to half the weld's width plus ``margin_mm`` (half the reach plus it
+    where the width is not known), at most ``reach_mm``."""
+    if half_width_mm <= 0 or reach_mm <= 0:
+        raise ValueError(f"half_width_mm and reach_mm must be positive; got {half_width_mm}, {reach_mm}")
+    points = np.asarray(points_mm)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points_mm must be (n, 3); got shape {points.shape}")
+    c = np.asarray(section.centre_specimen_mm, np.float64)
+    n = np.asarray(line.face_normal, np.float64)
+    a = np.asarray(line.across, np.float64)
+    t = np.cross(n, a)
+    d = points - c
+    sel = (np.abs(d @ t) <= half_width_mm) & (np.abs(d @ a) <= reach_mm) & (np.abs(d @ n) <= reach_mm / 2)
+    u, h = d[sel] @ a, d[sel] @ n
+    toes = []
+    if section.toes.both():
+        centre = (section.toes.minus.position_u_mm + section.toes.plus.position_u_mm) / 2
+        toes = [(toe.position_u_mm - centre, f"{side} toe") for side, toe in section.toes.sides()]
+    plate = []
+    if bounds_mm is not None and abs(n[2]) > 0.5:
+        lo, hi = bounds_mm
+        z0 = hi[2] if n[2] > 0 else lo[2]
+        span = np.array([-reach_mm, reach_mm])
+        plate.append((span, (z0 - c[2] - span * a[2]) / n[2], "the drawing's plate face"))
+    width = figure_value(section.reinforcement_width_mm)[0]
+    span = (width / 2 if math.isfinite(width) else reach_mm / 2) + margin_mm
+    return SectionCut(u, h, toes, plate, min(span, reach_mm))
