@@ -22,11 +22,11 @@ RULES = {
     "simulator": ({"simulator", "schemas", "data_catalog", "tasks"}, {"numpy", "scipy", "open3d", "cv2", "pydantic",
                                                                      "yaml", "zarr"}),
 }
-# flows may import anything; only these functions of flows/cli.py may touch the simulator (the
-# `simulate` command is the simulator's own command line; `demo` simulates the demo sample;
+# flows may import anything; only these functions of flows/cli/simulate.py may touch the simulator
+# (the `simulate` command is the simulator's own command line; `demo` simulates the demo sample;
 # `export-cell` writes a sample as a cell's logs, for trying `import` on known data)
-SIMULATOR_IN_FLOWS = {("flows/cli.py", "_simulation_config"), ("flows/cli.py", "_cmd_simulate"),
-                      ("flows/cli.py", "_cmd_demo"), ("flows/cli.py", "_cmd_export_cell")}
+SIMULATOR_IN_FLOWS = {("flows/cli/simulate.py", "_simulation_config"), ("flows/cli/simulate.py", "_cmd_simulate"),
+                      ("flows/cli/simulate.py", "_cmd_demo"), ("flows/cli/simulate.py", "_cmd_export_cell")}
 
 
 def _imports(path: Path):

@@ -166,11 +166,12 @@ def test_a_read_only_place_for_the_default_run_folder_is_named(ci_sample, tmp_pa
 
 def test_an_unexpected_error_is_one_line_and_its_traceback_goes_to_a_log(tmp_path, monkeypatch, capsys):
     import flows.cli
+    import flows.cli.info
 
     def broken(args):
         raise TypeError("something the code did not expect")
 
-    monkeypatch.setattr(flows.cli, "_cmd_stages", broken)
+    monkeypatch.setattr(flows.cli.info, "_cmd_stages", broken)
     monkeypatch.setenv("WELDRECON_LOG_DIR", str(tmp_path / "logs"))
     assert flows.cli.main(["stages"]) == 2
     err = capsys.readouterr().err.splitlines()

@@ -123,7 +123,7 @@ def test_the_published_report_holds_the_stage_documents_unchanged():
 
 
 def test_the_command_line_summary_reads_the_report(capsys):
-    from flows.cli import _print_report
+    from flows.cli.render import print_run_summary
     from flows.reconstruct import RunResult, TrailHead
     from flows.stages import STAGES
 
@@ -132,7 +132,7 @@ def test_the_command_line_summary_reads_the_report(capsys):
     run = RunResult(report=report, outputs={"report.json": {"path": "/r/results/report.json", "sha256": "0" * 64}},
                     refs={}, cached={n: False for n in names}, seconds={n: 1.0 for n in names},
                     trail_head=TrailHead(seq=7, hash="a" * 64))
-    _print_report(run, Path("/r"))
+    print_run_summary(run, Path("/r"))
     out = capsys.readouterr().out
     assert f"{report.sample_id}: {len(report.passes)} passes" in out
     assert f"weld: {report.weld.sections_measured} of {report.weld.sections} sections measured, " \

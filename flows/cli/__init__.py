@@ -1,0 +1,57 @@
+"""The ``weldrecon`` command line: the parser, assembled from one module per command group, and
+``main``.
+
+- ``simulate``: simulate, demo, export-cell (the only command code that may import the simulator)
+- ``reconstruct``: reconstruct
+- ``catalog``: catalog register|list|show|index, batch
+- ``audit``: audit verify|show
+- ``imports``: import, import-scans
+- ``info``: stages, schema
+- ``render``: a run's typed summary on the terminal
+- ``errors``: one line per problem on the terminal, the traceback in a log file
+
+A command's heavy imports (Prefect, the compute stack, the simulator) are made inside it, after
+its input is checked: nothing here or at the top of those modules loads them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from flows.cli import audit, catalog, imports, info, reconstruct, simulate
+from flows.cli.errors import say_error
+
+__all__ = ["main"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="weldrecon", description="The ``weldrecon`` command line.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    ws = catalog.workspace_option()
+    simulate.add_simulate(sub)
+    reconstruct.add_reconstruct(sub)
+    simulate.add_demo(sub)
+    catalog.add_catalog(sub, ws)
+    catalog.add_batch(sub, ws)
+    audit.add_audit(sub, ws)
+    imports.add_import(sub)
+    imports.add_import_scans(sub)
+    simulate.add_export_cell(sub)
+    info.add_stages(sub)
+    info.add_schema(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    import signal
+
+    signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `weldrecon audit show X | head` ends quietly
+    args = _parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print(f"weldrecon {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - one line on the terminal, the traceback in a log file
+        return say_error(args.command, exc)

@@ -1,0 +1,93 @@
+"""What a command's failure shows: one line per problem on the terminal, the traceback in a log
+file (the run's own log when the command opened one, else one under $WELDRECON_LOG_DIR)."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+__all__ = ["quiet_prefect", "log_to_file", "say_error"]
+
+_LOG_FILE: Path | None = None  # the log file a command opened (log_to_file), for its traceback
+
+
+def quiet_prefect() -> None:
+    """No analytics, and only Prefect's warnings: set before Prefect is imported."""
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+
+def _log_path(folder: Path, name: str) -> Path:
+    """A new log file's name in ``folder``: the command, UTC time and process id."""
+    from datetime import UTC, datetime
+
+    return folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
+
+
+def log_to_file(folder: Path, name: str) -> Path:
+    """Send Prefect's and the libraries' log records (tracebacks included) to a log file in
+    ``folder`` instead of the terminal, which gets one line per problem; returns the file."""
+    import logging
+
+    from prefect.logging.configuration import setup_logging
+
+    global _LOG_FILE
+    setup_logging()  # Prefect's own configuration first (later calls only adjust it)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = _log_path(folder, name)
+    handler = logging.FileHandler(path, encoding="utf-8", delay=True)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
+    loggers = [lg for lg in list(logging.root.manager.loggerDict.values()) if isinstance(lg, logging.Logger)]
+    for logger in [logging.getLogger(), *loggers]:
+        for old in [h for h in logger.handlers if type(h).__name__ == "PrefectConsoleHandler"]:
+            logger.removeHandler(old)
+            logger.addHandler(handler)
+    logging.getLogger().setLevel(logging.INFO)
+    logging.captureWarnings(True)
+    _LOG_FILE = path
+    return path
+
+
+def _traceback_log(command: str, exc: BaseException) -> Path | None:
+    """Where the traceback of a failure goes: the run's log file when the command opened one,
+    else a file under $WELDRECON_LOG_DIR (default ~/.local/state/weldrecon/logs); None if
+    neither can be written (a full disk: the one line must still reach the terminal)."""
+    import logging
+    import traceback
+
+    if _LOG_FILE is not None:
+        logging.getLogger("weldrecon").error("%s failed", command, exc_info=exc)
+        return _LOG_FILE
+    folder = Path(os.environ.get("WELDRECON_LOG_DIR") or Path.home() / ".local" / "state" / "weldrecon" / "logs")
+    path = _log_path(folder, command)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        path.write_text("".join(traceback.format_exception(exc)), encoding="utf-8")
+    except OSError:
+        return None
+    return path
+
+
+def say_error(command: str, exc: Exception) -> int:
+    """``weldrecon COMMAND: error: ...`` on stderr, one line for the problem (the traceback of
+    one not known as an input error goes to a log file, named on a second line); returns the
+    exit status, 2."""
+    import sqlite3
+
+    if isinstance(exc, KeyError):
+        what = exc.args[0] if exc.args else exc
+    elif isinstance(exc, (ValueError, OSError, RuntimeError, TimeoutError, sqlite3.Error)):
+        stage = getattr(exc, "stage", None)
+        what = (f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else "") + str(exc)
+    elif isinstance(exc, MemoryError):
+        what = f"out of memory ({exc or 'no detail'}); give the run more memory or smaller blocks"
+    else:  # not an input problem we know of: say so, and keep the evidence
+        what = f"unexpected {type(exc).__name__}: {exc} (please report it with the log below)"
+    print(f"weldrecon {command}: error: {what}", file=sys.stderr)
+    plain = (KeyError, ValueError, FileNotFoundError, FileExistsError, TimeoutError)  # input errors we name
+    if _LOG_FILE is not None or not isinstance(exc, plain):
+        log = _traceback_log(command, exc)
+        if log is not None:
+            print(f"  (the details and the traceback: {log})", file=sys.stderr)
+    return 2
