@@ -27,6 +27,7 @@ figure (how far each scan's points lie from the other scans' local planes) does 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -38,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 VIEW = np.array([0.0, 0.0, 1.0])  # the Cyberware scans look along -z: the sensor is toward +z
-FEATURES = dict(voxel_mm=3.0, sample_spacing_mm=2.0, neighbour_mm=2.0, max_plane_rms_mm=0.25)
+FEATURES = dict(voxel_mm=3.0, sample_spacing_mm=2.0, neighbour_mm=2.0, max_plane_rms_mm=0.25, normal_neighbours=16)
 POISSON = dict(depth=9, samples_per_node=3.0, point_weight=4.0, scale=1.3)
 
 
@@ -163,7 +164,8 @@ def main() -> int:
     times["features"] = time.perf_counter() - start
 
     rough = RefineOptions(gates_mm=(16.0, 8.0, 4.0, 2.0, 1.0), neighbour_mm=2.0, max_plane_rms_mm=0.25,
-                          surface_sigma_mm=0.15, tolerance_mm=0.01)
+                          surface_sigma_mm=0.15, tolerance_mm=0.01, min_normal_cos=0.8, normal_neighbours=16,
+                          max_points_per_pair=2000, iterations_per_level=10)
     start = time.perf_counter()
     T_start = perturb(T_lab, points, seed=args.seed, degrees=5.0, mm=5.0)
     refined = refine_scan_poses([s.surface for s in scans], T_start, options=rough, fixed=0)
@@ -171,8 +173,7 @@ def main() -> int:
 
     start = time.perf_counter()
     pair = PairOptions(ransac_inlier_mm=4.5, inlier_mm=1.0, max_rms_mm=0.4, distinct_mm=10.0)
-    fine = RefineOptions(gates_mm=(8.0, 4.0, 2.0, 1.0), neighbour_mm=2.0, max_plane_rms_mm=0.25,
-                         surface_sigma_mm=0.15, tolerance_mm=0.01)
+    fine = dataclasses.replace(rough, gates_mm=(8.0, 4.0, 2.0, 1.0))
     glob = register_scans(scans, pair=pair, refine=fine, fixed=0)
     times["(b) global + refine"] = time.perf_counter() - start
 

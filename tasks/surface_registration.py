@@ -84,11 +84,11 @@ class RefineOptions:
     neighbour_mm: float
     max_plane_rms_mm: float
     surface_sigma_mm: float
-    min_normal_cos: float = 0.8
-    normal_neighbours: int = 16
-    max_points_per_pair: int = 2000
-    iterations_per_level: int = 10
-    tolerance_mm: float = 1e-3
+    min_normal_cos: float
+    normal_neighbours: int
+    max_points_per_pair: int
+    iterations_per_level: int
+    tolerance_mm: float
 
     def __post_init__(self) -> None:
         gates = np.asarray(self.gates_mm, dtype=np.float64)
@@ -179,7 +179,7 @@ class ScanRegistration:
 
 
 def scan_features(points_mm: np.ndarray, *, view_direction: np.ndarray, voxel_mm: float, sample_spacing_mm: float,
-                  neighbour_mm: float, max_plane_rms_mm: float, normal_neighbours: int = 16) -> ScanFeatures:
+                  neighbour_mm: float, max_plane_rms_mm: float, normal_neighbours: int) -> ScanFeatures:
     """Features of one scan. ``points_mm`` (..., 3) float, mm, in the scan's frame (an organized
     grid may hold NaN rows where nothing was measured); ``view_direction`` (3,) from the surface
     toward the sensor, in the same frame (normals are turned toward it). Keypoints: the first

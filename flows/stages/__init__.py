@@ -34,10 +34,12 @@ STAGES: tuple[Stage, ...] = (
     Stage("registration", False, ("targets",), "registration",
           (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), "flows.stages.registration:register",
           "flows.stages.registration:setups_view",
-          "match targets between passes, solve all pass poses"),
+          "match targets between passes, solve all pass poses; imported scans: none (stage refine registers them)",
+          surfaces_body_at="flows.stages.registration:no_target_registration"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
           "flows.stages.refine:refine", "flows.stages:_sample_wide_grids", "all pass poses on targets and overlapping surfaces together; imported "
-          "scans (registration: surfaces) on their surfaces alone, from given poses or globally"),
+          "scans (registration: surfaces) on their surfaces alone, from given poses or globally",
+          surfaces_body_at="flows.stages.surfaces:refine_on_surfaces"),
     Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), "flows.stages.merge:merge", "flows.stages.merge:merge_view",
           "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
           "away from the weld"),

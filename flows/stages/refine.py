@@ -10,7 +10,6 @@ import numpy as np
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
 from schemas.stage_documents import RefineSummary, SurfacePair
-from flows.stages.surfaces import register_on_surfaces
 from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import refine_poses, surface_sample
 
@@ -28,8 +27,6 @@ def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
 
 
 def refine(ctx) -> dict[str, Any]:
-    if ctx.manifest.surfaces:  # imported scans, no stickers: registered on their surfaces (settings refine.surfaces)
-        return register_on_surfaces(ctx, ctx.settings.surfaces)
     rc, names = ctx.settings, ctx.names
     reg = REGISTRATION.read(ctx.inputs["registration"])
     T_targets = reg.T_common_pass

@@ -20,7 +20,7 @@ def setups_view(manifest, entry) -> dict[str, Any]:
     return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()], "registration": manifest.registration}
 
 
-def _surfaces_sample(ctx) -> dict[str, Any]:
+def no_target_registration(ctx) -> dict[str, Any]:
     """A sample registered on its surfaces (imported scans, no stickers): no target registration;
     the passes keep their coarse poses here (given, or none) and stage refine registers them."""
     n = len(ctx.names)
@@ -36,8 +36,6 @@ def _surfaces_sample(ctx) -> dict[str, Any]:
 
 
 def register(ctx) -> dict[str, Any]:
-    if ctx.manifest.surfaces:
-        return _surfaces_sample(ctx)
     rc, names = ctx.settings, ctx.names
     setups = [s for s, _ in ctx.manifest.passes()]
     targets = [TARGETS.open(r).centres for r in ctx.inputs["targets"]]

@@ -77,10 +77,21 @@ class Stage:
     body_at: str  # "module:function", imported when first run (the registry imports no compute)
     manifest_view_at: str  # "module:function"
     summary: str
+    surfaces_body_at: str | None = None  # the body for a sample registered on its surfaces (imported scans)
 
     @property
     def body(self) -> Callable[[StageContext], dict[str, Any]]:
         return _resolve(self.body_at)
+
+    def body_for(self, manifest: SampleManifest) -> Callable[[StageContext], dict[str, Any]]:
+        """The body that runs for ``manifest``'s sample: the surfaces variant for imported scans
+        registered on their surfaces, where the stage has one."""
+        return _resolve(self.surfaces_body_at if manifest.surfaces and self.surfaces_body_at else self.body_at)
+
+    @property
+    def body_modules(self) -> tuple[str, ...]:
+        """The modules of the stage's bodies (its code version covers them all)."""
+        return tuple(dict.fromkeys(at.partition(":")[0] for at in (self.body_at, self.surfaces_body_at) if at))
 
     @property
     def manifest_view(self) -> Callable[[SampleManifest, PassEntry | None], Any]:
@@ -198,8 +209,9 @@ def _distribution_versions(packages: tuple[str, ...]) -> tuple[tuple[str, str], 
 def code_version(stage: Stage) -> str:
     """Hash of all the code a stage runs: its body's module and every project module that
     imports, transitively, and the versions of the libraries they import (and Python's)."""
-    modules, third_party = code_modules(stage.body.__module__)
-    third_party = tuple(sorted(set(third_party) | set(_STORAGE_LIBRARIES)))
+    found = [code_modules(module) for module in stage.body_modules]
+    modules = found[0][0] if len(found) == 1 else tuple(sorted({pair for pairs, _ in found for pair in pairs}))
+    third_party = tuple(sorted({name for _, names in found for name in names} | set(_STORAGE_LIBRARIES)))
     payload = {"modules": modules, "libraries": _distribution_versions(third_party),
                "python": list(sys.version_info[:2])}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:16]
@@ -304,7 +316,7 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     context = StageContext(out=build, sample_dir=Path(sample_dir), manifest=manifest, config=config,
                            settings=settings, entry=entry, inputs=inputs)
     try:
-        metrics = dict(stage.body(context))
+        metrics = dict(stage.body_for(manifest)(context))
         written = sorted(p.name for p in build.iterdir())
         declared = sorted(o.name for o in stage.outputs)
         required = sorted(o.name for o in stage.outputs if not getattr(o, "optional", False))

@@ -26,7 +26,7 @@ from tasks.refine import NothingToRefine, surface_sample
 from tasks.surface_registration import (PairOptions, RefineOptions, refine_scan_poses, register_scans,
                                         scan_features)
 
-__all__ = ["register_on_surfaces", "GIVEN", "GLOBAL", "GIVEN_UNREFINED"]
+__all__ = ["refine_on_surfaces", "register_on_surfaces", "GIVEN", "GLOBAL", "GIVEN_UNREFINED"]
 
 GIVEN = "surfaces from given poses"
 GIVEN_UNREFINED = "given poses (refine disabled)"
@@ -51,6 +51,12 @@ def _refine_options(sc, gates) -> RefineOptions:
 def _pair_figures(names, result) -> list[SurfacePair]:
     return [SurfacePair(a=names[a], b=names[b], points=result.pair_count[(a, b)], rms_mm=result.pair_rms_mm[(a, b)])
             for a, b in sorted(result.pair_rms_mm)]
+
+
+def refine_on_surfaces(ctx) -> dict[str, Any]:
+    """Stage refine's body for imported scans, no stickers (the registry picks it): the scans
+    registered on their surfaces (settings ``refine.surfaces``)."""
+    return register_on_surfaces(ctx, ctx.settings.surfaces)
 
 
 def register_on_surfaces(ctx, sc) -> dict[str, Any]:

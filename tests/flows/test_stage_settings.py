@@ -21,18 +21,18 @@ def _settings_calls(stage):
     from a field of its settings model."""
     model = stage.settings_of(DEFAULTS)
     fields = set(type(model).model_fields) if isinstance(model, BaseModel) and stage.settings != "*" else set()
-    module = importlib.import_module(stage.body.__module__)
     found = []
-    for node in ast.walk(ast.parse(inspect.getsource(module))):
-        if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)):
-            continue
-        function = getattr(module, node.func.id, None)
-        if function is None or not getattr(function, "__module__", "").startswith("tasks."):
-            continue
-        for keyword in node.keywords:
-            value = keyword.value
-            if isinstance(value, ast.Attribute) and value.attr in fields:
-                found.append((function, keyword.arg, value.attr))
+    for module in map(importlib.import_module, stage.body_modules):  # the surfaces variant's too
+        for node in ast.walk(ast.parse(inspect.getsource(module))):
+            if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)):
+                continue
+            function = getattr(module, node.func.id, None)
+            if function is None or not getattr(function, "__module__", "").startswith("tasks."):
+                continue
+            for keyword in node.keywords:
+                value = keyword.value
+                if isinstance(value, ast.Attribute) and value.attr in fields:
+                    found.append((function, keyword.arg, value.attr))
     return model, found
 
 
@@ -51,6 +51,6 @@ def test_task_functions_take_the_stage_settings_without_defaults_of_their_own(st
 def test_every_setting_of_a_stage_reaches_its_body(stage):
     """A field no stage reads would be a setting that silently does nothing."""
     model, calls = _settings_calls(stage)
-    body = inspect.getsource(importlib.import_module(stage.body.__module__))
+    body = "".join(inspect.getsource(importlib.import_module(m)) for m in stage.body_modules)
     unused = [f for f in type(model).model_fields if f".{f}" not in body]
     assert not unused, f"stage {stage.name}: settings {unused} are never read"

@@ -29,9 +29,10 @@ REPO = Path(__file__).resolve().parents[2]
 BUNNY = REPO.parent / "shared" / "data" / "stanford-bunny"
 SCANS = ("bun000.ply", "bun045.ply", "bun315.ply", "chin.ply")
 VIEW = np.array([0.0, 0.0, 1.0])  # the scanner looks along -z in each scan's frame
-FEATURES = dict(voxel_mm=3.0, sample_spacing_mm=3.0, neighbour_mm=2.5, max_plane_rms_mm=0.25)
+FEATURES = dict(voxel_mm=3.0, sample_spacing_mm=3.0, neighbour_mm=2.5, max_plane_rms_mm=0.25, normal_neighbours=16)
 ROUGH = RefineOptions(gates_mm=(16.0, 8.0, 4.0, 2.0, 1.0), neighbour_mm=2.5, max_plane_rms_mm=0.25,
-                      surface_sigma_mm=0.15, tolerance_mm=0.01, max_points_per_pair=1000)
+                      surface_sigma_mm=0.15, tolerance_mm=0.01, max_points_per_pair=1000, min_normal_cos=0.8,
+                      normal_neighbours=16, iterations_per_level=10)
 FINE = dataclasses.replace(ROUGH, gates_mm=(6.0, 2.0, 1.0))  # after RANSAC: a few mm off at most
 PAIR = PairOptions(ransac_inlier_mm=4.5, inlier_mm=1.0, max_rms_mm=0.4, distinct_mm=10.0, top_k=3)
 TOLERANCE_DEG, TOLERANCE_MM = 0.5, 0.5
@@ -136,11 +137,10 @@ def test_a_repeating_pattern_is_refused_as_ambiguous():
     T_true[:3, 3] = [10.0, -20.0, 5.0]
     patch = (_patterned_plate(20, 15, 40, 30, rng) - T_true[:3, 3]) @ T_true[:3, :3]  # in its own frame
     target = scan_features(whole, view_direction=VIEW, voxel_mm=3.0, sample_spacing_mm=2.0, neighbour_mm=2.0,
-                           max_plane_rms_mm=0.25)
+                           max_plane_rms_mm=0.25, normal_neighbours=16)
     source = scan_features(patch, view_direction=T_true[:3, :3].T @ VIEW, voxel_mm=3.0, sample_spacing_mm=2.0,
-                           neighbour_mm=2.0, max_plane_rms_mm=0.25)
-    refine = RefineOptions(gates_mm=(8.0, 4.0, 2.0, 1.0), neighbour_mm=2.0, max_plane_rms_mm=0.25,
-                           surface_sigma_mm=0.15, tolerance_mm=0.01)
+                           neighbour_mm=2.0, max_plane_rms_mm=0.25, normal_neighbours=16)
+    refine = dataclasses.replace(ROUGH, gates_mm=(8.0, 4.0, 2.0, 1.0), neighbour_mm=2.0, max_points_per_pair=2000)
     for seed in (0, 1, 2):
         result = register_pair(source, target, pair=dataclasses.replace(PAIR, seed=seed), refine=refine)
         assert not result.accepted
