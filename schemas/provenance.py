@@ -9,15 +9,21 @@ from pydantic import Field, field_validator
 
 from schemas.common import StrictModel
 
-__all__ = ["PROVENANCE_SCHEMA_VERSION", "StageRecord"]
+__all__ = ["PROVENANCE_SCHEMA_VERSION", "StageRecord", "StageName", "STAGE_NAMES"]
 
 PROVENANCE_SCHEMA_VERSION = "1.0"
+
+# every stage's one name, in run order: a closed set (the registry, flows/stages/__init__.py,
+# declares each of them once, and a test holds the two together)
+StageName = Literal["denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh", "export",
+                    "volume", "report", "qa_report"]
+STAGE_NAMES: tuple[str, ...] = StageName.__args__
 
 
 class StageRecord(StrictModel):
     schema_version: Literal["1.0"] = PROVENANCE_SCHEMA_VERSION
     sample_id: str
-    stage: str
+    stage: StageName
     item: str | None = Field(default=None, description="the pass, for per-pass stages")
     cache_key: str = Field(pattern=r"^[0-9a-f]{64}$")
     inputs: dict[str, str] = Field(description="name -> sha256")

@@ -11,15 +11,14 @@ from typing import Any, Literal
 from pydantic import ConfigDict, Field
 
 from schemas.common import StrictModel
+from schemas.provenance import StageName
 from schemas.weld_document import FigureStatistics, Finding, WeldLineFound
 
 __all__ = ["PassPair", "SetupEvidence", "RegistrationSummary", "SurfacePair", "SurfaceMatch", "RefineSummary",
            "SolidChecks", "QualityStatistics", "ElementQuality", "VolumeSets", "FEModelSummary", "Check",
            "WeldReport", "Report", "STAGE_NAME"]
 
-# every stage's one name (the registry, flows/stages/__init__.py, declares them in this order)
-STAGE_NAME = Literal["denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh", "export",
-                     "volume", "report", "qa_report"]
+STAGE_NAME = StageName
 
 
 # --- registration.json ---

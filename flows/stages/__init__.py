@@ -117,6 +117,11 @@ def stage_table() -> str:
 
 
 def _check_registry() -> None:
+    from schemas.provenance import STAGE_NAMES as CLOSED
+
+    if STAGE_NAMES != CLOSED:  # the provenance record's closed set of names is the registry's
+        raise RuntimeError(f"stage registry: the stages {list(STAGE_NAMES)} are not schemas.provenance.StageName "
+                           f"{list(CLOSED)}")
     seen: set[str] = set()
     for s in STAGES:
         missing = [n for n in s.needs if n not in seen]

@@ -21,6 +21,18 @@ def test_names_and_files_are_unique_and_needs_come_first():
         assert s.settings in (None, "*", s.name)
 
 
+def test_a_record_names_only_a_registered_stage():
+    from pydantic import ValidationError
+
+    from schemas.provenance import STAGE_NAMES as CLOSED, StageRecord
+
+    assert CLOSED == STAGE_NAMES
+    with pytest.raises(ValidationError, match="stage"):
+        StageRecord.model_validate({"sample_id": "s", "stage": "meshing", "cache_key": "0" * 64, "inputs": {},
+                                    "outputs": {}, "parameters": {}, "code_version": "c", "host": "h",
+                                    "started": "2026-11-26T00:00:00+00:00", "finished": "2026-11-26T00:00:01+00:00"})
+
+
 def test_array_outputs_name_their_arrays():
     for s in STAGES:
         for output in s.outputs:
