@@ -246,6 +246,9 @@ class VolumeConfig(StrictModel):
     optimize: bool = Field(default=True, description="Netgen's optimizer after gmsh's own")
     max_volume_difference: float = Field(default=0.005, gt=0, le=1, description=(
         "the solid's volume against the surface mesh's, relative: beyond it the stage fails"))
+    timeout_s: float = Field(default=3600.0, gt=0, le=86_400, description=(
+        "gmsh gets this long for each try; beyond it its process is killed and no model is made (said in "
+        "volume.json and the report; the run publishes the rest)"))
 
 
 class QaReportConfig(StrictModel):

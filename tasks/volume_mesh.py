@@ -29,7 +29,7 @@ from scipy.sparse.csgraph import connected_components
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
 from tasks.weld_zone import weld_zone
 
-__all__ = ["VolumeMesh", "VolumeMeshError", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
+__all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
@@ -41,6 +41,10 @@ _FACE_NUMBER = (1, 2, 3, 4)
 
 class VolumeMeshError(ValueError):
     """The surface could not be meshed into one valid solid (the reason in the message)."""
+
+
+class VolumeMeshTimeout(VolumeMeshError):
+    """gmsh did not finish within the time it was given (its process is killed)."""
 
 
 @dataclass(frozen=True)
@@ -84,7 +88,7 @@ def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
 def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm: list[np.ndarray],
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
                    feature_angle_deg: float, optimize: bool, toe_size_mm: float, toe_zone_mm: float,
-                   toe_lines_mm: list[np.ndarray] = (), seed: int = 1) -> VolumeMesh:
+                   timeout_s: float, toe_lines_mm: list[np.ndarray] = (), seed: int = 1) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
     triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
     ``toe_size_mm`` within ``toe_zone_mm`` of the ``toe_lines_mm`` (polylines (k, 3), mm, where the
@@ -92,7 +96,8 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     surface's patches (a patch of a topology it cannot flatten), the surface's own triangles are
     kept as the boundary and only the inside is meshed (``VolumeMesh.surface_remeshed`` False).
     Raises VolumeMeshError when gmsh cannot mesh it either way (an open or self-intersecting
-    surface) or made no tetrahedra."""
+    surface) or made no tetrahedra; VolumeMeshTimeout when gmsh takes longer than ``timeout_s``
+    (each try: a surface gmsh takes pathologically long over is not tried again)."""
     vertices = np.ascontiguousarray(vertices, np.float64)
     triangles = np.ascontiguousarray(triangles, np.int64)
     if len(triangles) == 0:
@@ -106,11 +111,15 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                  toe_size_mm=toe_size_mm, toe_zone_mm=toe_zone_mm)
     remeshed = True
     try:
-        node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, **sizes)
+        node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, timeout_s=timeout_s,
+                                                        **sizes)
+    except VolumeMeshTimeout:
+        raise
     except VolumeMeshError as first:
         remeshed = False
         try:
-            node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False, **sizes)
+            node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False,
+                                                            timeout_s=timeout_s, **sizes)
         except VolumeMeshError as second:
             raise VolumeMeshError(f"{first}; keeping the surface's own triangles: {second}") from second
     if len(element_nodes) == 0:
@@ -144,7 +153,7 @@ _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 _RESULT = b"\n--weldrecon-gmsh-result--\n"
 
 
-def _gmsh_volume(vertices, triangles, weld, **settings):
+def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
     """``_gmsh_volume_here`` in a fresh child process with one thread (see ``_ONE_THREAD``)."""
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, **_ONE_THREAD,
@@ -156,9 +165,12 @@ def _gmsh_volume(vertices, triangles, weld, **settings):
         if os.getppid() != parent:  # this process died before the line above
             os._exit(1)
 
-    done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
-                          input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
-                          preexec_fn=die_with_parent)
+    try:
+        done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
+                              input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
+                              preexec_fn=die_with_parent, timeout=timeout_s)
+    except subprocess.TimeoutExpired:  # the child is killed
+        raise VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)") from None
     if done.returncode != 0 or _RESULT not in done.stdout:
         tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
         raise VolumeMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")

@@ -289,7 +289,10 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     found, problem = store.verified(stage.name, key)
     shared = None
     if found is None and problem is None:  # not made in this folder: made by a run elsewhere?
-        found = store.fetch_shared(stage.name, key)
+        try:
+            found = store.fetch_shared(stage.name, key)
+        except OSError:  # e.g. no space for the copy: made here instead, which says what is wrong if it fails
+            found = None
         shared = None if found is None else str(store.shared)
     if problem is not None:
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,

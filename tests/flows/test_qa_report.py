@@ -85,7 +85,7 @@ def test_the_report_is_the_same_bytes_when_drawn_again(ci_run, ci_sample, tmp_pa
     stored = next((out / "stages" / "qa_report").glob(f"*/{QA_REPORT.name}"))
     again = tmp_path / "run"
     shutil.copytree(out / "stages", again / "stages", ignore=lambda d, names: ["qa_report"] if d.endswith("stages") else [])
-    refs = run_in_process(store=StageStore(again), sample_dir=ci_sample, manifest=load_manifest(ci_sample),
+    refs = run_in_process(store=StageStore(again, shared=False), sample_dir=ci_sample, manifest=load_manifest(ci_sample),
                           config=load_config(CI_CONFIG))
     assert not refs["qa_report"].cached and all(refs[n].cached for n in ("refine", "weld", "mesh", "volume", "report"))
     assert refs["qa_report"].file(QA_REPORT.name).read_bytes() == stored.read_bytes()

@@ -77,7 +77,7 @@ def test_ci_weld_file_carries_uncertainties_verdicts_and_statistics(weld_run):
         assert section.figure(figure).value is not None and section.figure(figure).sigma is not None, figure
     toe = section.toes.minus
     assert toe.toe_radius_mm.sigma is not None and toe.flank_angle_deg.sigma is not None
-    stats = geometry.statistics.toe_radius_mm
+    stats = geometry.statistics["toe_radius_mm"]
     assert stats.min <= stats.p5 <= stats.median <= stats.p95 <= stats.max
     assert stats.min_at is not None and stats.min_at.toe in ("minus", "plus")
     assert geometry.summary.verdict in ("pass", "fail")

@@ -20,7 +20,8 @@ from tasks.volume_mesh import (VolumeMesh, VolumeMeshError, element_quality, pol
 BOX = (40.0, 20.0, 6.0)
 WELD = [np.array([[0.0, -10.0, 3.0], [0.0, 10.0, 3.0]])]
 SIZES = dict(size_mm=4.0, weld_size_mm=0.8, weld_zone_mm=2.0, growth=0.5,
-             feature_angle_deg=40.0, optimize=True, toe_size_mm=0.8, toe_zone_mm=0.0)  # toes: no finer (off)
+             feature_angle_deg=40.0, optimize=True, toe_size_mm=0.8, toe_zone_mm=0.0,  # toes: no finer (off)
+             timeout_s=600.0)
 
 
 def box_surface(size=BOX, n=8, offset=(0.0, 0.0, 0.0)):
@@ -193,6 +194,16 @@ def test_an_open_surface_is_refused():
         tetrahedralize(np.vstack([a[0], b[0]]), np.vstack([a[1], b[1] + len(a[0])]), weld_lines_mm=[], **SIZES)
     with pytest.raises(VolumeMeshError, match="no triangles"):
         tetrahedralize(vertices, triangles[:0], weld_lines_mm=[], **SIZES)
+
+
+def test_gmsh_taking_longer_than_its_time_is_given_up_and_its_process_killed():
+    """A surface gmsh stalls on (seen: a run whose normals a code edit had spoiled meshed for 15
+    minutes) is given up after ``timeout_s`` (subprocess.run kills the child), with no second try."""
+    from tasks.volume_mesh import VolumeMeshTimeout
+
+    vertices, triangles = box_surface((10, 10, 10), n=2)
+    with pytest.raises(VolumeMeshTimeout, match=r"gmsh did not finish within 0.01 s \(volume.timeout_s\)"):
+        tetrahedralize(vertices, triangles, weld_lines_mm=[], **{**SIZES, "timeout_s": 0.01})
 
 
 def test_polyline_samples_keep_the_step_and_the_ends():

@@ -91,7 +91,7 @@ def test_hfmi_groove_depth_width_radius_and_toe_within(spacing):
         assert abs(g.width.value - width) <= 0.1
         assert abs(g.radius.value - radius) <= 0.2
         assert g.toe_within
-        assert toe.radius.value == g.radius.value  # a treated toe's radius is its groove's
+        assert toe.notch_radius.value == g.radius.value  # a treated toe's radius is its groove's
     assert abs(section.height.value - 2.0) <= 0.02
 
 
