@@ -342,7 +342,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     if stop_after is not None and stop_after not in STAGE_NAMES:
         raise ValueError(f"stop after {stop_after!r}: no such stage; the stages are {', '.join(STAGE_NAMES)}")
     log = get_run_logger()
-    for stage in STAGES:  # hash the code now, as imported: an edit during a long run is not credited to it
+    for stage in STAGES:  # import and hash the code now: an edit during a long run is not credited to it
+        stage.load()
         code_version(stage)
     # absolute from here on: MeshLab's Poisson changes the process's working directory while it runs
     sample, out = Path(sample_dir).resolve(), Path(out_dir).resolve()

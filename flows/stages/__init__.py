@@ -94,6 +94,8 @@ def run_in_process(*, store, sample_dir, manifest, config, upto: str | None = No
     Prefect (benchmarks, debugging): stage name -> its ref (a list of refs for per-pass stages)."""
     refs: dict = {}
     for s in STAGES:
+        s.load()
+    for s in STAGES:
         inputs = {name: refs[name] for name in s.needs}
         common = dict(store=store, sample_dir=sample_dir, manifest=manifest, config=config, inputs=inputs)
         if s.per_pass:

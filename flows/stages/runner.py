@@ -88,6 +88,14 @@ class Stage:
         registered on their surfaces, where the stage has one."""
         return _resolve(self.surfaces_body_at if manifest.surfaces and self.surfaces_body_at else self.body_at)
 
+    def load(self) -> None:
+        """Import the stage's bodies and manifest view now. A run does it in its main thread before
+        any stage runs: CPython 3.11 compiling modules in several threads at once can fail
+        ("AST constructor recursion depth mismatch"), and a run's code is the code it started with."""
+        for at in (self.body_at, self.surfaces_body_at, self.manifest_view_at):
+            if at:
+                _resolve(at)
+
     @property
     def body_modules(self) -> tuple[str, ...]:
         """The modules of the stage's bodies (its code version covers them all)."""

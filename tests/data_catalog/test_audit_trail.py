@@ -116,3 +116,25 @@ def test_each_problem_carries_a_kind_that_programs_can_rely_on(tmp_path):
     (run / "stages" / "mesh" / "abc").mkdir(parents=True)  # a stage folder no entry records
     kinds = sorted({p.kind for p in verify_trail(run, heads={"0" * 64: "the catalog"})})
     assert kinds == ["chain", "edited", "head-missing", "sequence", "unfinished-run", "unrecorded"]
+
+
+def test_a_later_run_that_publishes_fewer_results_leaves_the_trail_intact(tmp_path):
+    """results/ is replaced as a whole on publication: a rerun that publishes no FE model (it was
+    not made this time) does not leave the earlier run's model expected; one still lying there is
+    named as recorded by no run."""
+    from data_catalog.hashing import sha256_file
+
+    run = tmp_path / "run"
+    results = run / "results"
+    results.mkdir(parents=True)
+    for name in ("s.stl", "s.inp"):
+        (results / name).write_text(name)
+    audit.append(run, "run-started", sample_id="s")
+    audit.append(run, "run-finished", sample_id="s",
+                 artefacts={f"results/{n}": sha256_file(results / n) for n in ("s.stl", "s.inp")})
+    (results / "s.inp").unlink()  # the rerun's publication replaced results/ without it
+    audit.append(run, "run-started", sample_id="s")
+    audit.append(run, "run-finished", sample_id="s", artefacts={"results/s.stl": sha256_file(results / "s.stl")})
+    assert verify_trail(run) == []
+    (results / "s.inp").write_text("s.inp")  # put back by hand: no run published it
+    assert any("results/s.inp" in str(p) and "no run-finished entry records" in str(p) for p in verify_trail(run))

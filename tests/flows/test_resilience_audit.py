@@ -134,7 +134,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, six_sample
     assert verify_trail(run) == []  # the recomputed outputs match what the trail recorded
 
 
-def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sample, tmp_path):
+def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sample, tmp_path, no_stage_cache):
     from flows.reconstruct import reconstruct_sample
 
     _, report = six_run
