@@ -182,7 +182,8 @@ def test_an_unexpected_error_is_one_line_and_its_traceback_goes_to_a_log(tmp_pat
     assert "Traceback" in log.read_text() and "something the code did not expect" in log.read_text()
 
 
-def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recovers(ci_sample, tmp_path):
+def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recovers(ci_sample, tmp_path,
+                                                                                   no_stage_cache):
     """The run folder on an 8 MiB tmpfs: the denoise stage of some passes meets a full disk. The
     terminal names the passes and the cause, the trail stays intact, and after space is freed the
     same command finishes, remaking what failed and reusing what was complete."""
