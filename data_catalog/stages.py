@@ -130,19 +130,7 @@ class StageStore:
         record, _ = cache.verified(stage, key)  # a damaged entry is set aside there, never copied
         if record is None:
             return None
-        build = self.build_dir(stage)
-        try:
-            shutil.copytree(cache.path(stage, key), build, dirs_exist_ok=True)
-            default_mode(build)
-            try:
-                os.rename(build, self.path(stage, key))
-            except OSError:
-                if not (self.path(stage, key) / RECORD_NAME).is_file():
-                    raise
-                shutil.rmtree(build, ignore_errors=True)  # another run of this folder got there first
-        except BaseException:
-            shutil.rmtree(build, ignore_errors=True)
-            raise
+        self._place_copy(cache.path(stage, key), stage, key)
         return self.lookup(stage, key)
 
     def share(self, stage: str, key: str) -> None:
@@ -152,18 +140,28 @@ class StageStore:
         cache = StageStore(self.shared, shared=False)
         if cache.path(stage, key).exists():
             return
-        build = None
         try:
-            build = cache.build_dir(stage)
-            shutil.copytree(self.path(stage, key), build, dirs_exist_ok=True)
-            default_mode(build)
-            if not cache.path(stage, key).exists():
-                os.rename(build, cache.path(stage, key))
-            else:
-                shutil.rmtree(build, ignore_errors=True)
+            cache._place_copy(self.path(stage, key), stage, key)
         except OSError:  # the cache is a convenience: a full or read-only cache never fails a run
-            if build is not None:
-                shutil.rmtree(build, ignore_errors=True)
+            pass
+
+    def _place_copy(self, source: Path, stage: str, key: str) -> None:
+        """A copy of the stage folder ``source`` put at ``stage``/``key`` here: copied into a build
+        folder, then moved into place atomically; where another copy got there first, that one
+        stays. A failed copy leaves nothing behind."""
+        build = self.build_dir(stage)
+        try:
+            shutil.copytree(source, build, dirs_exist_ok=True)
+            default_mode(build)
+            try:
+                os.rename(build, self.path(stage, key))
+            except OSError:
+                if not (self.path(stage, key) / RECORD_NAME).is_file():
+                    raise
+                shutil.rmtree(build, ignore_errors=True)  # another copy got there first
+        except BaseException:
+            shutil.rmtree(build, ignore_errors=True)
+            raise
 
     def path(self, stage: str, key: str) -> Path:
         return self.root / "stages" / stage / key
