@@ -1,7 +1,16 @@
-"""Shared fixtures: the ``ci`` sample is simulated once per test session."""
+"""Shared fixtures: the ``ci`` sample is simulated once per test session.
+
+The suite runs on every core (pytest-xdist, ``-n auto`` in pyproject.toml). What is costly and
+the same for every worker is made once for the whole session, by the first worker that needs it,
+under a file lock (``_made_once``): the simulated samples and the shared stage cache, so that a
+run one worker made is copied, verified, by the others instead of being computed again."""
 
 from __future__ import annotations
 
+import fcntl
+import os
+import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -12,11 +21,46 @@ CI_CONFIG = Path(__file__).resolve().parents[1] / "deploy" / "configs" / "ci.yam
 from simulator.run import simulate
 
 
+def _session_root(tmp_path_factory) -> Path:
+    """The folder every worker of this session shares (a worker's own base folder's parent)."""
+    base = tmp_path_factory.getbasetemp()
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+
+
+class _SessionLock:
+    """An exclusive lock on ``name`` among the workers of this session (fcntl, released on exit
+    or when the worker dies)."""
+
+    def __init__(self, tmp_path_factory, name: str):
+        self.path = _session_root(tmp_path_factory) / f".{name}.lock"
+
+    def __enter__(self):
+        self._file = open(self.path, "w")
+        fcntl.flock(self._file, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc):
+        fcntl.flock(self._file, fcntl.LOCK_UN)
+        self._file.close()
+
+
+def _made_once(tmp_path_factory, name: str, make: Callable[[Path], object]) -> Path:
+    """``<session root>/name``, made by ``make(path)`` by the first worker that asks for it (the
+    others wait for it, then reuse it); a half-made one (its maker failed) is made again."""
+    target = _session_root(tmp_path_factory) / name
+    done = target.parent / f".{name}.done"
+    with _SessionLock(tmp_path_factory, name):
+        if not done.exists():
+            shutil.rmtree(target, ignore_errors=True)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            make(target)
+            done.touch()
+    return target
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _traceback_logs_in_a_temporary_folder(tmp_path_factory):
     """The command line's traceback logs (flows.cli) go under the session's temporary folder."""
-    import os
-
     os.environ["WELDRECON_LOG_DIR"] = str(tmp_path_factory.mktemp("logs"))
 
 
@@ -26,9 +70,7 @@ def _one_stage_cache_for_the_session(tmp_path_factory):
     tests) shares one stage cache (``$WELDRECON_STAGE_CACHE``, data_catalog.stages.StageStore):
     a stage made once for the same data, settings and code is copied, verified, into the next
     folder that needs it. Tests of recomputation itself turn it off (``no_stage_cache``)."""
-    import os
-
-    os.environ["WELDRECON_STAGE_CACHE"] = str(tmp_path_factory.mktemp("stage-cache"))
+    os.environ["WELDRECON_STAGE_CACHE"] = str(_made_once(tmp_path_factory, "stage-cache", Path.mkdir))
 
 
 @pytest.fixture
@@ -39,9 +81,7 @@ def no_stage_cache(monkeypatch):
 
 @pytest.fixture(scope="session")
 def ci_sample(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ci") / "sample"
-    simulate(preset_config("ci"), out)
-    return out
+    return _made_once(tmp_path_factory, "ci-sample", lambda out: simulate(preset_config("ci"), out))
 
 
 @pytest.fixture(scope="session")
@@ -49,10 +89,13 @@ def ci_config():
     return preset_config("ci")
 
 
-def _reconstructed(sample: Path, out: Path):
-    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report)."""
-    import os
-
+def _reconstructed(sample: Path, out: Path, *, lock=None):
+    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report).
+    ``lock``: a _SessionLock held while it runs, so that a second worker reconstructing the same
+    sample waits and then copies the stages from the stage cache instead of making them too."""
+    if lock is not None:
+        with lock:
+            return _reconstructed(sample, out)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import reconstruct_sample
 
@@ -77,15 +120,15 @@ TJOINT_TOP = ["top-Y01", "top-Y02", "top-Y03", "top-Y04", "top-Y05", "top-Y06", 
 
 @pytest.fixture(scope="session")
 def tjoint_sample(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("tjoint") / "sample"
-    simulate(tjoint_test_config(), out, previews=False)
-    return out
+    return _made_once(tmp_path_factory, "tjoint-sample",
+                      lambda out: simulate(tjoint_test_config(), out, previews=False))
 
 
 @pytest.fixture(scope="session")
 def tjoint_run(tjoint_sample, tmp_path_factory):
     """The T-joint, both setups, reconstructed once with the ci settings: (run folder, report)."""
-    return _reconstructed(tjoint_sample, tmp_path_factory.mktemp("recon-tjoint") / "run")
+    return _reconstructed(tjoint_sample, tmp_path_factory.mktemp("recon-tjoint") / "run",
+                         lock=_SessionLock(tmp_path_factory, "tjoint-run"))
 
 
 @pytest.fixture(scope="session")
@@ -102,13 +145,15 @@ def tjoint_single_sample(tjoint_sample, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def tjoint_single_run(tjoint_single_sample, tmp_path_factory):
-    return _reconstructed(tjoint_single_sample, tmp_path_factory.mktemp("recon-tjoint-single") / "run")
+    return _reconstructed(tjoint_single_sample, tmp_path_factory.mktemp("recon-tjoint-single") / "run",
+                         lock=_SessionLock(tmp_path_factory, "tjoint-single-run"))
 
 
 @pytest.fixture(scope="session")
 def ci_run(ci_sample, tmp_path_factory):
     """The ``ci`` sample reconstructed once: (run folder, report)."""
-    return _reconstructed(ci_sample, tmp_path_factory.mktemp("recon") / "run")
+    return _reconstructed(ci_sample, tmp_path_factory.mktemp("recon") / "run",
+                         lock=_SessionLock(tmp_path_factory, "ci-run"))
 
 
 # a subset of the ci sample that reconstructs on its own (both setups, 3 passes each, the two
@@ -128,7 +173,8 @@ def six_sample(ci_sample, tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def six_run(six_sample, tmp_path_factory):
     """The six-pass subset reconstructed once: (run folder, report)."""
-    return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run")
+    return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run",
+                         lock=_SessionLock(tmp_path_factory, "six-run"))
 
 
 @pytest.fixture(scope="session", autouse=True)

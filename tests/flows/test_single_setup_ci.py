@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from flows.stages.outputs import SPECIMEN
-from tests.conftest import _reconstructed
+from tests.conftest import _reconstructed, _SessionLock
 from tests.flows.cli import run_cli
 from tests.flows.samples import copy_sample
 
@@ -28,7 +28,8 @@ def single(ci_sample, tmp_path_factory):
     shutil.copytree(ci_sample / "truth", sample / "truth")
     manifest = json.loads((sample / "manifest.json").read_text())
     assert [s["name"] for s in manifest["setups"]] == ["top"]
-    return sample, *_reconstructed(sample, tmp_path_factory.mktemp("single-run") / "run")
+    return sample, *_reconstructed(sample, tmp_path_factory.mktemp("single-run") / "run",
+                                       lock=_SessionLock(tmp_path_factory, "single-run"))
 
 
 def test_a_single_setup_reconstructs_without_the_fixture(single):
