@@ -89,19 +89,22 @@ def ci_config():
     return preset_config("ci")
 
 
-def _reconstructed(sample: Path, out: Path, *, lock=None):
-    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report).
-    ``lock``: a _SessionLock held while it runs, so that a second worker reconstructing the same
-    sample waits and then copies the stages from the stage cache instead of making them too."""
+def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None = None):
+    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report),
+    the report as published (tests.flows.samples.as_published; a run stopped after the stage
+    ``stop_after`` publishes none: its stages' refs and metrics only). ``lock``: a _SessionLock held
+    while it runs, so that a second worker reconstructing the same sample waits and then copies
+    the stages from the stage cache instead of making them too."""
     if lock is not None:
         with lock:
-            return _reconstructed(sample, out)
+            return _reconstructed(sample, out, stop_after=stop_after)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import reconstruct_sample
 
     from tests.flows.samples import as_published
 
-    return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest"))
+    return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest",
+                                                stop_after=stop_after))
 
 
 def tjoint_test_config(*, wall_stickers: bool = True):
@@ -128,7 +131,7 @@ def tjoint_sample(tmp_path_factory) -> Path:
 def tjoint_run(tjoint_sample, tmp_path_factory):
     """The T-joint, both setups, reconstructed once with the ci settings: (run folder, report)."""
     return _reconstructed(tjoint_sample, tmp_path_factory.mktemp("recon-tjoint") / "run",
-                         lock=_SessionLock(tmp_path_factory, "tjoint-run"))
+                          lock=_SessionLock(tmp_path_factory, "tjoint-run"))
 
 
 @pytest.fixture(scope="session")
@@ -145,15 +148,18 @@ def tjoint_single_sample(tjoint_sample, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def tjoint_single_run(tjoint_single_sample, tmp_path_factory):
+    """The T-joint's top setup reconstructed up to the surface mesh (the two-setup run goes on to the
+    FE model and the QA page): (run folder, report as tests.flows.samples.as_published gives it)."""
     return _reconstructed(tjoint_single_sample, tmp_path_factory.mktemp("recon-tjoint-single") / "run",
-                         lock=_SessionLock(tmp_path_factory, "tjoint-single-run"))
+                          stop_after="mesh",
+                          lock=_SessionLock(tmp_path_factory, "tjoint-single-run"))
 
 
 @pytest.fixture(scope="session")
 def ci_run(ci_sample, tmp_path_factory):
     """The ``ci`` sample reconstructed once: (run folder, report)."""
     return _reconstructed(ci_sample, tmp_path_factory.mktemp("recon") / "run",
-                         lock=_SessionLock(tmp_path_factory, "ci-run"))
+                          lock=_SessionLock(tmp_path_factory, "ci-run"))
 
 
 # a subset of the ci sample that reconstructs on its own (both setups, 3 passes each, the two
@@ -174,7 +180,7 @@ def six_sample(ci_sample, tmp_path_factory) -> Path:
 def six_run(six_sample, tmp_path_factory):
     """The six-pass subset reconstructed once: (run folder, report)."""
     return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run",
-                         lock=_SessionLock(tmp_path_factory, "six-run"))
+                          lock=_SessionLock(tmp_path_factory, "six-run"))
 
 
 @pytest.fixture(scope="session", autouse=True)

@@ -199,8 +199,11 @@ def test_a_rerun_executes_no_stage_and_a_new_depth_only_meshing(run, ci_sample, 
     assert again["stage_keys"] == first["stage_keys"]
     deeper = tmp_path / "deeper.yaml"
     deeper.write_text(Path(CI_CONFIG).read_text().replace("poisson_depth: 8", "poisson_depth: 7"))
-    changed = as_published(reconstruct_sample(str(ci_sample), str(out), str(deeper)))
-    assert {k for k, v in changed["cached"].items() if not v} == {"mesh", "export", "volume", "report", "qa_report"}
+    # up to the export (that the FE model, the report and the QA page after it are made again when
+    # the mesh changes: tests/flows/test_resilience_audit.py, the rerun after a kill while meshing)
+    changed = reconstruct_sample(str(ci_sample), str(out), str(deeper), stop_after="export")
+    assert {k for k, v in changed.cached.items() if not v} == {"mesh", "export"}
+    assert set(changed.cached) == set(first["stage_keys"]) - {"volume", "report", "qa_report"}
 
 
 def test_the_weld_zone_stays_fine(run, ci_sample):

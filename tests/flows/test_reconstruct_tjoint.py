@@ -71,8 +71,8 @@ def test_two_setups_mesh_lies_on_the_true_surface_and_toes(tjoint_run, tjoint_sa
 
 def test_a_single_setup_reconstructs_the_part_stem_up(tjoint_single_run, tjoint_single_sample):
     _, report = tjoint_single_run
-    assert report["stages"]["segment"]["method"].startswith("single setup")
-    assert report["mesh"]["watertight"]
+    assert report["refs"]["segment"].metrics["method"].startswith("single setup")
+    assert report["refs"]["mesh"].metrics["watertight"]
     refined = pass_misalignment(tjoint_single_sample, REFINED.read(report["refs"]["refine"]).T_common_pass)
     assert refined.max_mm.max() < 0.040, dict(zip(refined.pass_ids, np.round(1000 * refined.max_mm)))
     assert np.median(refined.median_mm) < 0.012
