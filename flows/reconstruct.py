@@ -27,7 +27,8 @@ from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
 from flows.preflight import (check_dask_scheduler, check_out_dir, check_run_folder, load_config, trail_problems,
                              wait_for_file)
-from flows.stages import STAGE_NAMES, STAGES, Stage, StageFailed, StageRef, code_version, run_stage
+from flows.stages import (STAGE_NAMES, STAGES, Stage, StageFailed, StageRef, code_version, needed_for,
+                          run_stage)
 from flows.stages.contracts import each
 from flows.stages.outputs import REPORT
 from flows.stages.report import RESULTS, publish
@@ -326,9 +327,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     another is refused, and so is a run folder that holds another sample's runs. ``trail_head``:
     the hash of the run-finished entry the caller kept (the catalog's); a trail that no longer holds
     it, or is otherwise not intact, is recorded as such (``trail-problems-found``) before this run
-    appends to it, and ``audit verify`` names that entry from then on. ``stop_after``: run the
-    stages up to and including this one (registry order) and stop: nothing is published, the
-    trail records "run-stopped", the result has no report.
+    appends to it, and ``audit verify`` names that entry from then on. ``stop_after``: run this
+    stage and the stages it needs (``flows.stages.needed_for``) and stop: nothing is published,
+    the trail records "run-stopped", the result has no report.
 
     The deliverables, the report and the settings they were made with are published into
     ``out_dir/results/`` as one unit, and the run-finished entry that records them is appended
@@ -380,7 +381,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     try:
         if follow_timeout_s is not None:
             pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log))
-        for stage in STAGES[:STAGE_NAMES.index(stop_after) + 1] if stop_after else STAGES:
+        for stage in needed_for(stop_after) if stop_after else STAGES:
             if stage.name in pending:  # submitted as its passes landed
                 continue
             if not stage.per_pass:  # the per-pass stages all finish first, failures named in registry order

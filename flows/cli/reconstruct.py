@@ -23,7 +23,7 @@ def add_reconstruct(sub) -> None:
     rec.add_argument("--dask", metavar="ADDRESS", help="run the per-pass work on a Dask cluster: a scheduler "
                                                        "address, or local:N for N local worker processes "
                                                        "(default: $WELDRECON_DASK, else threads here)")
-    rec.add_argument("--stop-after", metavar="STAGE", help="run the stages up to and including STAGE (see "
+    rec.add_argument("--stop-after", metavar="STAGE", help="run STAGE and the stages it needs (see "
                      "`weldrecon stages`) and stop; nothing is published")
     rec.add_argument("--follow", action="store_true", help="follow a scan in progress: start each pass's stages as "
                      "soon as its store is complete on disk (the manifest may come first)")
@@ -65,11 +65,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         check_dask_scheduler(dask)
     from flows.progress import TrailProgress
     from flows.reconstruct import prefect_api_for_workers, reconstruct_sample
-    from flows.stages import STAGES
+    from flows.stages import STAGES, needed_for
 
     log_to_file(out / "logs", "reconstruct")
     n_passes = len(manifest.passes())
-    upto = STAGES[:[s.name for s in STAGES].index(stop_after) + 1] if stop_after else STAGES
+    upto = needed_for(stop_after) if stop_after else STAGES
     expected = [(s.name, n_passes if s.per_pass else 1) for s in upto]
     with contextlib.ExitStack() as stack:
         # the run's own temporary API server, which the kernel stops if this process dies

@@ -13,7 +13,8 @@ from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
-           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "run_in_process", "stage_table"]
+           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "needed_for", "run_in_process",
+           "stage_table"]
 
 
 def _sample_wide(manifest, entry):
@@ -89,21 +90,31 @@ def downstream_of(name: str) -> list[str]:
     return [s for s in STAGE_NAMES if s in below and s != name]
 
 
+def needed_for(name: str) -> tuple[Stage, ...]:
+    """``name`` and the stages whose outputs it reads, directly or through others, in run order:
+    what a run stopped after ``name`` makes (``mesh``: not ``weld``, which only the FE model reads)."""
+    needed = {stage(name).name}
+    for s in reversed(STAGES):
+        if s.name in needed:
+            needed.update(s.needs)
+    return tuple(s for s in STAGES if s.name in needed)
+
+
 def run_in_process(*, store, sample_dir, manifest, config, upto: str | None = None) -> dict:
-    """Every stage (up to and including ``upto``) one after the other in this process, without
-    Prefect (benchmarks, debugging): stage name -> its ref (a list of refs for per-pass stages)."""
+    """Every stage (or ``upto`` and the stages it needs, ``needed_for``) one after the other in
+    this process, without Prefect (benchmarks, debugging): stage name -> its ref (a list of refs
+    for per-pass stages)."""
     refs: dict = {}
-    for s in STAGES:
+    stages = STAGES if upto is None else needed_for(upto)
+    for s in stages:
         s.load()
-    for s in STAGES:
+    for s in stages:
         inputs = {name: refs[name] for name in s.needs}
         common = dict(store=store, sample_dir=sample_dir, manifest=manifest, config=config, inputs=inputs)
         if s.per_pass:
             refs[s.name] = [run_stage(s, entry=e, **common) for _, e in manifest.passes()]
         else:
             refs[s.name] = run_stage(s, **common)
-        if s.name == upto:
-            break
     return refs
 
 

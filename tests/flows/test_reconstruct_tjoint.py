@@ -90,7 +90,8 @@ def test_without_the_wall_stickers_the_setups_are_not_matched_wrongly(tmp_path):
     sample = tmp_path / "sample"
     simulate(tjoint_test_config(wall_stickers=False), sample, previews=False)
     with pytest.raises(Exception) as error:
-        reconstruct_sample(str(sample), str(tmp_path / "run"), str(_ci_config()), started_by="pytest")
+        reconstruct_sample(str(sample), str(tmp_path / "run"), str(_ci_config()), started_by="pytest",
+                           stop_after="registration")  # where it stops
     message = str(error.value)
     # measured: "setups top and bottom (37 and 30 targets): no rigid transform brings 3 targets of the
     # two sets together; ... (targets that stay within 5 deg and 3 mm are the fixture's)"

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from flows.stages import STAGE_NAMES, STAGES, downstream_of, stage, stage_table
+from flows.stages import STAGE_NAMES, STAGES, downstream_of, needed_for, stage, stage_table
 from flows.stages.contracts import ArrayFile
 
 REPO = Path(__file__).resolve().parents[2]
@@ -50,6 +50,19 @@ def test_downstream_and_lookup():
     assert downstream_of("qa_report") == []
     with pytest.raises(KeyError, match="no stage 'surface'"):
         stage("surface")
+
+
+def test_a_stop_makes_the_stage_and_what_it_needs_only():
+    def names(stop):
+        return [s.name for s in needed_for(stop)]
+
+    assert names("denoise") == ["denoise"]
+    assert names("refine") == ["denoise", "targets", "registration", "refine"]
+    assert names("mesh") == ["denoise", "targets", "registration", "refine", "merge", "segment", "mesh"]  # no weld
+    assert names("volume") == [n for n in STAGE_NAMES if n not in ("export", "report", "qa_report")]
+    assert names("qa_report") == [n for n in STAGE_NAMES]
+    with pytest.raises(KeyError, match="no stage 'meshing'"):
+        needed_for("meshing")
 
 
 def test_the_docs_show_the_registry_as_it_is():

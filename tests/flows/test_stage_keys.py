@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from data_catalog.audit import read_trail, verify_trail
-from flows.stages import STAGE_NAMES, downstream_of
+from flows.stages import downstream_of, needed_for
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -104,9 +104,9 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_
     expected_rerun = {"denoise", *downstream_of("denoise")}
     for (stage, item), cached in reused.items():
         assert cached == (stage not in expected_rerun), (stage, item, cached)
-    ran = STAGE_NAMES[:STAGE_NAMES.index(LAST) + 1]
-    assert {s for s, _ in reused} == set(ran)
-    assert {"targets", "registration"} < set(ran) and {"refine", "merge", "weld", "mesh"} < expected_rerun
+    ran = {s.name for s in needed_for(LAST)}
+    assert {s for s, _ in reused} == ran
+    assert {"targets", "registration"} < ran and {"refine", "merge", "segment", "mesh"} < ran & expected_rerun
     assert again["keys"]["targets"] == first["stage_keys"]["targets"]
     assert again["keys"]["registration"] == first["stage_keys"]["registration"]
     assert all(a != b for a, b in zip(again["keys"]["denoise"], first["stage_keys"]["denoise"]))
