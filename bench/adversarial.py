@@ -660,10 +660,11 @@ def report_flags(trial: Trial, run: Path) -> None:
     """A successful run's report.json "checks" that are not ok count as flagged."""
     if trial.main is None or trial.main.rc != 0:
         return
+    from flows.stages.outputs import REPORT
+
     with contextlib.suppress(OSError, ValueError):
-        report = json.loads((run / "results" / "report.json").read_text())
-        trial.flags += [f"report.json: pass {c.get('pass')}: {c.get('check')}: {c.get('what')}"
-                        for c in report.get("checks", []) if c.get("result") != "ok"]
+        report = REPORT.read_path(run / "results" / "report.json")
+        trial.flags += [f"report.json: pass {c.pass_}: {c.check}: {c.what}" for c in report.checks if c.result != "ok"]
 
 
 def reconstruct_edited(trial: Trial, edit: Callable[[Path], None] | None = None, *, config: Path | str | None = None,
@@ -1373,8 +1374,9 @@ def rechain(entries: list[dict]) -> list[bytes]:
 
 
 def stage_folder(ws: Path, stage: str) -> Path:
-    report = json.loads((ws / "runs" / SAMPLE_ID / "results" / "report.json").read_text())
-    key = report["stage_keys"][stage]
+    from flows.stages.outputs import REPORT
+
+    key = REPORT.read_path(ws / "runs" / SAMPLE_ID / "results" / "report.json").stage_keys[stage]
     return ws / "runs" / SAMPLE_ID / "stages" / stage / (key if isinstance(key, str) else key[0])
 
 

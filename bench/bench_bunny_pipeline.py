@@ -82,8 +82,10 @@ def final_poses(case: dict) -> tuple[np.ndarray, dict, list[np.ndarray]]:
     from data_catalog.scans import read_scan
     from data_catalog.stages import load_arrays
 
-    report = json.loads((case["run"] / "results" / "report.json").read_text())
-    refined = load_arrays(case["run"] / "stages" / "refine" / report["stage_keys"]["refine"] / "refined.zarr",
+    from flows.stages.outputs import REPORT
+
+    report = REPORT.read_path(case["run"] / "results" / "report.json")
+    refined = load_arrays(case["run"] / "stages" / "refine" / report.stage_keys["refine"] / "refined.zarr",
                           "T_common_pass")["T_common_pass"]
     manifest = load_manifest(case["sample"])
     T, points = [], []
@@ -94,16 +96,16 @@ def final_poses(case: dict) -> tuple[np.ndarray, dict, list[np.ndarray]]:
     return np.array(T), report, points
 
 
-def mesh_figures(case: dict, report: dict, G: np.ndarray, zipper) -> dict:
+def mesh_figures(case: dict, report, G: np.ndarray, zipper) -> dict:
     import open3d as o3d
     from scipy.spatial import cKDTree
 
     from data_catalog.stages import load_arrays
 
-    mesh = o3d.io.read_triangle_mesh(str(case["run"] / "results" / f"{report['sample_id']}.ply"))
+    mesh = o3d.io.read_triangle_mesh(str(case["run"] / "results" / f"{report.sample_id}.ply"))
     v = np.asarray(mesh.vertices) @ G[:3, :3].T + G[:3, 3]
     t = np.asarray(mesh.triangles)
-    merged = load_arrays(case["run"] / "stages" / "merge" / report["stage_keys"]["merge"] / "merged.zarr",
+    merged = load_arrays(case["run"] / "stages" / "merge" / report.stage_keys["merge"] / "merged.zarr",
                          "points")["points"] @ G[:3, :3].T + G[:3, 3]
 
     def distances(vertices, triangles, query):
@@ -116,7 +118,7 @@ def mesh_figures(case: dict, report: dict, G: np.ndarray, zipper) -> dict:
 
     zv, zt = zipper
     measured = cKDTree(merged).query(v, distance_upper_bound=1.0, workers=1)[0] < np.inf
-    return dict(vertices=int(len(v)), watertight=bool(report["mesh"]["watertight"]),
+    return dict(vertices=int(len(v)), watertight=bool(report.mesh["watertight"]),
                 lab_to_ours=figures(distances(v, t, zv)), ours_to_lab=figures(distances(zv, zt, v[measured])))
 
 
@@ -160,7 +162,7 @@ def main() -> int:
         rows[label] = pose_errors(T, T_lab, points)
         G = T_lab[0] @ np.linalg.inv(T[0])  # the common frame into the lab's: bun000 where the lab put it
         meshes[label] = mesh_figures(case, report, G, zipper)
-        methods[label] = sorted(set(report["registration_method"].values()))
+        methods[label] = sorted(set(report.registration_method.values()))
     print("| scan | (a) start deg / mm | (a) given poses, refined: deg / mm | (b) no poses: deg / mm |")
     print("|---|---|---|---|")
     for k, s in enumerate(SCANS):

@@ -13,7 +13,7 @@ import open3d as o3d
 import pytest
 
 from data_catalog.truth import read_true_toes
-from flows.stages.outputs import MESH, REFINED, REGISTRATION
+from flows.stages.outputs import MESH, REFINED, REGISTRATION, REGISTRATION_SUMMARY
 from simulator.evaluate import fit_gauge, pass_misalignment
 from simulator.run import simulate
 from tasks.weld_zone import PolylineZone
@@ -43,10 +43,10 @@ def _mesh_distances(sample, report):
 
 def test_two_setups_meet_at_the_walls_and_register_as_the_ci_sample_does(tjoint_run, tjoint_sample):
     _, report = tjoint_run
-    assert report["mesh"]["watertight"]
-    between = report["registration"]["between_setups"]
+    assert report["refs"]["mesh"].metrics["watertight"]
+    between = REGISTRATION_SUMMARY.read(report["refs"]["registration"]).between_setups
     # measured: 15 targets brought together against a runner-up of 7 (the table's stickers)
-    assert len(between) == 1 and between[0]["targets"] >= 10 and between[0]["runner_up"] < 0.75 * between[0]["targets"]
+    assert len(between) == 1 and between[0].targets >= 10 and between[0].runner_up < 0.75 * between[0].targets
     targets = pass_misalignment(tjoint_sample, REGISTRATION.open(report["refs"]["registration"]).T_common_pass)
     refined = pass_misalignment(tjoint_sample, REFINED.read(report["refs"]["refine"]).T_common_pass)
     # measured (ci settings): worst 61 um on targets alone (median of pass medians 11), 25 um refined (6.9)
