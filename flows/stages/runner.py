@@ -11,7 +11,6 @@ import functools
 import hashlib
 import importlib
 import importlib.metadata
-import importlib.util
 import json
 import os
 import shutil
@@ -133,18 +132,27 @@ def _rebuild_failure(stage, item, message, retryable) -> StageFailed:
     return StageFailed(stage, item, message, retryable=retryable)
 
 
+_ROOT = Path(__file__).resolve().parents[2]  # the folder of the project's packages (_PROJECT)
+
+
 def _module_source(name: str) -> tuple[str, str] | None:
-    try:
-        spec = importlib.util.find_spec(name)
-    except (ImportError, AttributeError, ValueError):  # a name imported from a module, not a module
-        return None
-    if spec is None or spec.origin is None or not spec.origin.endswith(".py"):
-        return None
-    return spec.origin, Path(spec.origin).read_text(encoding="utf-8")
+    """A project module's file and source, found beside this one's packages without importing it
+    (a parent package's import would run it); None for a name imported from a module."""
+    base = _ROOT.joinpath(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return str(path), path.read_text(encoding="utf-8")
+    return None
 
 
-def _imported_names(module: str, source: str) -> set[str]:
-    """Every module a source file imports, at top level or inside functions."""
+def _imported_names(module: str, source: str) -> frozenset[str]:
+    """Every module a source file imports, at top level or inside functions (parsed once per
+    module and source in a process: the stages share most of their modules)."""
+    return _parsed_imports(module, hashlib.sha256(source.encode()).hexdigest(), source)
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed_imports(module: str, digest: str, source: str) -> frozenset[str]:
     found: set[str] = set()
     package = module if module.endswith("__init__") else module.rpartition(".")[0]
     for node in ast.walk(ast.parse(source)):
@@ -157,7 +165,7 @@ def _imported_names(module: str, source: str) -> set[str]:
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
             found.add(base)
             found.update(f"{base}.{alias.name}" for alias in node.names)
-    return found
+    return frozenset(found)
 
 
 _PARSING = threading.Lock()  # CPython 3.11's ast.parse is not safe in several threads at once
