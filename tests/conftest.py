@@ -7,6 +7,7 @@ run one worker made is copied, verified, by the others instead of being computed
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import os
 import shutil
@@ -95,16 +96,14 @@ def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None
     ``stop_after`` publishes none: its stages' refs and metrics only). ``lock``: a _SessionLock held
     while it runs, so that a second worker reconstructing the same sample waits and then copies
     the stages from the stage cache instead of making them too."""
-    if lock is not None:
-        with lock:
-            return _reconstructed(sample, out, stop_after=stop_after)
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import reconstruct_sample
 
     from tests.flows.samples import as_published
 
-    return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest",
-                                                stop_after=stop_after))
+    with lock or contextlib.nullcontext():
+        return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest",
+                                                    stop_after=stop_after))
 
 
 def tjoint_test_config(*, wall_stickers: bool = True):

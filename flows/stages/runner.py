@@ -145,14 +145,9 @@ def _module_source(name: str) -> tuple[str, str] | None:
     return None
 
 
+@functools.cache  # once per module and source in a process: the stages share most of their modules
 def _imported_names(module: str, source: str) -> frozenset[str]:
-    """Every module a source file imports, at top level or inside functions (parsed once per
-    module and source in a process: the stages share most of their modules)."""
-    return _parsed_imports(module, hashlib.sha256(source.encode()).hexdigest(), source)
-
-
-@functools.lru_cache(maxsize=None)
-def _parsed_imports(module: str, digest: str, source: str) -> frozenset[str]:
+    """Every module a source file imports, at top level or inside functions."""
     found: set[str] = set()
     package = module if module.endswith("__init__") else module.rpartition(".")[0]
     for node in ast.walk(ast.parse(source)):

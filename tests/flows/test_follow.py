@@ -23,13 +23,9 @@ import pytest
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME
-from tests.flows.cli import REPO, run_cli
+from tests.flows.cli import REPO, cli_env, run_cli
 
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
-def _env() -> dict[str, str]:
-    """This process's environment as it is when the command starts (the session's Prefect API and
-    stage cache are set after the tests are collected)."""
-    return dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING")
 
 
 def _digest(path: Path) -> str:
@@ -61,7 +57,7 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     with open(tmp_path / "follow.err", "w") as err:
         follow = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(sample), "--out", str(out),
                                    "--follow", "--follow-timeout", "600", "--config", str(CI_CONFIG)],
-                                  cwd=REPO, env=_env(), stdout=subprocess.DEVNULL, stderr=err)
+                                  cwd=REPO, env=cli_env(), stdout=subprocess.DEVNULL, stderr=err)
         try:
             for store in stores[:-1]:
                 _land(store, sample / "passes")
@@ -90,7 +86,7 @@ def test_a_paced_scan_shows_the_plan_first_and_lands_the_same_passes_at_the_robo
     sample = tmp_path / "live"
     seen: dict[str, float] = {}
     scan = subprocess.Popen([sys.executable, "-m", "flows.cli", "simulate", "--preset", "ci", "--no-preview",
-                             "--pace", "x40", str(sample)], cwd=REPO, env=_env(), stdout=subprocess.PIPE,
+                             "--pace", "x40", str(sample)], cwd=REPO, env=cli_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         while scan.poll() is None:  # what a follower sees, in order

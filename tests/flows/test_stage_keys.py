@@ -1,6 +1,6 @@
 """Cache keys cover all the code a stage runs: an edited helper recomputes its stage and the
 stages downstream of it, never the others (a real flow on the ``ci`` sample's six-pass subset,
-run from an edited copy of the code, up to the surface mesh: the FE model, the report and the QA
+run from an edited copy of the code, up to the mesh's export: the FE model, the report and the QA
 page downstream of it are keyed the same way, by ``downstream_of``, and their recomputation after
 an upstream change is what every other rerun test sees)."""
 
@@ -26,10 +26,9 @@ PACKAGES = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 # neighbours' distances 5 % longer in every other column, so that a few borderline points change
 # side of the threshold and the denoised cloud changes a little (squaring it, as this test once
 # did, spoilt the cloud so that gmsh stalled on its mesh for a quarter of an hour)
-# the edited run stops after this stage
-LAST = "export"
 HELPER_EDIT = ("tasks/denoise.py", "                out[i - row0, j] = s / k\n",
                "                out[i - row0, j] = s / k * (1.0 + 0.05 * (j % 2))\n")
+LAST = "export"  # the edited run stops after this stage
 
 
 def _code_copy(root: Path, edit: tuple[str, str, str] | None = None) -> Path:
@@ -82,9 +81,8 @@ def base_versions(tmp_path_factory) -> dict[str, str]:
 ])
 def test_editing_a_module_changes_the_code_version_of_the_stages_that_run_it(base_versions, tmp_path, path, old, new,
                                                                             changed):
-    base = base_versions
     edited = _versions(_code_copy(tmp_path / "edited", (path, old, new)))
-    assert {name for name in base if base[name] != edited[name]} == changed
+    assert {name for name in base_versions if base_versions[name] != edited[name]} == changed
 
 
 def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_sample, tmp_path):
