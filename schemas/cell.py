@@ -13,7 +13,7 @@ import re
 from pathlib import PurePosixPath
 from typing import Literal
 
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, model_validator
 from typing_extensions import Annotated
 
 from schemas.common import AwareDatetime, Pose4x4, StrictModel

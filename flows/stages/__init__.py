@@ -13,60 +13,50 @@ from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, StageRef
 from flows.stages.runner import Stage, StageContext, StageFailed, code_version, pass_hash, run_stage
 
 __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext", "StageFailed", "StageRef",
-           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "needed_for", "run_in_process",
-           "stage_table"]
-
-
-def _sample_wide(manifest, entry):
-    return {"passes": [e.pass_id for _, e in manifest.passes()]}
-
-
-def _sample_wide_grids(manifest, entry):
-    """The passes and the pitch of each one's grid (refine reads the grids thinned by it)."""
-    pitches = [None if manifest.surfaces else list(manifest.grid_pitch_mm(e)) for _, e in manifest.passes()]
-    return {**_sample_wide(manifest, entry), "pitch_mm": pitches}
+           "ArrayFile", "JsonFile", "MeshFile", "code_version", "pass_hash", "downstream_of", "needed_for",
+           "run_in_process", "stage_table"]
 
 
 STAGES: tuple[Stage, ...] = (
-    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), "flows.stages.denoise:denoise", "flows.stages.passes:pass_view",
+    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), "flows.stages.denoise:denoise", "flows.stages.views:pass_view",
           "ingest the pass (robot poses), remove statistical outliers, fit normals on the grid; streamed in blocks"),
-    Stage("targets", True, (), "targets", (outputs.TARGETS,), "flows.stages.targets:targets", "flows.stages.targets:targets_view",
+    Stage("targets", True, (), "targets", (outputs.TARGETS,), "flows.stages.targets:targets", "flows.stages.views:targets_view",
           "sticker targets: Hough circles, sub-pixel 3-D rim fit; streamed in blocks"),
     Stage("registration", False, ("targets",), "registration",
           (outputs.REGISTRATION, outputs.REGISTRATION_SUMMARY), "flows.stages.registration:register",
-          "flows.stages.registration:setups_view",
+          "flows.stages.views:setups_view",
           "match targets between passes, solve all pass poses; imported scans: none (stage refine registers them)",
           surfaces_body_at="flows.stages.registration:no_target_registration"),
     Stage("refine", False, ("denoise", "registration"), "refine", (outputs.REFINED, outputs.REFINE_SUMMARY),
-          "flows.stages.refine:refine", "flows.stages:_sample_wide_grids", "all pass poses on targets and overlapping surfaces together; imported "
+          "flows.stages.refine:refine", "flows.stages.views:sample_wide_grids", "all pass poses on targets and overlapping surfaces together; imported "
           "scans (registration: surfaces) on their surfaces alone, from given poses or globally",
           surfaces_body_at="flows.stages.surfaces:refine_on_surfaces"),
-    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), "flows.stages.merge:merge", "flows.stages.merge:merge_view",
+    Stage("merge", False, ("denoise", "refine"), "merge", (outputs.MERGED,), "flows.stages.merge:merge", "flows.stages.views:weld_lines_view",
           "box-grid merge in the common frame, out of core; coarse cells where the surface is flat, "
           "away from the weld"),
     Stage("segment", False, ("merge", "refine"), "segment", (outputs.SPECIMEN,), "flows.stages.segment:segment",
-          "flows.stages.segment:segment_view",
+          "flows.stages.views:segment_view",
           "remove unwanted objects (the fixture): components of occupied grid cells holding the part's stickers; "
           "a single setup: the fixture's plane, the drawing's box, one body of the part's size"),
     Stage("weld", False, ("segment", "refine"), "weld", (outputs.WELD_GEOMETRY, outputs.WELD_TOES), "flows.stages.weld:weld",
-          "flows.stages.weld:weld_view",
+          "flows.stages.views:weld_view",
           "the weld measured on the specimen's points: sections every 1 mm, toe radius, flank angle, height, "
           "undercut, misalignment, HFMI grooves, each with its uncertainty; judged against acceptance limits"),
-    Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), "flows.stages.mesh:mesh", "flows.stages:_sample_wide",
+    Stage("mesh", False, ("segment",), "mesh", (outputs.MESH,), "flows.stages.mesh:mesh", "flows.stages.views:sample_wide",
           "screened Poisson (MeshLab) on the merged points and normals"),
-    Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), "flows.stages.export:export", "flows.stages:_sample_wide",
+    Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), "flows.stages.export:export", "flows.stages.views:sample_wide",
           "binary STL and PLY"),
     Stage("volume", False, ("refine", "weld", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY,
                                                      outputs.ELEMENT_QUALITY),
-          "flows.stages.volume:volume", "flows.stages.placement:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
+          "flows.stages.volume:volume", "flows.stages.views:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
           "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
     Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
                             "export", "volume"), "*",
-          (outputs.REPORT,), "flows.stages.report:report", "flows.stages.report:report_view", "the sample's report"),
+          (outputs.REPORT,), "flows.stages.report:report", "flows.stages.views:report_view", "the sample's report"),
     Stage("qa_report", False, ("denoise", "targets", "registration", "refine", "segment", "weld", "mesh", "volume",
                                "report"), "qa_report", (outputs.QA_REPORT,), "flows.stages.qa_report:qa_report",
-          "flows.stages.qa_report:qa_report_view",
+          "flows.stages.views:qa_report_view",
           "the QA report people read: one self-contained HTML page (coverage, stickers, registration graph, "
           "disagreement of overlapping passes, mesh renderings, weld sections and figures, FE model, provenance)"),
 )

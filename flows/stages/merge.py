@@ -23,14 +23,12 @@ import numpy as np
 from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
 from flows.stages.contracts import block_rows, zarr_array
-from flows.stages.placement import sample_weld_zone, weld_lines_view
-from schemas.manifest import SampleManifest
+from flows.stages.placement import sample_weld_zone
 from tasks.merge import (CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells,
                          combine_cell_sums, transform_measured)
 
-__all__ = ["merge", "merge_view"]
+__all__ = ["merge"]
 
-merge_view = weld_lines_view  # what the merge reads of the manifest
 
 SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all

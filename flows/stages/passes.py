@@ -11,7 +11,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -20,7 +19,7 @@ from flows.stages.contracts import BLOCK_POINTS, block_rows
 from schemas.manifest import PassEntry, SampleManifest
 from tasks.ingest import profile_points, sensor_poses
 
-__all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "load_pass_points", "pass_view"]
+__all__ = ["BLOCK_POINTS", "PassBlock", "open_entry", "pass_blocks", "block_rows", "load_pass_points"]
 
 @dataclass(frozen=True)
 class PassBlock:
@@ -95,11 +94,3 @@ def load_pass_points(sample_dir: Path, manifest: SampleManifest,
     reader = open_entry(sample_dir, entry)
     block = _block(reader, manifest, entry, 0, reader.n_profiles, slice(0, reader.n_profiles))
     return block.data, block.T_world_sensor, block.points
-
-
-def pass_view(manifest: SampleManifest, entry: PassEntry | None) -> dict[str, Any]:
-    """What a per-pass stage reads from the manifest besides the pass file: the scanner (hand-eye
-    transform) and the pass's entry (its nominal motion)."""
-    assert entry is not None
-    return {"scanner": None if manifest.scanner is None else manifest.scanner.model_dump(mode="json"),
-            "pass": entry.model_dump(mode="json", exclude={"file", "content_sha256"})}

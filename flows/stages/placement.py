@@ -15,7 +15,7 @@ from schemas.manifest import SampleManifest
 from tasks.frames import apply
 from tasks.weld_zone import WeldZone, weld_zone
 
-__all__ = ["weld_lines_common", "weld_lines_view", "T_common_specimen", "weld_frame", "sample_weld_zone", "model_weld_zone"]
+__all__ = ["weld_lines_common", "T_common_specimen", "weld_frame", "sample_weld_zone", "model_weld_zone"]
 
 
 def weld_lines_common(manifest: SampleManifest, T_common_pass: np.ndarray) -> list[tuple[np.ndarray, float]]:
@@ -62,12 +62,3 @@ def model_weld_zone(manifest: SampleManifest, T_common_pass: np.ndarray, config)
     return sample_weld_zone(manifest, T_common_pass, config.volume.weld_zone_mm)
 
 
-def weld_lines_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
-    """What a stage that treats the weld apart reads of the manifest: the passes (in order), each
-    setup's nominal placement and tolerance, and the weld lines (specimen frame, mm; a 1.0 and a
-    1.1 manifest of one part give the same lines, hence the same key)."""
-    return {"passes": [e.pass_id for _, e in manifest.passes()],
-            "weld_lines_mm": [[list(p) for p in line.points_mm] for line in manifest.weld_lines()],
-            "setups": [{"name": s.name, "passes": [e.pass_id for e in s.passes],
-                        "T_world_specimen_nominal": s.T_world_specimen_nominal,
-                        "placement_tolerance_mm": s.placement_tolerance_mm} for s in manifest.setups]}

@@ -39,7 +39,6 @@ from flows.stages.qa_audit import AUDIT_MARK
 from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION,
                                   REGISTRATION_SUMMARY, REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
-from schemas.manifest import SampleManifest
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, Finding, WeldGeometry
 from tasks.coverage import CoverageFigures, FaceAccumulator, coverage_figures
@@ -51,21 +50,10 @@ from tasks.report_figures import (along_weld, face_map, histogram, intensity_ima
 from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut
 from tasks.weld_zone import WeldZone
 
-__all__ = ["qa_report", "qa_report_view"]
+__all__ = ["qa_report"]
 
 _ENV = Environment(loader=PackageLoader("flows", "templates"), autoescape=select_autoescape(["html", "j2"]),
                    undefined=StrictUndefined, keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
-
-
-def qa_report_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
-    """What the report reads of the manifest: the passes by setup, the part, the weld, the stickers."""
-    return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()],
-            "specimen": manifest.specimen.model_dump(mode="json") if manifest.specimen is not None else None,
-            "weld": None if manifest.weld is None else manifest.weld.model_dump(mode="json"),
-            "weld_lines_mm": [[list(p) for p in line.points_mm] for line in manifest.weld_lines()],
-            "setups": [{"name": s.name, "first_pass": s.passes[0].pass_id,
-                        "T_world_specimen_nominal": s.T_world_specimen_nominal} for s in manifest.setups],
-            "sticker_diameter_mm": manifest.sticker_diameter_mm}
 
 
 def _uri(png: bytes) -> str:

@@ -12,12 +12,7 @@ from schemas.stage_documents import PassPair, RegistrationSummary, SetupEvidence
 from tasks.graph import register_passes
 from tasks.registration import RegistrationError
 
-__all__ = ["register", "setups_view"]
-
-
-def setups_view(manifest, entry) -> dict[str, Any]:
-    """The passes in order, each with its setup."""
-    return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()], "registration": manifest.registration}
+__all__ = ["register", "no_target_registration"]
 
 
 def no_target_registration(ctx) -> dict[str, Any]:

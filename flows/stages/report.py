@@ -21,14 +21,10 @@ from flows.stages.qa_audit import UNVERIFIED, fill_audit
 from schemas.stage_documents import Check, FEModelSummary, Report, WeldReport
 from schemas.weld_document import WeldGeometry
 
-__all__ = ["report", "report_view", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
+__all__ = ["report", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
-
-
-def report_view(manifest, entry) -> dict[str, Any]:
-    return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()]}
 
 
 def _deliverables(sample_id: str) -> dict[str, tuple[str, str]]:

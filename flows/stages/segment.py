@@ -21,31 +21,14 @@ import numpy as np
 
 from flows.stages.contracts import zarr_array
 from flows.stages.outputs import MERGED, REFINED, SPECIMEN
-from schemas.manifest import SampleManifest
 from tasks.segment import keep_specimen_components
 from tasks.single_setup import (Underside, fill_underside, inside_drawing_box, keep_part_single_setup,
                                 principal_extents_mm)
 
-__all__ = ["segment", "segment_view"]
+__all__ = ["segment"]
 
 _ROWS = 1 << 20  # merged points per block written
 _BOX_MARGIN_MM = 2.0  # the drawing box grown beyond the placement tolerance
-
-
-def segment_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
-    """What the segment reads of the manifest: the passes (in order), the part's drawing box, and
-    the first setup's nominal placement and tolerance (one setup: ``single_setup``; more:
-    ``first_setup``, the drawing box's placement)."""
-    view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()],
-                            "bounds_mm": None if manifest.specimen is None else [list(b) for b in manifest.specimen.bounds_mm()]}
-    if manifest.surfaces:
-        view["registration"] = manifest.registration
-    else:
-        setup = manifest.setups[0]
-        placement = {"T_world_specimen_nominal": setup.T_world_specimen_nominal,
-                     "placement_tolerance_mm": setup.placement_tolerance_mm}
-        view["single_setup" if len(manifest.setups) == 1 else "first_setup"] = placement
-    return view
 
 
 def _first_setup_part(ctx, T_common_pass: np.ndarray) -> np.ndarray | None:

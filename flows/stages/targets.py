@@ -15,20 +15,16 @@ import numpy as np
 
 from data_catalog.passes import PassReader
 from flows.stages.outputs import PassTargets, TARGETS
-from flows.stages.passes import open_entry, pass_blocks, pass_view
+from flows.stages.passes import open_entry, pass_blocks
 from schemas.manifest import ScanEntry
 from tasks.targets import (GridSpacing, HoughImage, SearchGrid, TargetDetection, TargetRefinement, find_circles,
                            refine_target, search_grid)
 
-__all__ = ["targets", "targets_view"]
+__all__ = ["targets"]
 
 # Profiles per block; None: ``pass_blocks``'s default (about a million points). Tests set small
 # ones: the results do not depend on it.
 BLOCK_ROWS: int | None = None
-
-
-def targets_view(manifest, entry) -> dict[str, Any]:
-    return {**pass_view(manifest, entry), "sticker_diameter_mm": manifest.sticker_diameter_mm}  # None: surfaces
 
 
 def _blocks(ctx, reader: PassReader, halo_rows: int = 0):

@@ -21,11 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from data_catalog.acceptance import DEFAULT_ACCEPTANCE_FILE, load_acceptance_limits
-from data_catalog.hashing import sha256_file
+from data_catalog.acceptance import load_acceptance_limits
 from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY, WELD_TOES, WeldToes
 from flows.stages.placement import weld_frame
-from schemas.manifest import SampleManifest
 from schemas.weld_document import (TOE_FIGURES, Figure, FigureStatistics, Finding, GrooveFigures, SectionToes,
                                    ToeFigures, WeldGeometry, WeldLineFound, WeldSection, WeldSummary)
 from tasks.frames import apply, invert, rotate
@@ -33,21 +31,9 @@ from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
-__all__ = ["weld", "weld_view", "MEASURABLE_JOINTS"]
+__all__ = ["weld", "MEASURABLE_JOINTS"]
 
 MEASURABLE_JOINTS = ("double-sided butt", "single-V butt", "double-V butt")  # a cap between two plates
-
-
-def weld_view(manifest: SampleManifest, entry=None) -> dict[str, Any]:
-    """What the weld stage reads: the passes (in order), the weld (lines, joint, treatment), each
-    setup's nominal placement, and the default acceptance limits' file (by sha256)."""
-    weld = manifest.weld
-    return {"passes": [e.pass_id for _, e in manifest.passes()],
-            "weld_lines_mm": {line.name: [list(p) for p in line.points_mm] for line in manifest.weld_lines()},
-            "joint": getattr(weld, "joint", "double-sided butt"), "treatment": None if weld is None else weld.treatment,
-            "setups": [{"name": s.name, "first_pass": s.passes[0].pass_id,
-                        "T_world_specimen_nominal": s.T_world_specimen_nominal} for s in manifest.setups],
-            "default_acceptance_sha256": sha256_file(DEFAULT_ACCEPTANCE_FILE)}
 
 
 def _figure(m: Measured, digits: int = 4) -> Figure:

@@ -22,12 +22,13 @@ REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 PACKAGES = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 
-# a real change of behaviour in a helper the denoise stage runs (not its body): the mean of the
-# neighbours' distances 5 % longer in every other column, so that a few borderline points change
-# side of the threshold and the denoised cloud changes a little (squaring it, as this test once
-# did, spoilt the cloud so that gmsh stalled on its mesh for a quarter of an hour)
-HELPER_EDIT = ("tasks/denoise.py", "                out[i - row0, j] = s / k\n",
-               "                out[i - row0, j] = s / k * (1.0 + 0.05 * (j % 2))\n")
+# a real change of behaviour in a helper the merge stage runs (not its body): every merged cell's
+# mean point 1 nm further along y and 2 nm along z, so that the merged cloud and everything made
+# from it change a little (the merge is the cheapest stage with per-pass stages, registration and
+# refine upstream of it to stay cached; this test once edited the denoise helper, and paid for
+# the six passes, refine and merge again)
+HELPER_EDIT = ("tasks/merge.py", "            points[m, d] = point_sums[m, d] / c\n",
+               "            points[m, d] = point_sums[m, d] / c + 1e-6 * d\n")
 LAST = "export"  # the edited run stops after this stage
 
 
@@ -70,7 +71,7 @@ def base_versions(tmp_path_factory) -> dict[str, str]:
 
 
 @pytest.mark.parametrize(("path", "old", "new", "changed"), [
-    (*HELPER_EDIT, {"denoise"}),
+    (*HELPER_EDIT, {"merge"}),
     ("tasks/ingest.py", "    out += T[:, None, :3, 3]", "    out += 1.0 * T[:, None, :3, 3]", {"denoise", "targets"}),
     ("tasks/checks.py", "", "# edited\n", {"denoise", "refine", "merge", "segment", "mesh", "export", "volume",
                                            "qa_report"}),
@@ -99,13 +100,15 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_
     entries = read_trail(run)
     last = max(i for i, e in enumerate(entries) if e["kind"] == "run-started")
     reused = {(e["stage"], e.get("item")): e["cached"] for e in entries[last:] if e["kind"] == "stage"}
-    expected_rerun = {"denoise", *downstream_of("denoise")}
+    expected_rerun = {"merge", *downstream_of("merge")}
     for (stage, item), cached in reused.items():
         assert cached == (stage not in expected_rerun), (stage, item, cached)
     ran = {s.name for s in needed_for(LAST)}
     assert {s for s, _ in reused} == ran
-    assert {"targets", "registration"} < ran and {"refine", "merge", "segment", "mesh"} < ran & expected_rerun
-    assert again["keys"]["targets"] == first["stage_keys"]["targets"]
-    assert again["keys"]["registration"] == first["stage_keys"]["registration"]
-    assert all(a != b for a, b in zip(again["keys"]["denoise"], first["stage_keys"]["denoise"]))
+    assert {"denoise", "targets", "registration", "refine"} == ran - expected_rerun
+    assert {"merge", "segment", "mesh", "export"} == ran & expected_rerun
+    for name in ("denoise", "targets", "registration", "refine"):  # per pass, or once
+        assert again["keys"][name] == first["stage_keys"][name], name
+    for name in ("merge", "segment", "mesh", "export"):
+        assert again["keys"][name] != first["stage_keys"][name], name
     assert verify_trail(run) == []

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
-from flows.stages.merge import merge_view
+from flows.stages.views import weld_lines_view as merge_view
 from flows.stages.placement import sample_weld_zone
 from tests.flows.samples import as_published
 
