@@ -11,6 +11,7 @@ import contextlib
 import fcntl
 import os
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -183,6 +184,26 @@ def six_run(six_sample, tmp_path_factory):
                           lock=_SessionLock(tmp_path_factory, "six-run"))
 
 
+_PREFECT_HOME: Path | None = None
+
+
+def pytest_configure(config):
+    """Prefect's home (its database, its local result storage) is this test process's own
+    temporary folder, set before anything imports Prefect, not the user's ``~/.prefect``: the
+    tests leave nothing there (it had grown to 400 MB), and the test workers' API servers do not
+    share one SQLite file. A PREFECT_HOME or PREFECT_API_URL set by the caller is kept."""
+    global _PREFECT_HOME
+    controller = not hasattr(config, "workerinput") and config.getoption("numprocesses", None)  # runs no test
+    if not (controller or os.environ.get("PREFECT_HOME") or os.environ.get("PREFECT_API_URL")):
+        _PREFECT_HOME = Path(tempfile.mkdtemp(prefix="weldrecon-tests-prefect-"))
+        os.environ["PREFECT_HOME"] = str(_PREFECT_HOME)
+
+
+def pytest_unconfigure(config):
+    if _PREFECT_HOME is not None:
+        shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _one_prefect_api_that_dies_with_pytest():
     """One temporary Prefect API server for the whole session, started before any flow runs, as
@@ -190,9 +211,8 @@ def _one_prefect_api_that_dies_with_pytest():
     when pytest dies, however it dies (Prefect's own in-process server outlived a kill -9), and
     every flow of the session, its Dask workers and the command lines it starts (which inherit
     PREFECT_API_URL) report to it instead of each starting a server of its own. Stopped while
-    pytest's output is still open. A PREFECT_API_URL set by the caller is used as it is."""
-    import os
-
+    pytest's output is still open. A PREFECT_API_URL set by the caller is used as it is; its
+    database is the process's own (``pytest_configure``)."""
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     from flows.reconstruct import prefect_api_for_workers
 
