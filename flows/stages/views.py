@@ -62,8 +62,8 @@ def segment_view(manifest: SampleManifest, entry: PassEntry | None = None) -> di
     """What the segment reads of the manifest: the passes (in order), the part's drawing box, and
     the first setup's nominal placement and tolerance (one setup: ``single_setup``; more:
     ``first_setup``, the drawing box's placement)."""
-    view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()],
-                            "bounds_mm": None if manifest.specimen is None else [list(b) for b in manifest.specimen.bounds_mm()]}
+    bounds = None if manifest.specimen is None else [list(b) for b in manifest.specimen.bounds_mm()]
+    view: dict[str, Any] = {"passes": [e.pass_id for _, e in manifest.passes()], "bounds_mm": bounds}
     if manifest.surfaces:
         view["registration"] = manifest.registration
     else:

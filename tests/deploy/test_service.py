@@ -1,8 +1,9 @@
 """The scheduled service for real: deploy/service.sh starts a Prefect server on loopback, the
 process work pool, the deployments of deploy/prefect.yaml and a worker; the on-demand
-deployment is triggered on the six-pass ``ci`` subset and must complete through the worker, with
-the same stages as the session's own run of it (whose stages the worker finds in the session's
-stage cache: the service's plumbing, not the reconstruction, is what this test runs)."""
+deployment is triggered on the six-pass ``ci`` subset and must complete through the worker, making
+every stage (those already in the session's stage cache are copied from it: the service's
+plumbing, not the reconstruction, is what this test runs; waiting here for the session's own run of
+the subset left a core idle for a minute)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from data_catalog.audit import read_trail, verify_trail
+from flows.stages import STAGE_NAMES
 
 REPO = Path(__file__).resolve().parents[2]
 PREFECT = REPO / ".venv" / "bin" / "prefect"
@@ -27,7 +29,7 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_server_worker_and_deployments_on_loopback(six_sample, six_run, tmp_path):
+def test_server_worker_and_deployments_on_loopback(six_sample, tmp_path):
     if not PREFECT.exists():
         pytest.fail(f"{PREFECT} is missing: run `make setup` first")
     port = _free_port()
@@ -53,7 +55,8 @@ def test_server_worker_and_deployments_on_loopback(six_sample, six_run, tmp_path
                               "--watch-timeout", "400"], env=env, capture_output=True, text=True, timeout=480)
         assert run.returncode == 0 and "Completed" in run.stdout, run.stdout[-3000:] + run.stderr[-3000:]
         report = json.loads((out / "results" / "report.json").read_text())
-        assert report["mesh"]["triangles"] > 10_000 and report["stage_keys"] == six_run[1]["stage_keys"]
+        assert report["mesh"]["triangles"] > 10_000
+        assert set(report["stage_keys"]) == set(STAGE_NAMES) - {"report", "qa_report"}  # what the report reads
         started = read_trail(out)[0]
         assert started["started_by"] == "deployment" and started["deployment_name"] == "on-demand"
         assert verify_trail(out) == []
