@@ -184,24 +184,27 @@ def six_run(six_sample, tmp_path_factory):
                           lock=_SessionLock(tmp_path_factory, "six-run"))
 
 
-_PREFECT_HOME: Path | None = None
+_OWN_HOME: Path | None = None
 
 
 def pytest_configure(config):
-    """Prefect's home (its database, its local result storage) is this test process's own
-    temporary folder, set before anything imports Prefect, not the user's ``~/.prefect``: the
-    tests leave nothing there (it had grown to 400 MB), and the test workers' API servers do not
-    share one SQLite file. A PREFECT_HOME or PREFECT_API_URL set by the caller is kept."""
-    global _PREFECT_HOME
-    controller = not hasattr(config, "workerinput") and config.getoption("numprocesses", None)  # runs no test
-    if not (controller or os.environ.get("PREFECT_HOME") or os.environ.get("PREFECT_API_URL")):
-        _PREFECT_HOME = Path(tempfile.mkdtemp(prefix="weldrecon-tests-prefect-"))
-        os.environ["PREFECT_HOME"] = str(_PREFECT_HOME)
+    """Prefect's home (its database, its local result storage) and weldrecon's cache of code
+    versions are this test process's own temporary folder, set before anything imports Prefect,
+    not the user's ``~/.prefect`` and ``~/.cache/weldrecon``: the tests leave nothing there (the
+    Prefect database had grown to 400 MB), and the test workers' API servers do not share one
+    SQLite file. What the caller set (PREFECT_HOME, PREFECT_API_URL, WELDRECON_CACHE_DIR) is kept."""
+    global _OWN_HOME
+    if not hasattr(config, "workerinput") and config.getoption("numprocesses", None):
+        return  # the controller of the test workers runs no test
+    _OWN_HOME = Path(tempfile.mkdtemp(prefix="weldrecon-tests-"))
+    if not (os.environ.get("PREFECT_HOME") or os.environ.get("PREFECT_API_URL")):
+        os.environ["PREFECT_HOME"] = str(_OWN_HOME / "prefect")
+    os.environ.setdefault("WELDRECON_CACHE_DIR", str(_OWN_HOME / "cache"))
 
 
 def pytest_unconfigure(config):
-    if _PREFECT_HOME is not None:
-        shutil.rmtree(_PREFECT_HOME, ignore_errors=True)
+    if _OWN_HOME is not None:
+        shutil.rmtree(_OWN_HOME, ignore_errors=True)
 
 
 @pytest.fixture(scope="session", autouse=True)

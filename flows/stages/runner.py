@@ -27,6 +27,7 @@ from typing import Any, NoReturn
 from pydantic import BaseModel
 
 from data_catalog import audit
+from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_file, sha256_tree
 from data_catalog.passes import PassFormatError
 from data_catalog.stages import RECORD_NAME, StageStore, cache_key
@@ -145,9 +146,35 @@ def _module_source(name: str) -> tuple[str, str] | None:
     return None
 
 
+def _code_cache(kind: str, key: str, compute: Callable[[], Any]) -> Any:
+    """``compute()``'s JSON value, kept between processes under ``key`` (a hash of everything it
+    depends on) in ``$WELDRECON_CACHE_DIR`` (default ``~/.cache/weldrecon``): a command reads the
+    code versions' ingredients back instead of parsing the project's sources and scanning every
+    installed distribution again (about 1 s a process). A missing, unreadable or unwritable
+    cache only costs the computation."""
+    folder = Path(os.environ.get("WELDRECON_CACHE_DIR") or Path.home() / ".cache" / "weldrecon") / "code"
+    path = folder / f"{kind}-{key}.json"
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        pass
+    value = compute()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(value, sort_keys=True))
+    except OSError:
+        pass
+    return value
+
+
 @functools.cache  # once per module and source in a process: the stages share most of their modules
 def _imported_names(module: str, source: str) -> frozenset[str]:
     """Every module a source file imports, at top level or inside functions."""
+    key = hashlib.sha256(f"{module}\0{source}".encode()).hexdigest()
+    return frozenset(_code_cache("imports", key, lambda: sorted(_parse_imports(module, source))))
+
+
+def _parse_imports(module: str, source: str) -> set[str]:
     found: set[str] = set()
     package = module if module.endswith("__init__") else module.rpartition(".")[0]
     for node in ast.walk(ast.parse(source)):
@@ -160,7 +187,7 @@ def _imported_names(module: str, source: str) -> frozenset[str]:
                 base = ".".join(parts[: len(parts) - node.level + 1] + ([base] if base else []))
             found.add(base)
             found.update(f"{base}.{alias.name}" for alias in node.names)
-    return frozenset(found)
+    return found
 
 
 _PARSING = threading.Lock()  # CPython 3.11's ast.parse is not safe in several threads at once
@@ -200,8 +227,10 @@ def _code_modules(module: str) -> tuple[tuple[str, str], tuple[str, ...]]:
 @functools.cache
 def _owners() -> dict[str, list[str]]:
     """Top-level package -> the distributions that install it (a scan of every installed one:
-    ~0.4 s, so once per process)."""
-    return importlib.metadata.packages_distributions()
+    ~0.4 s, so once per process, and kept between processes for the same installed set)."""
+    installed = sorted(str(getattr(d, "_path", "")) for d in importlib.metadata.distributions())
+    key = hashlib.sha256(json.dumps([sys.prefix, sys.version, installed]).encode()).hexdigest()
+    return _code_cache("owners", key, importlib.metadata.packages_distributions)
 
 
 @functools.lru_cache(maxsize=None)

@@ -112,3 +112,28 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_
     for name in ("merge", "segment", "mesh", "export"):
         assert again["keys"][name] != first["stage_keys"][name], name
     assert verify_trail(run) == []
+
+
+def test_code_versions_read_back_from_the_cache_are_the_ones_computed(tmp_path):
+    """The code versions' ingredients (each module's imports, the installed distributions' top-level
+    packages) are kept between processes in $WELDRECON_CACHE_DIR: a second process reads them back
+    and gets the same versions; damaged cache files are computed again, and a cache that cannot be
+    written is done without."""
+    def versions(cache: Path) -> dict[str, str]:
+        env = dict(os.environ, WELDRECON_CACHE_DIR=str(cache))
+        done = subprocess.run([sys.executable, "-c", _VERSIONS % str(REPO)], cwd=REPO, env=env, capture_output=True,
+                              text=True, timeout=300)
+        assert done.returncode == 0, done.stderr[-3000:]
+        return json.loads(done.stdout.strip().splitlines()[-1])
+
+    cache = tmp_path / "cache"
+    computed = versions(cache)
+    files = sorted((cache / "code").glob("*.json"))
+    assert {f.name.split("-")[0] for f in files} == {"imports", "owners"}
+    assert versions(cache) == computed  # read back
+    for f in files:
+        f.write_text("{damaged", encoding="utf-8")
+    assert versions(cache) == computed
+    assert all(json.loads(f.read_text(encoding="utf-8")) for f in files)  # written again
+    (tmp_path / "a-file").write_text("")
+    assert versions(tmp_path / "a-file") == computed  # not a folder: no cache
