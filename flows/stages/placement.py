@@ -60,5 +60,3 @@ def model_weld_zone(manifest: SampleManifest, T_common_pass: np.ndarray, config)
     ``volume.weld_zone_mm`` of the weld frame's lines, common frame. ``config``: the
     ReconstructionConfig."""
     return sample_weld_zone(manifest, T_common_pass, config.volume.weld_zone_mm)
-
-

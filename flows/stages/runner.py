@@ -228,7 +228,8 @@ def _code_modules(module: str) -> tuple[tuple[str, str], tuple[str, ...]]:
 def _owners() -> dict[str, list[str]]:
     """Top-level package -> the distributions that install it (a scan of every installed one:
     ~0.4 s, so once per process, and kept between processes for the same installed set)."""
-    installed = sorted(str(getattr(d, "_path", "")) for d in importlib.metadata.distributions())
+    installed = sorted(str(getattr(d, "_path", None) or (d.metadata["Name"], d.version))  # its dist-info folder
+                       for d in importlib.metadata.distributions())
     key = hashlib.sha256(json.dumps([sys.prefix, sys.version, installed]).encode()).hexdigest()
     return _code_cache("owners", key, importlib.metadata.packages_distributions)
 

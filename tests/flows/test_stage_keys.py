@@ -47,9 +47,9 @@ def _code_copy(root: Path, edit: tuple[str, str, str] | None = None) -> Path:
     return root
 
 
-def _run_python(code_root: Path, script: str) -> str:
+def _run_python(code_root: Path, script: str, **added: str) -> str:
     env = dict(os.environ, PYTHONPATH=str(code_root), PREFECT_SERVER_ANALYTICS_ENABLED="false",
-               PREFECT_LOGGING_LEVEL="WARNING")
+               PREFECT_LOGGING_LEVEL="WARNING", **added)
     done = subprocess.run([sys.executable, "-c", script], cwd=code_root, env=env, capture_output=True, text=True,
                           timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -60,8 +60,8 @@ _VERSIONS = ("import json, flows.stages as s; assert s.__file__.startswith(%r); 
              "print(json.dumps({x.name: s.code_version(x) for x in s.STAGES}))")
 
 
-def _versions(code_root: Path) -> dict[str, str]:
-    return json.loads(_run_python(code_root, _VERSIONS % str(code_root)))
+def _versions(code_root: Path, **added: str) -> dict[str, str]:
+    return json.loads(_run_python(code_root, _VERSIONS % str(code_root), **added))
 
 
 @pytest.fixture(scope="module")
@@ -120,11 +120,7 @@ def test_code_versions_read_back_from_the_cache_are_the_ones_computed(tmp_path):
     and gets the same versions; damaged cache files are computed again, and a cache that cannot be
     written is done without."""
     def versions(cache: Path) -> dict[str, str]:
-        env = dict(os.environ, WELDRECON_CACHE_DIR=str(cache))
-        done = subprocess.run([sys.executable, "-c", _VERSIONS % str(REPO)], cwd=REPO, env=env, capture_output=True,
-                              text=True, timeout=300)
-        assert done.returncode == 0, done.stderr[-3000:]
-        return json.loads(done.stdout.strip().splitlines()[-1])
+        return _versions(REPO, WELDRECON_CACHE_DIR=str(cache))
 
     cache = tmp_path / "cache"
     computed = versions(cache)
