@@ -219,7 +219,16 @@ class StageStore:
         return build
 
     def commit(self, build: Path, record: StageRecord) -> Path:
-        """Hash the outputs, write the record, move the build folder into place atomically."""
+        """Hash the outputs, write the record, move the build folder into place atomically. A
+        commit that fails (a full disk) removes the build folder: a long-lived process (a worker,
+        a batch) leaves nothing behind for the sweep of dead processes' leftovers to miss."""
+        try:
+            return self._commit(build, record)
+        except BaseException:
+            shutil.rmtree(build, ignore_errors=True)
+            raise
+
+    def _commit(self, build: Path, record: StageRecord) -> Path:
         final = self.path(record.stage, record.cache_key)
         outputs = {name: sha256_tree(build / name) for name in record.outputs}
         record = record.model_copy(update={"outputs": outputs})

@@ -20,7 +20,7 @@ import argparse
 import sys
 
 from flows.cli import audit, catalog, imports, info, reconstruct, simulate
-from flows.cli.errors import say_error
+from flows.cli.errors import end_log_file, say_error
 
 __all__ = ["main"]
 
@@ -44,9 +44,13 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import signal
+    """Run the command ``argv`` (default: this process's own command line, as the ``weldrecon``
+    program; it then also ends quietly on a closed pipe: ``weldrecon audit show X | head``).
+    Returns the exit status; what a command changed in this process's logging is undone."""
+    if argv is None:
+        import signal
 
-    signal.signal(signal.SIGPIPE, signal.SIG_DFL)  # `weldrecon audit show X | head` ends quietly
+        signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     args = _parser().parse_args(argv)
     try:
         return args.func(args)
@@ -55,3 +59,5 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:  # noqa: BLE001 - one line on the terminal, the traceback in a log file
         return say_error(args.command, exc)
+    finally:
+        end_log_file()

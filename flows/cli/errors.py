@@ -7,9 +7,10 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["quiet_prefect", "log_to_file", "say_error"]
+__all__ = ["quiet_prefect", "log_to_file", "end_log_file", "say_error"]
 
 _LOG_FILE: Path | None = None  # the log file a command opened (log_to_file), for its traceback
+_UNDO: list = []  # what end_log_file does to undo log_to_file, last first
 
 
 def quiet_prefect() -> None:
@@ -29,24 +30,41 @@ def log_to_file(folder: Path, name: str) -> Path:
     """Send Prefect's and the libraries' log records (tracebacks included) to a log file in
     ``folder`` instead of the terminal, which gets one line per problem; returns the file."""
     import logging
+    import warnings
 
     from prefect.logging.configuration import setup_logging
 
     global _LOG_FILE
+    end_log_file()  # one log file per command
     setup_logging()  # Prefect's own configuration first (later calls only adjust it)
     folder.mkdir(parents=True, exist_ok=True)
     path = _log_path(folder, name)
     handler = logging.FileHandler(path, encoding="utf-8", delay=True)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
+    root = logging.getLogger()
+    shown, level = warnings.showwarning, root.level
+    _UNDO.extend([handler.close, lambda: setattr(warnings, "showwarning", shown),
+                  lambda: logging.captureWarnings(False), lambda: root.setLevel(level)])
     loggers = [lg for lg in list(logging.root.manager.loggerDict.values()) if isinstance(lg, logging.Logger)]
-    for logger in [logging.getLogger(), *loggers]:
-        for old in [h for h in logger.handlers if type(h).__name__ == "PrefectConsoleHandler"]:
-            logger.removeHandler(old)
-            logger.addHandler(handler)
-    logging.getLogger().setLevel(logging.INFO)
+    for logger in [root, *loggers]:
+        for k, old in enumerate(logger.handlers):
+            if type(old).__name__ == "PrefectConsoleHandler":  # replaced where it stands
+                logger.handlers[k] = handler
+                _UNDO.append(lambda logger=logger, old=old: logger.handlers.__setitem__(
+                    logger.handlers.index(handler), old))
+    root.setLevel(logging.INFO)
     logging.captureWarnings(True)
     _LOG_FILE = path
     return path
+
+
+def end_log_file() -> None:
+    """Undo log_to_file (a command run inside another program, e.g. the tests, leaves its logging
+    as it found it): the terminal's handlers back, the file closed."""
+    global _LOG_FILE
+    while _UNDO:
+        _UNDO.pop()()
+    _LOG_FILE = None
 
 
 def _traceback_log(command: str, exc: BaseException) -> Path | None:

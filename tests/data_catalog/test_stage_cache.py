@@ -86,3 +86,19 @@ def test_without_a_cache_every_folder_makes_its_own(tmp_path, manifest, ci_sampl
     ref = _run(tmp_path / "b", None, manifest, ci_sample)
     assert not ref.cached and len(CALLS) == 2
     assert json.loads(Path(ref.path, "record.json").read_text())["stage"] == "report"
+
+
+def test_a_commit_that_fails_leaves_no_build_folder(tmp_path, manifest, ci_sample, monkeypatch):
+    """A full disk while the record is written: the stage fails, and its build folder is gone at
+    once (a long-lived process is alive, so the sweep of dead processes' leftovers would keep it)."""
+    import errno
+
+    import data_catalog.stages
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(data_catalog.stages, "atomic_write_text", full)
+    with pytest.raises(OSError, match="No space left on device"):
+        _run(tmp_path / "a", None, manifest, ci_sample)
+    assert [p.name for p in (tmp_path / "a" / "stages" / "report").iterdir()] == []

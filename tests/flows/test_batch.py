@@ -14,7 +14,7 @@ from data_catalog.audit import read_trail
 from data_catalog.catalog import Catalog
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
 from tests.conftest import SIX
-from tests.flows.cli import run_cli
+from tests.flows.cli import run_cli, weldrecon
 from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
@@ -94,7 +94,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     assert catalog.get("batch-c").state == "done"
     assert 'href="runs/batch-c/results/report.html"' in Path(second["index"]).read_text()
     index.unlink()
-    rebuilt = run_cli("catalog", "index", "--workspace", str(workspace))
+    rebuilt = weldrecon("catalog", "index", "--workspace", str(workspace))
     assert rebuilt.returncode == 0 and rebuilt.stdout.strip() == f"index: {index}" and index.is_file()
     third = reconstruct_batch(str(workspace), None, CI_CONFIG, started_by="pytest")
     assert third["done"] == [] and len(third["up_to_date"]) == 3

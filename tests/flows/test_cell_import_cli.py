@@ -13,7 +13,7 @@ from flows.stages.outputs import STL
 from schemas.provenance import StageRecord
 from tests.conftest import SIX
 from tests.data_catalog.test_cell_logs import BAD, EXAMPLE, _example_copy
-from tests.flows.cli import run_cli
+from tests.flows.cli import run_cli, weldrecon
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -34,7 +34,7 @@ def test_bad_input_is_one_line_on_stderr_and_nothing_is_written(case, tmp_path):
     cell = _example_copy(tmp_path)
     spoil(cell)
     out = tmp_path / "out" / "sample"
-    done = run_cli("import", str(cell / "CELL.yaml"), str(out))
+    done = weldrecon("import", str(cell / "CELL.yaml"), str(out))
     assert done.returncode == 2
     lines = done.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"weldrecon import: error: {expected.format(cell=cell)}"), done.stderr
@@ -44,14 +44,14 @@ def test_bad_input_is_one_line_on_stderr_and_nothing_is_written(case, tmp_path):
 def test_an_existing_out_sample_is_refused_on_the_command_line(tmp_path):
     out = tmp_path / "sample"
     out.mkdir()
-    done = run_cli("import", str(EXAMPLE / "CELL.yaml"), str(out))
+    done = weldrecon("import", str(EXAMPLE / "CELL.yaml"), str(out))
     assert done.returncode == 2
     assert done.stderr == f"weldrecon import: error: {out} already exists; choose a new folder (nothing was written)\n"
     assert list(out.iterdir()) == []
 
 
 def test_export_cell_refuses_a_z_grid_of_a_scanner_without_one(six_sample, tmp_path):
-    done = run_cli("export-cell", str(six_sample), str(tmp_path / "logs"), "--layout", "z_grid")
+    done = weldrecon("export-cell", str(six_sample), str(tmp_path / "logs"), "--layout", "z_grid")
     assert done.returncode == 2
     assert done.stderr.startswith("weldrecon export-cell: error: pass top-L02: profile 0, point 1: X is ")
     assert "the z_grid layout holds scanners that report on a fixed X grid: use layout xzi" in done.stderr
@@ -60,14 +60,14 @@ def test_export_cell_refuses_a_z_grid_of_a_scanner_without_one(six_sample, tmp_p
 
 def test_a_sample_exported_and_imported_reconstructs(six_sample, tmp_path):
     logs, sample, run = tmp_path / "logs", tmp_path / "imported", tmp_path / "run"
-    done = run_cli("export-cell", str(six_sample), str(logs), "--gzip", "--orientation", "fanuc-wpr",
+    done = weldrecon("export-cell", str(six_sample), str(logs), "--gzip", "--orientation", "fanuc-wpr",
                    "--pose-every", "3", "--time-offset", "12.5", "--no-return", "empty")
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith(f"{logs}: 6 passes, ")
-    done = run_cli("import", str(logs / "CELL.yaml"), str(sample))
+    done = weldrecon("import", str(logs / "CELL.yaml"), str(sample))
     assert done.returncode == 0, done.stderr
     # up to the exported surface mesh (the FE model and the pages after it read only the mesh)
-    done = run_cli("reconstruct", str(sample), "--config", CI_CONFIG, "--out", str(run), "--stop-after", "export")
+    done = weldrecon("reconstruct", str(sample), "--config", CI_CONFIG, "--out", str(run), "--stop-after", "export")
     assert done.returncode == 0, done.stderr
     trail = read_trail(run)
     assert sorted(e["item"] for e in trail if e["kind"] == "stage" and e["stage"] == "denoise") == sorted(SIX)

@@ -17,7 +17,7 @@ import zarr
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from tests.conftest import SIX
-from tests.flows.cli import run_cli
+from tests.flows.cli import run_cli, weldrecon
 from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
@@ -97,7 +97,7 @@ def test_a_batch_names_a_deleted_sample_and_a_malformed_one_instead_of_up_to_dat
     malformed = samples / "two"
     malformed.mkdir()
     (malformed / "manifest.json").write_text('{"sample_id": "x"}')
-    done = run_cli("batch", "--samples", str(samples), "--workspace", str(workspace))
+    done = weldrecon("batch", "--samples", str(samples), "--workspace", str(workspace))
     assert done.returncode == 1, done.stderr
     out = done.stdout.splitlines()
     assert out[0] == "done: none"
@@ -142,7 +142,7 @@ def test_pass_values_outside_the_format_are_named_not_reported_as_missing_sticke
     manifest = json.loads((sample / "manifest.json").read_text())
     manifest["setups"][0]["passes"][1]["content_sha256"] = sha256_tree(store)
     (sample / "manifest.json").write_text(json.dumps(manifest))
-    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
+    done = weldrecon("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
     assert done.returncode == 2
     assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
     assert "no sticker" not in done.stderr and "Traceback" not in done.stderr
@@ -193,7 +193,7 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
     _mount_tmpfs(disk, "8m")
     try:
         run = disk / "run"
-        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
         assert done.returncode == 2
         problems = _problems(done.stderr)
         assert problems[0].startswith("weldrecon reconstruct: error: stage denoise failed for ")
@@ -205,7 +205,7 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
         verify = run_cli("audit", "verify", str(run))
         assert verify.returncode == 0 and "audit trail intact" in verify.stdout
         subprocess.run(["mount", "-o", "remount,size=64m", str(disk)], check=True)  # space freed
-        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
         assert done.returncode == 0, done.stderr
         report = json.loads((run / "results" / "report.json").read_text())
         assert report["mesh"]["triangles"] > 10_000  # (this subset's mesh is open: 3 passes per side)
@@ -242,7 +242,7 @@ def test_a_pass_that_contradicts_its_manifest_entry_is_named(ci_sample, tmp_path
     manifest = json.loads((sample / "manifest.json").read_text())  # the exporter's hash, as it would write it
     manifest["setups"][0]["passes"][1]["content_sha256"] = sha256_tree(store)
     (sample / "manifest.json").write_text(json.dumps(manifest))
-    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
+    done = weldrecon("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", CI_CONFIG)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
 

@@ -14,7 +14,7 @@ import pytest
 import zarr
 
 from data_catalog.hashing import sha256_tree
-from tests.flows.cli import run_cli
+from tests.flows.cli import weldrecon
 from tests.conftest import SIX
 from tests.flows.samples import copy_sample
 
@@ -78,7 +78,7 @@ def test_poses_and_times_that_cannot_be_right_are_refused_naming_pass_and_profil
 def test_the_refusal_is_one_line_on_the_terminal(ci_sample, tmp_path):
     sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02"])
     _doctor(sample, "top-L02", _scale)
-    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "out"), "--config", str(CI_CONFIG))
+    done = weldrecon("reconstruct", str(sample), "--out", str(tmp_path / "out"), "--config", str(CI_CONFIG))
     assert done.returncode != 0
     error = done.stderr[done.stderr.index("weldrecon reconstruct: error:"):].splitlines()
     assert error[0] == "weldrecon reconstruct: error: stage denoise failed for 1 pass(es):"
@@ -106,7 +106,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
 
     _doctor(sample, "top-L02", swap)
     out = tmp_path / "out"
-    done = run_cli("reconstruct", str(sample), "--out", str(out), "--config", str(CI_CONFIG))
+    done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", str(CI_CONFIG))
     assert done.returncode == 0, done.stderr
     report = json.loads((out / "results" / "report.json").read_text())
     flagged = {(c["pass"], c["check"]) for c in report["checks"] if c["result"] != "ok"}
@@ -121,7 +121,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     published = {p.name: p.read_bytes() for p in (out / "results").iterdir()}
     config = tmp_path / "tight.yaml"
     config.write_text(CI_CONFIG.read_text() + "refine:\n  neighbour_mm: 0.2\n")
-    done = run_cli("reconstruct", str(sample), "--out", str(out), "--config", str(config))
+    done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", str(config))
     assert done.returncode != 0
     assert ("refine: no pass kept a surface point to match: none has 16 points (refine.normal_neighbours) "
             "within 0.2 mm (refine.neighbour_mm)") in done.stderr

@@ -23,7 +23,7 @@ import pytest
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME
-from tests.flows.cli import REPO, cli_env, run_cli
+from tests.flows.cli import REPO, cli_env, weldrecon
 
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
 
@@ -124,7 +124,7 @@ def test_follow_names_the_pass_that_never_lands(ci_sample, tmp_path):
     missing = sorted((sample / "passes").iterdir())[-1]
     shutil.rmtree(missing)
     started = time.monotonic()
-    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--follow", "--follow-timeout", "3",
+    done = weldrecon("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--follow", "--follow-timeout", "3",
                    "--config", str(CI_CONFIG))
     assert done.returncode == 2
     assert f"{missing.name} did not appear (complete) within 3 s" in done.stderr, done.stderr[-2000:]

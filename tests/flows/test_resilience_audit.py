@@ -19,7 +19,7 @@ from data_catalog.audit import TRAIL, read_trail, verify_trail
 from data_catalog.hashing import sha256_file
 from flows.stages import STAGE_NAMES
 from flows.stages.outputs import MERGED
-from tests.flows.cli import run_cli
+from tests.flows.cli import run_cli, weldrecon
 from tests.flows.samples import as_published
 
 REPO = Path(__file__).resolve().parents[2]
@@ -193,7 +193,7 @@ def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(ru
         f.write(half)
     done = run_cli("audit", "verify", str(run))
     assert done.returncode != 0 and "no line end (the write was cut short)" in done.stdout + done.stderr
-    again = run_cli("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     aside = [e for e in entries if e["kind"] == "trail-damage-set-aside"]
@@ -250,7 +250,7 @@ def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_l
     (folder / RECORD_NAME).write_text(json.dumps(record))
     before = [str(p) for p in verify_trail(run)]
     assert any(p.startswith(f"stages/registration/{folder.name}/") and "content changed" in p for p in before)
-    again = run_cli("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     redone = [e for e in entries if e["kind"] == "stage-recomputed" and e["stage"] == "registration"]

@@ -15,7 +15,7 @@ import pytest
 
 from flows.stages.outputs import SPECIMEN
 from tests.conftest import _reconstructed, _SessionLock
-from tests.flows.cli import run_cli
+from tests.flows.cli import weldrecon
 from tests.flows.samples import copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
@@ -91,7 +91,7 @@ def test_a_drawing_of_the_wrong_size_is_refused_not_meshed(single, tmp_path):
     manifest = json.loads((wrong / "manifest.json").read_text())
     manifest["specimen"]["length_mm"] = 400.0
     (wrong / "manifest.json").write_text(json.dumps(manifest))
-    run = run_cli("reconstruct", str(wrong), "--out", str(tmp_path / "run"),
+    run = weldrecon("reconstruct", str(wrong), "--out", str(tmp_path / "run"),
                   "--config", str(REPO / "deploy" / "configs" / "ci.yaml"))
     assert run.returncode != 0
     assert "stage segment: single setup: the largest body left" in run.stderr
