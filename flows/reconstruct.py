@@ -157,67 +157,37 @@ def task_runner(dask: str | None):
     return DaskTaskRunner(address=dask)
 
 
-def _server_that_dies_with_us():
-    """Prefect's temporary API server (uvicorn in a child process), told by the kernel to stop
-    when this process dies, however it dies (``prctl(PR_SET_PDEATHSIG)``): a run killed by the
-    out-of-memory killer or ``kill -9`` used to leave it running for hours. Start it from the
-    main thread: the signal follows the thread that started the child."""
-    import ctypes
-    import signal
-    import subprocess
-    import sys
-
-    import prefect
-    from prefect.server.api.server import SubprocessASGIServer
-    from prefect.settings import get_current_settings
-
-    parent = os.getpid()
-
-    def die_with_parent() -> None:  # in the child, before uvicorn starts
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # the parent died before the line above
-            os._exit(0)
-
-    class Server(SubprocessASGIServer):
-        def _run_uvicorn_command(self) -> subprocess.Popen:  # as Prefect's, plus preexec_fn
-            server_env = {"PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
-            return subprocess.Popen(
-                args=[sys.executable, "-m", "uvicorn", "--app-dir", str(prefect.__module_path__.parent), "--factory",
-                      "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(self.port),
-                      "--log-level", "error", "--lifespan", "on"],
-                env={**os.environ, **server_env, **get_current_settings().to_environment_variables(exclude_unset=True)},
-                preexec_fn=die_with_parent)
-
-    return Server()
-
-
 @contextlib.contextmanager
 def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
     """A Prefect API that worker processes reach: ``PREFECT_API_URL`` when it is set; otherwise one
-    temporary local server for this run, exported to the environment that worker processes
-    inherit (without it every worker would start a server of its own, which on a busy machine
-    times out). Yields the API URL."""
+    temporary local server for this run (flows.api_server: stopped by the kernel if this process
+    dies), exported to the environment that worker processes inherit (without it every worker
+    would start a server of its own, which on a busy machine times out). Yields the API URL.
+    Enter it from the main thread: the server lives as long as the thread that started it."""
     from prefect.settings import PREFECT_API_URL
+
+    from flows.api_server import TemporaryAPIServer
 
     configured = os.environ.get("PREFECT_API_URL") or PREFECT_API_URL.value()
     if configured:
         yield configured
         return
-    server = _server_that_dies_with_us()
+    server = TemporaryAPIServer.launch()
     try:
-        server.start(timeout=startup_timeout_s)
-    except Exception as exc:  # noqa: BLE001 - said in one line
-        raise RuntimeError(f"could not start a local Prefect API server for the workers within "
-                           f"{startup_timeout_s} s: {exc}") from None
-    os.environ["PREFECT_API_URL"] = server.api_url
-    try:
-        yield server.api_url
-    finally:
-        from prefect.logging.handlers import APILogHandler
+        try:
+            url = server.wait_ready(startup_timeout_s)
+        except RuntimeError as exc:
+            raise RuntimeError(f"could not start a local Prefect API server for the workers: {exc}") from None
+        os.environ["PREFECT_API_URL"] = url
+        try:
+            yield url
+        finally:
+            from prefect.logging.handlers import APILogHandler
 
-        with contextlib.suppress(Exception):  # best effort: the run's last log lines while the server listens
-            APILogHandler().flush()
-        os.environ.pop("PREFECT_API_URL", None)
+            with contextlib.suppress(Exception):  # best effort: the run's last log lines while the server listens
+                APILogHandler().flush()
+            os.environ.pop("PREFECT_API_URL", None)
+    finally:
         server.stop()
 
 

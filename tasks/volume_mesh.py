@@ -268,11 +268,26 @@ def _face_keys(tets: np.ndarray) -> np.ndarray:
     return faces
 
 
+def _same_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of non-negative integers grouped: (the group of each row, the rows in each group);
+    the groups numbered in no particular order. One int64 key a row where it fits (~10x faster
+    than ``np.unique(axis=0)``), else rows compared as they are."""
+    rows = np.asarray(rows, np.int64)
+    base = int(rows.max()) + 1 if rows.size else 1
+    if base ** rows.shape[1] < 2 ** 63:
+        keys = np.zeros(len(rows), np.int64)
+        for column in rows.T:
+            keys = keys * base + column
+        _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    else:
+        _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    return inverse.ravel(), counts
+
+
 def boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(element, Abaqus face number) of every face only one tetrahedron has, in element order."""
-    faces = _face_keys(tets)
-    _, inverse, counts = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
-    once = np.flatnonzero(counts[inverse.ravel()] == 1)
+    inverse, counts = _same_rows(_face_keys(tets))
+    once = np.flatnonzero(counts[inverse] == 1)
     return (once // 4).astype(np.int64), np.asarray(_FACE_NUMBER, np.int64)[once % 4]
 
 
@@ -280,9 +295,7 @@ def solid_checks(mesh: VolumeMesh, surface_volume_mm3: float) -> SolidChecks:
     """One solid? Connected through shared faces, every tetrahedron positive, a closed boundary
     (every boundary edge shared by two boundary faces), and its volume against the surface's."""
     tets = mesh.tetrahedra
-    faces = _face_keys(tets)
-    _, inverse = np.unique(faces, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
+    inverse, _ = _same_rows(_face_keys(tets))
     element = np.repeat(np.arange(len(tets)), 4)
     # element - face incidence: elements sharing a face are connected
     n_faces = int(inverse.max()) + 1
@@ -292,7 +305,7 @@ def solid_checks(mesh: VolumeMesh, surface_volume_mm3: float) -> SolidChecks:
     volumes = signed_volumes(mesh.points, tets)
     boundary = mesh.boundary_triangles()
     edges = np.sort(np.concatenate([boundary[:, [0, 1]], boundary[:, [1, 2]], boundary[:, [2, 0]]]), axis=1)
-    _, edge_counts = np.unique(edges, axis=0, return_counts=True)
+    _, edge_counts = _same_rows(edges)
     volume = float(volumes.sum())
     return SolidChecks(tetrahedra=int(len(tets)), nodes=int(len(mesh.points)), boundary_faces=int(len(boundary)),
                        weld_zone_faces=int(np.count_nonzero(mesh.weld_zone_face)), components=int(n_components),

@@ -7,10 +7,12 @@ run one worker made is copied, verified, by the others instead of being computed
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import fcntl
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -185,21 +187,36 @@ def six_run(six_sample, tmp_path_factory):
 
 
 _OWN_HOME: Path | None = None
+_API_SERVER = None  # flows.api_server.TemporaryAPIServer, when this process started the session's
 
 
 def pytest_configure(config):
     """Prefect's home (its database, its local result storage) and weldrecon's cache of code
-    versions are this test process's own temporary folder, set before anything imports Prefect,
-    not the user's ``~/.prefect`` and ``~/.cache/weldrecon``: the tests leave nothing there (the
-    Prefect database had grown to 400 MB), and the test workers' API servers do not share one
-    SQLite file. What the caller set (PREFECT_HOME, PREFECT_API_URL, WELDRECON_CACHE_DIR) is kept."""
-    global _OWN_HOME
-    if not hasattr(config, "workerinput") and config.getoption("numprocesses", None):
-        return  # the controller of the test workers runs no test
+    versions are a temporary folder of the session, set before anything imports Prefect, not the
+    user's ``~/.prefect`` and ``~/.cache/weldrecon``: the tests leave nothing there (the Prefect
+    database had grown to 400 MB). One temporary Prefect API server for the whole session is
+    started here, before the test workers are: every flow of every worker, their Dask workers
+    and the command lines they start (which inherit PREFECT_API_URL) report to it, instead of
+    each starting a server of its own (its database made in ~15 s of CPU); the kernel stops it
+    when pytest dies, however it dies. The controller of pytest-xdist's workers does this once;
+    the workers inherit it. What the caller set (PREFECT_HOME, PREFECT_API_URL,
+    WELDRECON_CACHE_DIR) is kept."""
+    global _OWN_HOME, _API_SERVER
+    if hasattr(config, "workerinput"):
+        return  # a test worker: the controller made all of it, its environment says where
+    from flows.api_server import TemporaryAPIServer
+
     _OWN_HOME = Path(tempfile.mkdtemp(prefix="weldrecon-tests-"))
     if not (os.environ.get("PREFECT_HOME") or os.environ.get("PREFECT_API_URL")):
         os.environ["PREFECT_HOME"] = str(_OWN_HOME / "prefect")
     os.environ.setdefault("WELDRECON_CACHE_DIR", str(_OWN_HOME / "cache"))
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    if not os.environ.get("PREFECT_API_URL"):
+        _API_SERVER = TemporaryAPIServer.launch(log=_OWN_HOME / "prefect-api-server.log")
+        os.environ["PREFECT_API_URL"] = _API_SERVER.url  # set before the workers start
+        # stopped at exit, after Prefect's own exit handlers (registered later, run first) have
+        # sent what they still hold
+        atexit.register(_API_SERVER.stop)
 
 
 def pytest_unconfigure(config):
@@ -208,19 +225,17 @@ def pytest_unconfigure(config):
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _one_prefect_api_that_dies_with_pytest():
-    """One temporary Prefect API server for the whole session, started before any flow runs, as
-    the command line starts its own (flows.reconstruct.prefect_api_for_workers): the kernel stops it
-    when pytest dies, however it dies (Prefect's own in-process server outlived a kill -9), and
-    every flow of the session, its Dask workers and the command lines it starts (which inherit
-    PREFECT_API_URL) report to it instead of each starting a server of its own. Stopped while
-    pytest's output is still open. A PREFECT_API_URL set by the caller is used as it is; its
-    database is the process's own (``pytest_configure``)."""
-    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
-    from flows.reconstruct import prefect_api_for_workers
+def _the_sessions_prefect_api():
+    """The session's Prefect API answers before any test runs (it starts while pytest collects);
+    the flows' last log lines are sent to it at the end."""
+    from flows.api_server import wait_for_api
 
-    with prefect_api_for_workers() as url:
-        yield url
+    yield _API_SERVER.wait_ready() if _API_SERVER is not None else wait_for_api(os.environ["PREFECT_API_URL"])
+    if "prefect" in sys.modules:
+        from prefect.logging.handlers import APILogHandler
+
+        with contextlib.suppress(Exception):
+            APILogHandler().flush()
 
 
 # --- tiers: the suite runs fastest first, so that a failure says which layer it is in ---
@@ -237,5 +252,16 @@ def _tier(item) -> int:
     return next((k for k, prefixes in enumerate(_TIERS) if path.startswith(prefixes)), len(_TIERS))
 
 
+# what the session makes once, by the first worker that needs it (the others wait for it)
+_MADE_ONCE = {"ci_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run", "tjoint_run",
+              "tjoint_single_run"}
+
+
+def _order(item) -> tuple[int, bool]:
+    """Its tier; within one, the tests that need none of the session's samples first: while the
+    first worker simulates a sample, the other runs those instead of waiting for it."""
+    return _tier(item), bool(_MADE_ONCE & set(item.fixturenames))
+
+
 def pytest_collection_modifyitems(session, config, items):
-    items.sort(key=_tier)  # stable: within a tier, the files' own order
+    items.sort(key=_order)  # stable: otherwise the files' own order

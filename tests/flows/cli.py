@@ -36,8 +36,11 @@ def weldrecon(*args: str, env: dict[str, str] | None = None) -> subprocess.Compl
     """``weldrecon ARGS`` run in this process (``flows.cli.main``), what it wrote to stdout and
     stderr captured, as ``run_cli`` gives it: the exit status, the text. The environment
     (``env`` added) and this process's logging are as before afterwards."""
+    from prefect.logging.configuration import ensure_logging_setup
+
     from flows.cli import main
 
+    ensure_logging_setup()  # Prefect's logging, configured once a process by what uses Prefect first
     saved, logging_before = dict(os.environ), _logging_state()
     out, err = io.StringIO(), io.StringIO()
     try:

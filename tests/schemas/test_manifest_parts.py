@@ -15,10 +15,7 @@ import pytest
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
 from flows.stages.views import weld_lines_view as merge_view
 from flows.stages.placement import sample_weld_zone
-from tests.flows.samples import as_published
 
-REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 
 T_JOINT = {"kind": "t-joint", "base_length_mm": 300, "base_width_mm": 120, "base_thickness_mm": 12,
            "stem_height_mm": 100, "stem_thickness_mm": 10}
@@ -183,25 +180,3 @@ def test_a_drawing_is_checked_with_the_sample_files(tmp_path, ci):
     (sample / "drawing" / "part.stl").symlink_to(tmp_path / "elsewhere.stl")
     with pytest.raises(ManifestError, match="is a symbolic link leading out of the sample folder"):
         check_sample_files(sample, manifest)
-
-
-def test_a_plate_reconstructs_with_the_dog_bones_weld_zone(six_sample, six_run, tmp_path):
-    """The six-pass ci subset declared as a butt-welded plate (the dog-bone's length, grip width
-    and thickness; the same weld lines) reconstructs, and its weld zone is the dog-bone run's:
-    the merge reads the weld lines, never the kind (measured: 55,786 of 241,679 merged points in
-    the weld zone, both)."""
-    from flows.reconstruct import reconstruct_sample
-    from tests.flows.samples import copy_sample
-
-    raw = json.loads((six_sample / "manifest.json").read_text())
-    dog = raw["specimen"]
-    plate = {"kind": "plate", "length_mm": dog["length_mm"], "width_mm": dog["grip_width_mm"],
-             "thickness_mm": dog["thickness_mm"]}
-    sample = copy_sample(six_sample, tmp_path / "plate")
-    (sample / "manifest.json").write_text(json.dumps({**raw, "specimen": plate}))
-    report = as_published(reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest"))
-    dog_merge, plate_merge = six_run[1]["stages"]["merge"], report["stages"]["merge"]
-    assert plate_merge["weld_zone_points_out"] > 0
-    assert plate_merge["weld_zone_points_out"] == dog_merge["weld_zone_points_out"]
-    assert plate_merge["weld_zones"] == dog_merge["weld_zones"]
-    assert report["stage_keys"]["merge"] == six_run[1]["stage_keys"]["merge"]

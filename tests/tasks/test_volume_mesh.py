@@ -252,3 +252,17 @@ def test_a_surface_gmsh_cannot_reparametrise_keeps_its_own_triangles(monkeypatch
     assert checks.components == 1 and checks.negative_or_flat == 0 and abs(checks.volume_difference) < 1e-9
     # the boundary is the input surface itself
     assert checks.boundary_faces == len(triangles)
+
+
+@pytest.mark.parametrize("high", [50, 2 ** 40], ids=["one-key-a-row", "rows-as-they-are"])
+def test_faces_and_edges_are_grouped_as_numpy_groups_equal_rows(high):
+    from tasks.volume_mesh import _same_rows
+
+    rng = np.random.default_rng(5)
+    rows = rng.integers(0, high, (2000, 3))
+    rows[1000:] = rows[rng.integers(0, 1000, 1000)]  # each repeated a few times
+    inverse, counts = _same_rows(rows)
+    _, expected_inverse, expected_counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    pairs = set(zip(inverse.tolist(), expected_inverse.ravel().tolist()))
+    assert len(pairs) == len(counts) == len(expected_counts) < 2000  # the same partition of the rows
+    assert np.array_equal(counts[inverse], expected_counts[expected_inverse.ravel()])
