@@ -164,7 +164,7 @@ def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
     dies), exported to the environment that worker processes inherit (without it every worker
     would start a server of its own, which on a busy machine times out). Yields the API URL.
     Enter it from the main thread: the server lives as long as the thread that started it."""
-    from prefect.settings import PREFECT_API_URL
+    from prefect.settings import PREFECT_API_URL, temporary_settings
 
     from flows.api_server import TemporaryAPIServer
 
@@ -178,14 +178,17 @@ def prefect_api_for_workers(startup_timeout_s: int = 120) -> Iterator[str]:
             url = server.wait_ready(startup_timeout_s)
         except RuntimeError as exc:
             raise RuntimeError(f"could not start a local Prefect API server for the workers: {exc}") from None
-        os.environ["PREFECT_API_URL"] = url
+        os.environ["PREFECT_API_URL"] = url  # for the worker processes; this one's settings are read at import
         try:
-            yield url
-        finally:
-            from prefect.logging.handlers import APILogHandler
+            with temporary_settings(updates={PREFECT_API_URL: url}):  # this process's own client too
+                try:
+                    yield url
+                finally:
+                    from prefect.logging.handlers import APILogHandler
 
-            with contextlib.suppress(Exception):  # best effort: the run's last log lines while the server listens
-                APILogHandler().flush()
+                    with contextlib.suppress(Exception):  # best effort: the last log lines while the server listens
+                        APILogHandler().flush()
+        finally:
             os.environ.pop("PREFECT_API_URL", None)
     finally:
         server.stop()

@@ -192,41 +192,38 @@ _API_SERVER = None  # flows.api_server.TemporaryAPIServer, when this process sta
 
 def pytest_configure(config):
     """Prefect's home (its database, its local result storage) and weldrecon's cache of code
-    versions are a temporary folder of the session, set before anything imports Prefect, not the
-    user's ``~/.prefect`` and ``~/.cache/weldrecon``: the tests leave nothing there (the Prefect
-    database had grown to 400 MB). One temporary Prefect API server for the whole session is
-    started here, before the test workers are: every flow of every worker, their Dask workers
-    and the command lines they start (which inherit PREFECT_API_URL) report to it, instead of
-    each starting a server of its own (its database made in ~15 s of CPU); the kernel stops it
-    when pytest dies, however it dies. The controller of pytest-xdist's workers does this once;
-    the workers inherit it. What the caller set (PREFECT_HOME, PREFECT_API_URL,
-    WELDRECON_CACHE_DIR) is kept."""
+    versions are this test process's own temporary folder, set before anything imports Prefect,
+    not the user's ``~/.prefect`` and ``~/.cache/weldrecon``: the tests leave nothing there (the
+    Prefect database had grown to 400 MB). Each test process starts one temporary Prefect API
+    server here, while pytest collects (flows.api_server): every flow of the process, its Dask
+    workers and the command lines it starts (which inherit PREFECT_API_URL) report to it instead
+    of each starting a server of its own; the kernel stops it when the process dies, however it
+    dies. One server per test worker, not one for all: a suite run with one for both workers had a
+    core idle for about a minute at a time while both ran flows (not seen with one each; the cause
+    not pinned down). What the caller set (PREFECT_HOME, PREFECT_API_URL, WELDRECON_CACHE_DIR) is
+    kept. The folder is removed at exit, after the server has stopped."""
     global _OWN_HOME, _API_SERVER
-    if hasattr(config, "workerinput"):
-        return  # a test worker: the controller made all of it, its environment says where
+    if not hasattr(config, "workerinput") and config.getoption("numprocesses", None):
+        return  # the controller of the test workers runs no test
     from flows.api_server import TemporaryAPIServer
 
     _OWN_HOME = Path(tempfile.mkdtemp(prefix="weldrecon-tests-"))
+    atexit.register(shutil.rmtree, _OWN_HOME, ignore_errors=True)
     if not (os.environ.get("PREFECT_HOME") or os.environ.get("PREFECT_API_URL")):
         os.environ["PREFECT_HOME"] = str(_OWN_HOME / "prefect")
     os.environ.setdefault("WELDRECON_CACHE_DIR", str(_OWN_HOME / "cache"))
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     if not os.environ.get("PREFECT_API_URL"):
         _API_SERVER = TemporaryAPIServer.launch(log=_OWN_HOME / "prefect-api-server.log")
-        os.environ["PREFECT_API_URL"] = _API_SERVER.url  # set before the workers start
+        os.environ["PREFECT_API_URL"] = _API_SERVER.url  # before anything imports Prefect
         # stopped at exit, after Prefect's own exit handlers (registered later, run first) have
         # sent what they still hold
         atexit.register(_API_SERVER.stop)
 
 
-def pytest_unconfigure(config):
-    if _OWN_HOME is not None:
-        shutil.rmtree(_OWN_HOME, ignore_errors=True)
-
-
 @pytest.fixture(scope="session", autouse=True)
 def _the_sessions_prefect_api():
-    """The session's Prefect API answers before any test runs (it starts while pytest collects);
+    """This process's Prefect API answers before any test runs (it starts while pytest collects);
     the flows' last log lines are sent to it at the end."""
     from flows.api_server import wait_for_api
 
