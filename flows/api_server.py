@@ -2,9 +2,10 @@
 loopback port, that the kernel stops when the process that started it dies, however it dies
 (``prctl(PR_SET_PDEATHSIG)``; Prefect's own temporary server outlived a ``kill -9`` of its parent
 for hours). A run of the command line starts one for itself and its Dask workers
-(``flows.reconstruct.prefect_api_for_workers``); the test session starts one for all its workers.
+(``flows.reconstruct.prefect_api_for_workers``); each test process starts one for itself
+(``tests/conftest.py``).
 
-``launch`` returns at once, so that the caller can go on (a test session spawns its workers) while
+``launch`` returns at once, so that the caller can go on (a test process collects its tests) while
 the server starts; ``wait_ready`` waits for its health check. Nothing here imports Prefect."""
 
 from __future__ import annotations
@@ -82,7 +83,8 @@ class TemporaryAPIServer:
     def _exited(self) -> str | None:
         if self.process.poll() is None:
             return None
-        return f"the Prefect API server on port {self.port} exited with status {self.process.returncode}{self._log_tail()}"
+        return (f"the Prefect API server on port {self.port} exited with status {self.process.returncode}"
+                f"{self._log_tail()}")
 
     def stop(self, timeout_s: float = 10) -> None:
         """Stop the server (SIGTERM, then SIGKILL after ``timeout_s``)."""
