@@ -1,0 +1,222 @@
+"""A linear static solve of a tetrahedral FE model by CalculiX (``ccx``, Debian's ``calculix-ccx``).
+
+The model goes in as arrays (nodes in mm, C3D4 or C3D10 tetrahedra in Abaqus node order, named
+node sets), the load case as prescribed displacements on node sets, one isotropic linear elastic
+material (N, mm, MPa); CalculiX runs in a child process of its own in a scratch folder, one
+thread (the same model, the same numbers), killed past ``timeout_s`` and when this process dies.
+Out come the displacements, the stresses extrapolated to the nodes and averaged (CalculiX's
+``*NODE FILE`` S, the ``.frd`` file) and the reaction force summed over each constrained set
+(``*NODE PRINT`` RF totals, the ``.dat`` file).
+
+A missing ``ccx`` raises CalculixNotFound; a model CalculiX refuses, or a run that ends without
+results, raises FESolveError with CalculiX's own last words.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
+           "max_principal", "calculix_version", "GMSH_TO_ABAQUS_TET10", "orient_tetrahedra"]
+
+# gmsh's 10-node tetrahedron numbers its edge nodes (0-1, 1-2, 2-0, 3-0, 3-2, 3-1); Abaqus's C3D10
+# (0-1, 1-2, 2-0, 0-3, 1-3, 2-3): the last two swap
+GMSH_TO_ABAQUS_TET10 = np.array([0, 1, 2, 3, 4, 5, 6, 7, 9, 8])
+
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "CCX_NPROC_EQUATION_SOLVER": "1", "CCX_NPROC_RESULTS": "1",
+               "CCX_NPROC_STIFFNESS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
+class CalculixNotFound(RuntimeError):
+    """No CalculiX on this machine."""
+
+
+class FESolveError(RuntimeError):
+    """CalculiX refused the model or ended without results."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Isotropic linear elastic: Young's modulus (MPa) and Poisson's ratio; structural steel by default."""
+
+    youngs_modulus_mpa: float = 210_000.0
+    poisson_ratio: float = 0.3
+
+
+@dataclass(frozen=True)
+class DisplacementCase:
+    """Node sets held or moved: ``fixed`` set name -> {dof (1 x, 2 y, 3 z): displacement mm}."""
+
+    node_sets: dict[str, np.ndarray]
+    prescribed: dict[str, dict[int, float]]
+
+
+@dataclass
+class FESolution:
+    """Per node (in the model's node order): ``displacement_mm`` (n, 3), ``stress_mpa`` (n, 6: xx, yy,
+    zz, xy, yz, zx; nodes no element uses are NaN); ``reaction_n`` set name -> (3,) summed force."""
+
+    displacement_mm: np.ndarray
+    stress_mpa: np.ndarray
+    reaction_n: dict[str, np.ndarray] = field(default_factory=dict)
+    log: str = ""
+
+
+def calculix_version() -> str:
+    """``ccx``'s version line; CalculixNotFound when there is none."""
+    ccx = _ccx()
+    done = subprocess.run([ccx, "-v"], capture_output=True, text=True, timeout=30)
+    match = re.search(r"Version\s+(\S+)", done.stdout + done.stderr)
+    return match.group(1) if match else "unknown"
+
+
+def _ccx() -> str:
+    found = shutil.which("ccx")
+    if found is None:
+        raise CalculixNotFound("CalculiX (ccx) is not installed: the FE solve needs it (Debian package "
+                               "calculix-ccx; `make setup` installs it)")
+    return found
+
+
+def orient_tetrahedra(points: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """The elements (C3D4 or C3D10, Abaqus order) with the negatively oriented ones renumbered to
+    positive (corners 1 and 2 swapped, and with them the edge nodes)."""
+    elements = np.array(elements, copy=True)
+    p = points[elements[:, :4]]
+    volume = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])
+    flip = volume < 0
+    swap = [0, 2, 1, 3] if elements.shape[1] == 4 else [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]
+    elements[flip] = elements[flip][:, swap]
+    return elements
+
+
+def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: DisplacementCase, material: Material):
+    kind = {4: "C3D4", 10: "C3D10"}[elements.shape[1]]
+    with open(path, "w", encoding="ascii") as f:
+        f.write("*HEADING\nweldrecon linear static solve (mm, N, MPa)\n*NODE, NSET=NALL\n")
+        f.writelines(f"{i + 1},{x:.12e},{y:.12e},{z:.12e}\n" for i, (x, y, z) in enumerate(points))
+        f.write(f"*ELEMENT, TYPE={kind}, ELSET=EALL\n")
+        for i, nodes in enumerate(elements + 1):
+            cells = [str(i + 1), *map(str, nodes)]
+            # at most 16 entries on a line: C3D10 continues on a second one
+            f.write(",".join(cells[:11]) + ("\n" if len(cells) <= 11 else ",\n" + ",".join(cells[11:]) + "\n"))
+        for name, nodes in case.node_sets.items():
+            f.write(f"*NSET, NSET={name}\n")
+            ids = np.asarray(nodes, np.int64) + 1
+            f.writelines(",".join(map(str, ids[k:k + 16])) + "\n" for k in range(0, len(ids), 16))
+        f.write(f"*MATERIAL, NAME=STEEL\n*ELASTIC\n{material.youngs_modulus_mpa:.6e},{material.poisson_ratio:.6f}\n"
+                "*SOLID SECTION, ELSET=EALL, MATERIAL=STEEL\n*STEP\n*STATIC\n*BOUNDARY\n")
+        for name, dofs in case.prescribed.items():
+            f.writelines(f"{name},{dof},{dof},{value:.12e}\n" for dof, value in sorted(dofs.items()))
+        f.write("*NODE FILE\nU,S\n")
+        for name in case.prescribed:
+            f.write(f"*NODE PRINT, NSET={name}, TOTALS=ONLY\nRF\n")
+        f.write("*END STEP\n")
+
+
+def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCase, *,
+                 material: Material = Material(), timeout_s: float = 3600.0,
+                 workdir: Path | None = None) -> FESolution:
+    """Solve the model (see the module's description). ``workdir``: where CalculiX's files are kept
+    (default: a temporary folder, removed)."""
+    ccx = _ccx()
+    points = np.asarray(points, np.float64)
+    elements = np.asarray(elements, np.int64)
+    if elements.ndim != 2 or elements.shape[1] not in (4, 10):
+        raise ValueError(f"elements: expected (e, 4) or (e, 10) node numbers, got shape {elements.shape}")
+    if len(elements) and (elements.min() < 0 or elements.max() >= len(points)):
+        raise ValueError(f"elements: node numbers must lie in 0..{len(points) - 1}")
+    missing = sorted(set(case.prescribed) - set(case.node_sets))
+    if missing:
+        raise ValueError(f"prescribed displacements on node sets not given: {missing}")
+    with tempfile.TemporaryDirectory(prefix="weldrecon-ccx-") as scratch:
+        folder = Path(workdir) if workdir is not None else Path(scratch)
+        folder.mkdir(parents=True, exist_ok=True)
+        _write_deck(folder / "job.inp", points, elements, case, material)
+        log = _run(ccx, folder, timeout_s)
+        displacement, stress = _read_frd(folder / "job.frd", len(points))
+        reactions = _read_totals(folder / "job.dat", list(case.prescribed))
+    return FESolution(displacement_mm=displacement, stress_mpa=stress, reaction_n=reactions, log=log)
+
+
+def _run(ccx: str, folder: Path, timeout_s: float) -> str:
+    parent = os.getpid()
+
+    def die_with_parent() -> None:  # in the child: the kernel ends it when this process dies
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:
+            os._exit(1)
+
+    try:
+        done = subprocess.run([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
+                              env={**os.environ, **_ONE_THREAD}, preexec_fn=die_with_parent, timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        raise FESolveError(f"CalculiX did not finish within {timeout_s:g} s") from None
+    log = done.stdout + done.stderr
+    errors = [line.strip() for line in log.splitlines() if "*ERROR" in line]
+    if done.returncode != 0 or errors or not (folder / "job.frd").exists():
+        said = errors[0] if errors else (log.strip().splitlines() or ["no output"])[-1]
+        raise FESolveError(f"CalculiX refused the model (exit {done.returncode}): {said}")
+    return log
+
+
+def _read_frd(path: Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """The last DISP and STRESS blocks of a CalculiX ``.frd`` (ASCII) as (n, 3) and (n, 6) arrays."""
+    blocks: dict[str, dict[int, list[float]]] = {}
+    current: dict[int, list[float]] | None = None
+    with open(path, encoding="ascii", errors="replace") as f:
+        for line in f:
+            if line.startswith(" -4"):
+                name = line[3:].split()[0]
+                current = blocks[name] = {} if name in ("DISP", "STRESS") else None
+            elif current is not None and line.startswith(" -1"):
+                node = int(line[3:13])
+                body = line[13:].rstrip("\n")
+                current[node] = [float(body[k:k + 12]) for k in range(0, len(body) - 11, 12)]
+            elif line.startswith(" -3"):
+                current = None
+    if "DISP" not in blocks or "STRESS" not in blocks:
+        raise FESolveError(f"{path.name}: no displacements or stresses in CalculiX's results")
+    u = np.full((n_nodes, 3), np.nan)
+    s = np.full((n_nodes, 6), np.nan)
+    for node, values in blocks["DISP"].items():
+        u[node - 1] = values[:3]
+    for node, values in blocks["STRESS"].items():
+        s[node - 1] = values[:6]
+    return u, s
+
+
+def _read_totals(path: Path, names: list[str]) -> dict[str, np.ndarray]:
+    """The summed reaction forces per node set from a CalculiX ``.dat``."""
+    text = path.read_text(encoding="ascii", errors="replace").splitlines()
+    totals: dict[str, np.ndarray] = {}
+    for i, line in enumerate(text):
+        match = re.search(r"total force \(fx,fy,fz\) for set (\S+)", line)
+        if match:
+            values = next(v for v in text[i + 1:] if v.strip())
+            totals[match.group(1).upper()] = np.array([float(v) for v in values.split()[:3]])
+    return {name: totals[name.upper()] for name in names if name.upper() in totals}
+
+
+def max_principal(stress: np.ndarray) -> np.ndarray:
+    """The largest principal stress of each (xx, yy, zz, xy, yz, zx) row."""
+    s = np.asarray(stress, np.float64)
+    tensor = np.empty((len(s), 3, 3))
+    tensor[:, 0, 0], tensor[:, 1, 1], tensor[:, 2, 2] = s[:, 0], s[:, 1], s[:, 2]
+    tensor[:, 0, 1] = tensor[:, 1, 0] = s[:, 3]
+    tensor[:, 1, 2] = tensor[:, 2, 1] = s[:, 4]
+    tensor[:, 2, 0] = tensor[:, 0, 2] = s[:, 5]
+    finite = np.all(np.isfinite(s), axis=1)
+    out = np.full(len(s), np.nan)
+    out[finite] = np.linalg.eigvalsh(tensor[finite])[:, -1]
+    return out
