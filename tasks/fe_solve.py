@@ -14,11 +14,10 @@ results, raises FESolveError with CalculiX's own last words.
 
 from __future__ import annotations
 
-import ctypes
+import contextlib
 import os
 import re
 import shutil
-import signal
 import subprocess
 import tempfile
 from dataclasses import dataclass, field
@@ -26,8 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tasks.volume_mesh import dies_with_parent
+
 __all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
-           "max_principal", "calculix_version", "GMSH_TO_ABAQUS_TET10", "orient_tetrahedra"]
+           "max_principal", "GMSH_TO_ABAQUS_TET10"]
 
 # gmsh's 10-node tetrahedron numbers its edge nodes (0-1, 1-2, 2-0, 3-0, 3-2, 3-1); Abaqus's C3D10
 # (0-1, 1-2, 2-0, 0-3, 1-3, 2-3): the last two swap
@@ -72,32 +73,12 @@ class FESolution:
     log: str = ""
 
 
-def calculix_version() -> str:
-    """``ccx``'s version line; CalculixNotFound when there is none."""
-    ccx = _ccx()
-    done = subprocess.run([ccx, "-v"], capture_output=True, text=True, timeout=30)
-    match = re.search(r"Version\s+(\S+)", done.stdout + done.stderr)
-    return match.group(1) if match else "unknown"
-
-
 def _ccx() -> str:
     found = shutil.which("ccx")
     if found is None:
         raise CalculixNotFound("CalculiX (ccx) is not installed: the FE solve needs it (Debian package "
                                "calculix-ccx; `make setup` installs it)")
     return found
-
-
-def orient_tetrahedra(points: np.ndarray, elements: np.ndarray) -> np.ndarray:
-    """The elements (C3D4 or C3D10, Abaqus order) with the negatively oriented ones renumbered to
-    positive (corners 1 and 2 swapped, and with them the edge nodes)."""
-    elements = np.array(elements, copy=True)
-    p = points[elements[:, :4]]
-    volume = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0])
-    flip = volume < 0
-    swap = [0, 2, 1, 3] if elements.shape[1] == 4 else [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]
-    elements[flip] = elements[flip][:, swap]
-    return elements
 
 
 def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: DisplacementCase, material: Material):
@@ -139,8 +120,10 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
     missing = sorted(set(case.prescribed) - set(case.node_sets))
     if missing:
         raise ValueError(f"prescribed displacements on node sets not given: {missing}")
-    with tempfile.TemporaryDirectory(prefix="weldrecon-ccx-") as scratch:
-        folder = Path(workdir) if workdir is not None else Path(scratch)
+    place = (contextlib.nullcontext(workdir) if workdir is not None
+             else tempfile.TemporaryDirectory(prefix="weldrecon-ccx-"))
+    with place as where:
+        folder = Path(where)
         folder.mkdir(parents=True, exist_ok=True)
         _write_deck(folder / "job.inp", points, elements, case, material)
         log = _run(ccx, folder, timeout_s)
@@ -150,16 +133,9 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
 
 
 def _run(ccx: str, folder: Path, timeout_s: float) -> str:
-    parent = os.getpid()
-
-    def die_with_parent() -> None:  # in the child: the kernel ends it when this process dies
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:
-            os._exit(1)
-
     try:
         done = subprocess.run([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
-                              env={**os.environ, **_ONE_THREAD}, preexec_fn=die_with_parent, timeout=timeout_s)
+                              env={**os.environ, **_ONE_THREAD}, preexec_fn=dies_with_parent(), timeout=timeout_s)
     except subprocess.TimeoutExpired:
         raise FESolveError(f"CalculiX did not finish within {timeout_s:g} s") from None
     log = done.stdout + done.stderr

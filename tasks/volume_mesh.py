@@ -31,7 +31,7 @@ from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChec
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
-           "quality_summary", "signed_volumes"]
+           "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
 # S3 (2,4,3) node 1, S4 (3,4,1) node 2 (0-based below), each face's nodes here wound outward
@@ -139,9 +139,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     renumber = np.full(index.shape, -1, np.int64)
     renumber[used] = np.arange(len(used))
     points, tets = coords[keep], renumber[tets_by_tag]
-    volumes = signed_volumes(points, tets)
-    flip = volumes < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    tets = orient_tetrahedra(points, tets)
     element, face = boundary_faces(tets)
     faces = np.take_along_axis(tets[element], np.asarray(_FACES)[face - 1], axis=1)
     in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
@@ -168,22 +166,28 @@ _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THR
 _RESULT = b"\n--weldrecon-gmsh-result--\n"
 
 
+def dies_with_parent():
+    """A ``preexec_fn`` for a child process the kernel kills (SIGKILL) when this process dies,
+    however it dies (``prctl(PR_SET_PDEATHSIG)``)."""
+    parent = os.getpid()
+
+    def in_the_child() -> None:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # the parent died before the line above
+            os._exit(1)
+
+    return in_the_child
+
+
 def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
     """``_gmsh_volume_here`` in a fresh child process with one thread (see ``_ONE_THREAD``)."""
     root = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, **_ONE_THREAD,
            "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
-    parent = os.getpid()
-
-    def die_with_parent() -> None:  # in the child: the kernel ends it when this process dies, however
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
-        if os.getppid() != parent:  # this process died before the line above
-            os._exit(1)
-
     try:
         done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
                               input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
-                              preexec_fn=die_with_parent, timeout=timeout_s)
+                              preexec_fn=dies_with_parent(), timeout=timeout_s)
     except subprocess.TimeoutExpired:  # the child is killed
         raise VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)") from None
     if done.returncode != 0 or _RESULT not in done.stdout:
@@ -289,6 +293,16 @@ def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     """(e,) mm^3, positive for a positively oriented tetrahedron."""
     a, b, c, d = (points[tets[:, k]] for k in range(4))
     return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+
+
+def orient_tetrahedra(points: np.ndarray, elements: np.ndarray) -> np.ndarray:
+    """The elements (C3D4 or C3D10, Abaqus order) with the negatively oriented ones renumbered to
+    positive (corners 1 and 2 swapped, and with them the edge nodes)."""
+    elements = np.array(elements, copy=True)
+    flip = signed_volumes(points, elements) < 0
+    swap = [0, 2, 1, 3] if elements.shape[1] == 4 else [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]
+    elements[flip] = elements[flip][:, swap]
+    return elements
 
 
 def _face_keys(tets: np.ndarray) -> np.ndarray:

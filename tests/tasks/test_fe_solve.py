@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from tasks.fe_solve import (GMSH_TO_ABAQUS_TET10, CalculixNotFound, DisplacementCase, FESolveError, Material,
-                            max_principal, orient_tetrahedra, solve_static)
+                            max_principal, solve_static)
+from tasks.volume_mesh import orient_tetrahedra
 
 # a plate 200 x 50 x 1 mm, a 10 mm hole through its middle: d/W = 0.2
 LENGTH, WIDTH, THICK, HOLE = 200.0, 50.0, 1.0, 10.0
