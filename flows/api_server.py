@@ -20,6 +20,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ["TemporaryAPIServer", "wait_for_api"]
@@ -44,11 +45,13 @@ class TemporaryAPIServer:
         return f"http://127.0.0.1:{self.port}/api"
 
     @classmethod
-    def launch(cls, log: Path | None = None) -> TemporaryAPIServer:
+    def launch(cls, log: Path | None = None, *, without: Sequence[str] = ()) -> TemporaryAPIServer:
         """Start the server process, without waiting for it. Call it from the thread that lives as
         long as the server should: the kernel's signal follows the thread that started the child.
         ``log``: a file for the server's own output (default: this process's stderr; it says
-        only errors)."""
+        only errors). ``without``: Prefect server services not to run (names as in
+        ``PREFECT_SERVER_SERVICES_<NAME>_ENABLED``, e.g. ``task_run_recorder``), and
+        ``"block_registration"``: no block types registered at start."""
         spec = importlib.util.find_spec("prefect")
         if spec is None or not spec.submodule_search_locations:
             raise RuntimeError("prefect is not installed: cannot start a Prefect API server")
@@ -62,6 +65,10 @@ class TemporaryAPIServer:
 
         # no UI; ephemeral: no scheduler or other services, what a temporary server needs
         env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
+        for name in without:
+            key = ("PREFECT_API_BLOCKS_REGISTER_ON_START" if name == "block_registration"
+                   else f"PREFECT_SERVER_SERVICES_{name.upper()}_ENABLED")
+            env[key] = "false"
         out = open(log, "ab") if log is not None else None  # noqa: SIM115 - the child's from here
         try:
             process = subprocess.Popen(

@@ -187,6 +187,7 @@ def six_run(six_sample, tmp_path_factory):
 
 
 _OWN_HOME: Path | None = None
+_SERVICES_NO_TEST_READS = ("task_run_recorder", "event_persister", "triggers", "block_registration")
 _API_SERVER = None  # flows.api_server.TemporaryAPIServer, when this process started the session's
 
 
@@ -214,7 +215,12 @@ def pytest_configure(config):
     os.environ.setdefault("WELDRECON_CACHE_DIR", str(_OWN_HOME / "cache"))
     os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
     if not os.environ.get("PREFECT_API_URL"):
-        _API_SERVER = TemporaryAPIServer.launch(log=_OWN_HOME / "prefect-api-server.log")
+        # without the services that record each task run's states and every event in the database
+        # (no test reads them back; the flow runs, their states and logs are recorded as ever) and
+        # without registering Prefect's block types (none is used): measured on a six-pass run,
+        # the server's CPU 20.5 -> 16.2 s to start and 4.0 -> 2.8 s to serve the run
+        _API_SERVER = TemporaryAPIServer.launch(log=_OWN_HOME / "prefect-api-server.log",
+                                                without=_SERVICES_NO_TEST_READS)
         os.environ["PREFECT_API_URL"] = _API_SERVER.url  # before anything imports Prefect
         # stopped at exit, after Prefect's own exit handlers (registered later, run first) have
         # sent what they still hold
