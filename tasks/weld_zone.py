@@ -9,7 +9,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PolylineZone", "WeldZone", "weld_zone"]
+__all__ = ["PolylineZone", "WeldZone", "weld_zone", "polyline_projection"]
+
+
+def polyline_projection(points_mm: np.ndarray, vertices_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each of ``points_mm`` (n, 3) against the polyline ``vertices_mm`` (k >= 2, 3): (distance
+    (n,), station (n,)), its distance to the polyline and the arc length from the first vertex to
+    its closest point on it, mm (the first segment wins a tie)."""
+    p = np.asarray(points_mm, np.float64).reshape(-1, 3)
+    vertices = np.asarray(vertices_mm, np.float64)
+    best = np.full(len(p), np.inf)
+    station = np.zeros(len(p))
+    start = 0.0
+    for a, b in zip(vertices[:-1], vertices[1:]):
+        d = b - a
+        dd = float(d @ d)
+        t = np.clip((p - a) @ d / max(dd, 1e-300), 0.0, 1.0)
+        r = p - a - t[:, None] * d
+        squared = np.einsum("ij,ij->i", r, r)
+        closer = squared < best
+        station[closer] = start + t[closer] * np.sqrt(dd)
+        best = np.minimum(best, squared)
+        start += np.sqrt(dd)
+    return np.sqrt(best), station
 
 
 @dataclass(frozen=True)
@@ -23,15 +45,7 @@ class PolylineZone:
 
     def distance_mm(self, points_mm: np.ndarray) -> np.ndarray:
         """(n,) float64: the distance of each of ``points_mm`` (n, 3) to the polyline, mm."""
-        p = np.asarray(points_mm, np.float64).reshape(-1, 3)
-        vertices = np.asarray(self.points_mm, np.float64)
-        best = np.full(len(p), np.inf)
-        for a, b in zip(vertices[:-1], vertices[1:]):
-            d = b - a
-            t = np.clip((p - a) @ d / max(float(d @ d), 1e-300), 0.0, 1.0)
-            r = p - a - t[:, None] * d
-            best = np.minimum(best, np.einsum("ij,ij->i", r, r))
-        return np.sqrt(best)
+        return polyline_projection(points_mm, np.asarray(self.points_mm, np.float64))[0]
 
     def contains(self, points_mm: np.ndarray) -> np.ndarray:
         """(n,) bool: the point lies within ``radius_mm`` of the polyline. Points outside the

@@ -204,3 +204,17 @@ def test_polyline_zone_distance_against_brute_force():
     clear = np.abs(brute - zone.radius_mm) > step
     assert np.array_equal(zone.contains(probe)[clear], (brute <= zone.radius_mm)[clear])
     assert 100 < zone.contains(probe).sum() < 3900  # both sides of the radius are probed
+
+
+def test_polyline_projection_gives_the_station_along_the_line():
+    """An L-shaped line, 10 mm along x then 5 mm along y: a point's station is the arc length to
+    its closest point on the line, its distance the same as the zone's."""
+    from tasks.weld_zone import PolylineZone, polyline_projection
+
+    line = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 5.0, 0.0]])
+    points = np.array([[3.0, 1.0, 0.0], [12.0, 4.0, 0.0], [-2.0, 0.0, 0.0], [10.0, 9.0, 2.0]])
+    distance, station = polyline_projection(points, line)
+    np.testing.assert_allclose(station, [3.0, 14.0, 0.0, 15.0])
+    np.testing.assert_allclose(distance, [1.0, 2.0, 2.0, np.hypot(4.0, 2.0)])
+    zone = PolylineZone(tuple(map(tuple, line)), 1.0)
+    assert np.array_equal(zone.distance_mm(points), distance)
