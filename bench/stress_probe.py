@@ -35,7 +35,7 @@ from tasks.concentration import concentration_along
 from tasks.fe_solve import DisplacementCase, solve_static
 from tasks.frames import apply, invert
 from tasks.mesh import simplify_surface
-from tasks.volume_mesh import tetrahedralize
+from tasks.volume_mesh import boundary_faces, face_nodes, tetrahedralize
 
 ROOT = Path(__file__).resolve().parents[1]
 _EDGES = [[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]]  # C3D10's mid-side nodes 5..10, Abaqus order
@@ -53,14 +53,9 @@ def _stage(run: Path, name: str) -> _Ref:
     return _Ref(next(p for p in (run / "stages" / name).iterdir() if p.is_dir()))
 
 
-def _faces(tets: np.ndarray) -> np.ndarray:
-    return np.sort(np.concatenate([tets[:, [0, 1, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 3]], tets[:, [1, 2, 3]]]),
-                   axis=1)
-
-
-def _boundary_nodes(tets: np.ndarray) -> np.ndarray:
-    faces, count = np.unique(_faces(tets), axis=0, return_counts=True)
-    return np.unique(faces[count == 1])
+def _boundary(tets: np.ndarray) -> np.ndarray:
+    """(f, 3) the nodes of the faces only one of ``tets`` has, each row sorted."""
+    return np.sort(face_nodes(tets, *boundary_faces(tets)), axis=1)
 
 
 def _factors(points, stress, toes, nominal, nodes) -> list[dict]:
@@ -88,14 +83,16 @@ def _solve(points: np.ndarray, tets: np.ndarray, spec, toes: list[np.ndarray], s
     force = whole.reaction_n["PULLED"][0]
     figures["balance"] = float((force + whole.reaction_n["HELD"][0]) / force)
     nominal = force / (spec.gauge_width_mm * spec.thickness_mm)
-    surface = _boundary_nodes(tets)
+    outside = _boundary(tets)
+    surface = np.unique(outside)
     linear = _factors(points, whole.stress_mpa, toes, nominal, surface)
-    # the strip, quadratic, driven at its cut by the whole model's displacements
+    # the strip, quadratic, driven at its cut by the whole model's displacements: the cut is the
+    # strip's boundary that is not the model's
     inside = np.abs(points[tets].mean(axis=1)[:, 0]) < strip_mm
-    faces = _faces(tets)
-    owner_inside = np.tile(inside, 4)
-    cut_faces = {tuple(f) for f in faces[owner_inside]} & {tuple(f) for f in faces[~owner_inside]}
-    cut = np.unique(np.array(sorted(cut_faces)).ravel())
+    strip_faces = _boundary(tets[inside])
+    rows = np.dtype((np.void, strip_faces.dtype.itemsize * 3))
+    on_surface = np.isin(np.ascontiguousarray(strip_faces).view(rows), np.ascontiguousarray(outside).view(rows))
+    cut = np.unique(strip_faces[~on_surface.ravel()])
     used = np.unique(tets[inside])
     index = np.full(len(points), -1, np.int64)
     index[used] = np.arange(len(used))

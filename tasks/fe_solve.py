@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tasks.volume_mesh import dies_with_parent
+from tasks.volume_mesh import ONE_THREAD_ENV, dies_with_parent
 
 __all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
            "max_principal", "GMSH_TO_ABAQUS_TET10"]
@@ -34,8 +34,7 @@ __all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "
 # (0-1, 1-2, 2-0, 0-3, 1-3, 2-3): the last two swap
 GMSH_TO_ABAQUS_TET10 = np.array([0, 1, 2, 3, 4, 5, 6, 7, 9, 8])
 
-_ONE_THREAD = {"OMP_NUM_THREADS": "1", "CCX_NPROC_EQUATION_SOLVER": "1", "CCX_NPROC_RESULTS": "1",
-               "CCX_NPROC_STIFFNESS": "1", "OPENBLAS_NUM_THREADS": "1"}
+_ONE_THREAD = {**ONE_THREAD_ENV, "CCX_NPROC_EQUATION_SOLVER": "1", "CCX_NPROC_RESULTS": "1", "CCX_NPROC_STIFFNESS": "1"}
 
 
 class CalculixNotFound(RuntimeError):

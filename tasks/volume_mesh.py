@@ -31,7 +31,8 @@ from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChec
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
-           "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent"]
+           "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent", "face_nodes",
+           "ONE_THREAD_ENV"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
 # S3 (2,4,3) node 1, S4 (3,4,1) node 2 (0-based below), each face's nodes here wound outward
@@ -59,8 +60,7 @@ class VolumeMesh:
 
     def boundary_triangles(self) -> np.ndarray:
         """(f, 3) int64, the boundary faces' nodes, counter-clockwise seen from outside."""
-        local = np.asarray(_FACES)[self.boundary_face - 1]
-        return np.take_along_axis(self.tetrahedra[self.boundary_element], local, axis=1)
+        return face_nodes(self.tetrahedra, self.boundary_element, self.boundary_face)
 
     def weld_zone_faces(self) -> dict[int, np.ndarray]:
         """Abaqus face number -> the elements (sorted, 0-based) whose face of that number is a
@@ -141,7 +141,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     points, tets = coords[keep], renumber[tets_by_tag]
     tets = orient_tetrahedra(points, tets)
     element, face = boundary_faces(tets)
-    faces = np.take_along_axis(tets[element], np.asarray(_FACES)[face - 1], axis=1)
+    faces = face_nodes(tets, element, face)
     in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
                       weld_zone_face=in_zone, surface_remeshed=remeshed)
@@ -162,7 +162,7 @@ def _surface_pieces(triangles: np.ndarray) -> int:
 # 2-core process made node coordinates differing in the 10th digit. So gmsh runs in a child
 # process of its own, always with one thread of each: the same surface, the same bytes, from any
 # caller.
-_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 _RESULT = b"\n--weldrecon-gmsh-result--\n"
 
 
@@ -180,9 +180,9 @@ def dies_with_parent():
 
 
 def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
-    """``_gmsh_volume_here`` in a fresh child process with one thread (see ``_ONE_THREAD``)."""
+    """``_gmsh_volume_here`` in a fresh child process with one thread (see ``ONE_THREAD_ENV``)."""
     root = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, **_ONE_THREAD,
+    env = {**os.environ, **ONE_THREAD_ENV,
            "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
     try:
         done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
@@ -324,6 +324,12 @@ def _same_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     else:
         _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     return inverse.ravel(), counts
+
+
+def face_nodes(tets: np.ndarray, element: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """(f, 3) int64: the nodes of face ``face`` (Abaqus numbers 1-4) of each ``element``, wound
+    counter-clockwise seen from outside a positively oriented tetrahedron."""
+    return np.take_along_axis(np.asarray(tets)[element], np.asarray(_FACES)[np.asarray(face) - 1], axis=1)
 
 
 def boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

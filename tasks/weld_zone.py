@@ -28,9 +28,10 @@ def polyline_projection(points_mm: np.ndarray, vertices_mm: np.ndarray) -> tuple
         r = p - a - t[:, None] * d
         squared = np.einsum("ij,ij->i", r, r)
         closer = squared < best
-        station[closer] = start + t[closer] * np.sqrt(dd)
+        length = np.sqrt(dd)
+        station[closer] = start + t[closer] * length
         best = np.minimum(best, squared)
-        start += np.sqrt(dd)
+        start += length
     return np.sqrt(best), station
 
 
