@@ -93,6 +93,19 @@ def ci_config():
     return preset_config("ci")
 
 
+def no_pose_log_config():
+    """The ``ci`` preset from a cell that logs no flange pose per profile (``log_profile_poses:
+    false``): the passes are placed by their nominal sweeps alone."""
+    config = preset_config("ci")
+    return config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
+
+
+@pytest.fixture(scope="session")
+def no_pose_log_sample(tmp_path_factory) -> Path:
+    return _made_once(tmp_path_factory, "no-pose-log-sample",
+                      lambda out: simulate(no_pose_log_config(), out, previews=False))
+
+
 def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None = None):
     """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report),
     the report as published (tests.flows.samples.as_published; a run stopped after the stage
@@ -256,7 +269,7 @@ def _tier(item) -> int:
 
 
 # what the session makes once, by the first worker that needs it (the others wait for it)
-_MADE_ONCE = {"ci_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run", "tjoint_run",
+_MADE_ONCE = {"ci_sample", "no_pose_log_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run", "tjoint_run",
               "tjoint_single_run"}
 
 

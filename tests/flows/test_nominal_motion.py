@@ -10,21 +10,16 @@ import numpy as np
 
 from flows.stages.outputs import REFINED
 from simulator.evaluate import pass_misalignment
-from simulator.presets import preset_config
-from simulator.run import simulate
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 
-def test_a_sample_without_a_pose_log_is_registered_from_its_nominal_sweeps(tmp_path):
+def test_a_sample_without_a_pose_log_is_registered_from_its_nominal_sweeps(no_pose_log_sample, tmp_path):
     from flows.reconstruct import reconstruct_sample
 
-    config = preset_config("ci")
-    config = config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
-    sample = tmp_path / "sample"
-    simulate(config, sample, previews=False)
+    sample = no_pose_log_sample
     # up to the surface mesh: what follows it does not see the motion
     run = reconstruct_sample(str(sample), str(tmp_path / "run"), CI_CONFIG, started_by="pytest", stop_after="mesh")
     m = pass_misalignment(sample, REFINED.open(run.refs["refine"]).T_common_pass)

@@ -69,13 +69,17 @@ def test_existing_output_is_not_touched(tmp_path, capsys):
 
 
 def test_a_failed_simulation_leaves_no_partial_folder(tmp_path, monkeypatch):
+    """The scanner fails once the first pass's store is written: nothing of the folder is left."""
     import simulator.run as run
 
-    def broken(*args, **kwargs):
-        raise RuntimeError("scanner exploded")
+    class Broken(run.PassWriter):
+        def close(self):
+            super().close()
+            assert any((tmp_path).rglob("*.zarr"))  # the first pass is on disk, beside the folder
+            raise RuntimeError("scanner exploded")
 
-    monkeypatch.setattr(run, "write_manifest", broken)
-    with pytest.raises(RuntimeError):
+    monkeypatch.setattr(run, "PassWriter", Broken)
+    with pytest.raises(RuntimeError, match="scanner exploded"):
         simulate(preset_config("ci").model_copy(update={"chunk_profiles": 4096}), tmp_path / "out")
     assert list(tmp_path.iterdir()) == []
 

@@ -57,25 +57,21 @@ def test_a_logged_pose_wins_over_the_nominal_sweep():
     assert_allclose(T, logged)
 
 
-def test_nominal_poses_of_a_sample_without_a_pose_log_follow_the_true_motion(tmp_path):
+def test_nominal_poses_of_a_sample_without_a_pose_log_follow_the_true_motion(no_pose_log_sample):
     """The simulated cell with ``log_profile_poses: false``: the nominal sweep differs from the
     true sensor poses only by the robot's per-pass rigid error and its speed ripple."""
     from data_catalog.manifests import load_manifest
     from data_catalog.passes import read_pass
     from data_catalog.truth import read_truth_pass
-    from simulator.presets import preset_config
-    from simulator.run import simulate
 
-    config = preset_config("ci")
-    config = config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
-    simulate(config, tmp_path / "s", previews=False)
-    manifest = load_manifest(tmp_path / "s")
+    sample = no_pose_log_sample
+    manifest = load_manifest(sample)
     for _, entry in manifest.passes()[:3]:
-        data = read_pass(tmp_path / "s" / entry.file)
+        data = read_pass(sample / entry.file)
         assert data.T_world_flange is None and not entry.has_profile_poses
         T = sensor_poses(manifest.scanner.T_flange_sensor, timestamp_s=data.timestamp_s, T_world_flange=None,
                          motion=entry.nominal_motion)
-        true = read_truth_pass(tmp_path / "s" / "truth" / "passes" / f"{entry.pass_id}.zarr").T_world_sensor
+        true = read_truth_pass(sample / "truth" / "passes" / f"{entry.pass_id}.zarr").T_world_sensor
         offset = np.linalg.norm(T[:, :3, 3] - true[:, :3, 3], axis=1)
         # a rigid error of sigma 0.25 mm, 0.02 deg at ~250 mm reach, plus a 1 % speed ripple (~12 um)
         assert offset.max() < 2.0
