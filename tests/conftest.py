@@ -122,15 +122,6 @@ def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None
                                                     stop_after=stop_after))
 
 
-def tjoint_test_config(*, wall_stickers: bool = True):
-    """The ``tjoint`` preset (two setups), or without the base plate's wall stickers."""
-    config = preset_config("tjoint")
-    if wall_stickers:
-        return config
-    return config.model_copy(update={"sample_id": "sim-tjoint-no-walls",
-                                     "tjoint": config.tjoint.model_copy(update={"wall_stickers": False})})
-
-
 # the T-joint's top setup: what the tjoint-single preset scans
 TJOINT_TOP = ["top-Y01", "top-Y02", "top-Y03", "top-Y04", "top-Y05", "top-Y06", "top-Y07", "top-Y08", "top-X01",
               "top-X02"]
@@ -139,7 +130,7 @@ TJOINT_TOP = ["top-Y01", "top-Y02", "top-Y03", "top-Y04", "top-Y05", "top-Y06", 
 @pytest.fixture(scope="session")
 def tjoint_sample(tmp_path_factory) -> Path:
     return _made_once(tmp_path_factory, "tjoint-sample",
-                      lambda out: simulate(tjoint_test_config(), out, previews=False))
+                      lambda out: simulate(preset_config("tjoint"), out, previews=False))
 
 
 @pytest.fixture(scope="session")
