@@ -260,8 +260,8 @@ def _tier(item) -> int:
 
 
 # what the session makes once, by the first worker that needs it (the others wait for it)
-_MADE_ONCE = {"ci_sample", "no_pose_log_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run", "tjoint_run",
-              "tjoint_single_run"}
+_MADE_ONCE = {"ci_sample", "no_pose_log_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run",
+              "tjoint_run", "tjoint_single_run"}
 
 
 def _order(item) -> tuple[int, bool]:

@@ -93,6 +93,7 @@ def test_without_the_wall_stickers_the_setups_are_not_matched_wrongly(tjoint_run
     lies on) go through the registration the stage runs, with the stage's settings."""
     from flows.preflight import load_config
     from flows.stages.outputs import TARGETS
+    from tasks.frames import apply
     from tasks.graph import register_passes
 
     _, report = tjoint_run
@@ -102,11 +103,10 @@ def test_without_the_wall_stickers_the_setups_are_not_matched_wrongly(tjoint_run
     on_wall = np.array([s.face in WALLS for s in on_part])
     manifest = load_manifest(tjoint_sample)
     setups = [setup for setup, _ in manifest.passes()]
+    every = [TARGETS.open(ref).centres[...] for ref in report["refs"]["targets"]]
     kept, dropped = [], 0
-    for setup, ref in zip(setups, report["refs"]["targets"]):
-        found = TARGETS.open(ref).centres[...]
-        T_specimen_world = np.linalg.inv(np.asarray(truth.T_world_specimen[setup]))
-        local = found @ T_specimen_world[:3, :3].T + T_specimen_world[:3, 3]
+    for setup, found in zip(setups, every):
+        local = apply(np.linalg.inv(np.asarray(truth.T_world_specimen[setup])), found)
         d = np.linalg.norm(local[:, None] - centres[None], axis=-1)
         wall = (d.min(axis=1) < 1.5) & on_wall[d.argmin(axis=1)]
         kept.append(found[~wall])
@@ -122,7 +122,7 @@ def test_without_the_wall_stickers_the_setups_are_not_matched_wrongly(tjoint_run
 
     # with them, the same call matches the setups (as the stage did in the run)
     assert REGISTRATION_SUMMARY.read(report["refs"]["registration"]).between_setups[0].targets == \
-        register([TARGETS.open(r).centres[...] for r in report["refs"]["targets"]]).setup_evidence["bottom"][0]
+        register(every).setup_evidence["bottom"][0]
     with pytest.raises(ValueError) as error:
         register(kept)
     message = str(error.value)

@@ -75,7 +75,7 @@ def test_a_failed_simulation_leaves_no_partial_folder(tmp_path, monkeypatch):
     class Broken(run.PassWriter):
         def close(self):
             super().close()
-            assert any((tmp_path).rglob("*.zarr"))  # the first pass is on disk, beside the folder
+            assert any(tmp_path.rglob("*.zarr"))  # the first pass is on disk, beside the folder
             raise RuntimeError("scanner exploded")
 
     monkeypatch.setattr(run, "PassWriter", Broken)
