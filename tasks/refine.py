@@ -99,9 +99,7 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) < neighbours:
         return SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), pts, view_direction=view_direction)
-    cells = np.floor(pts / spacing_mm).astype(np.int64)
-    _, first = np.unique(cells, axis=0, return_index=True)
-    first = np.sort(first)
+    first = np.sort(_first_in_each_cell(np.floor(pts / spacing_mm).astype(np.int64)))
     tree = cKDTree(pts)
     planes = _planes_at(pts, tree, first, neighbours)
     # a full neighbourhood close by (not an edge or a lone point), and a flat one
@@ -110,6 +108,80 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     if view_direction is not None:
         normals = orient_toward(normals, view_direction)
     return SurfaceSample(pts[first[keep]], normals, pts, tree, view_direction)
+
+
+def _first_in_each_cell(cells: np.ndarray) -> np.ndarray:
+    """The index of the first of the rows of ``cells`` (n, 3) int64 in each distinct cell (as
+    ``np.unique(cells, axis=0, return_index=True)``, in its order), from one int64 key per cell
+    (several times quicker than comparing rows) where the cells' span allows it."""
+    low = cells.min(axis=0)
+    span = cells.max(axis=0) - low + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0 ** 62:
+        return np.unique(cells, axis=0, return_index=True)[1]
+    key = ((cells[:, 0] - low[0]) * span[1] + (cells[:, 1] - low[1])) * span[2] + (cells[:, 2] - low[2])
+    return np.unique(key, return_index=True)[1]
+
+
+class _Occupied:
+    """Where a point may have a dense point within ``reach_mm``: the cells (at least ``reach_mm``
+    wide) that hold a dense point, and their neighbours (a point within reach of a dense point
+    lies in a cell at most one away from that point's cell), as a boolean grid over the dense
+    points' box of at most ``max_cells`` cells."""
+
+    def __init__(self, dense_mm: np.ndarray, reach_mm: float, max_cells: int = 1 << 24):
+        self.reach_mm = reach_mm
+        # a hair wider than the reach, so that rounding never puts a point within reach two cells away
+        self.cell_mm = reach_mm * (1 + 1e-6)
+        span = dense_mm.max(axis=0) - dense_mm.min(axis=0)
+        while np.prod(np.floor(span / self.cell_mm) + 3) > max_cells:
+            self.cell_mm *= 2
+        self.low = dense_mm.min(axis=0) - self.cell_mm
+        cells = np.floor((dense_mm - self.low) / self.cell_mm).astype(np.int64)
+        grid = np.zeros(tuple(cells.max(axis=0) + 2), bool)
+        grid[tuple(cells.T)] = True
+        for axis in range(3):  # grown by one cell along each axis in turn: the 27-cell neighbourhood
+            lower, upper = [slice(None)] * 3, [slice(None)] * 3
+            lower[axis], upper[axis] = slice(None, -1), slice(1, None)
+            grown = grid.copy()
+            grown[tuple(lower)] |= grid[tuple(upper)]
+            grown[tuple(upper)] |= grid[tuple(lower)]
+            grid = grown
+        self.grid = grid
+
+    def may_reach(self, points: np.ndarray) -> np.ndarray:
+        """(m,) bool: False where no dense point can lie within reach of the point."""
+        cells = np.floor((points - self.low) / self.cell_mm)
+        inside = np.all((cells >= 0) & (cells < self.grid.shape), axis=1)
+        out = np.zeros(len(points), bool)
+        out[inside] = self.grid[tuple(cells[inside].astype(np.int64).T)]
+        return out
+
+
+def _matched(src: np.ndarray, order: np.ndarray, tree: cKDTree, occupied: _Occupied, *,
+             most: int) -> tuple[np.ndarray, np.ndarray]:
+    """The source points ``src`` (m, 3) that have a point of ``tree`` within ``occupied.reach_mm``,
+    at most ``most`` of them, the first in ``order`` (a permutation of range(m)): their indices,
+    ascending, and their nearest tree points. Only points that ``occupied`` says may reach one are
+    searched, and the search stops once ``most`` are found: the answer is that of querying every
+    point and keeping the first ``most`` found, for a fraction of the queries."""
+    candidates = order[occupied.may_reach(src)[order]]
+    found_src, found_nearest, count = [], [], 0
+    chunk = 2 * most
+    for start in range(0, len(candidates), chunk):
+        part = candidates[start:start + chunk]
+        dist, nearest = tree.query(src[part], distance_upper_bound=occupied.reach_mm, workers=1)
+        hit = np.isfinite(dist)
+        found_src.append(part[hit])
+        found_nearest.append(nearest[hit])
+        count += int(hit.sum())
+        if count >= most:
+            break
+    if not found_src:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    chosen = np.concatenate(found_src)[:most]
+    nearest = np.concatenate(found_nearest)[:most]
+    ascending = np.argsort(chosen)
+    return chosen[ascending], nearest[ascending]
 
 
 def _planes_at(dense: np.ndarray, tree: cKDTree, idx: np.ndarray, k: int) -> np.ndarray:
@@ -204,7 +276,11 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     gates += [final_distance_mm] * max(max_iterations - len(gates), 0)
     gates = gates[:max_iterations]
     cache = [np.full((len(s.dense_mm), 8), np.nan) for s in samples]
-    priority = [_priority(s.normals, seed=k, normal_space=normal_space) for k, s in enumerate(samples)]
+    occupied = [_Occupied(s.dense_mm, neighbour_mm) if tree is not None else None for s, tree in zip(samples, trees)]
+    # each pass's points in the order they are taken, when a pair has more than it may use: by a
+    # fixed priority, the same points every iteration
+    by_priority = [np.argsort(_priority(s.normals, seed=k, normal_space=normal_space), kind="stable")
+                   for k, s in enumerate(samples)]
 
     def planes(k: int, idx: np.ndarray) -> np.ndarray:
         """Local planes at pass k's dense points idx (see _planes_at), each computed once."""
@@ -231,14 +307,11 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             if tree_b is None or len(sa.points_mm) == 0:
                 continue
             T_b_a = np.linalg.solve(T[b], T[a])
-            src = apply(T_b_a, sa.points_mm)
-            dist, idx = tree_b.query(src, distance_upper_bound=neighbour_mm, workers=1)
-            src_idx = np.flatnonzero(np.isfinite(dist))
+            src_idx, nearest = _matched(apply(T_b_a, sa.points_mm), by_priority[a], tree_b, occupied[b],
+                                        most=max_points_per_pair)
             if len(src_idx) < 50:
                 continue
-            if len(src_idx) > max_points_per_pair:  # by a fixed priority: the same points every iteration
-                src_idx = np.sort(src_idx[np.argsort(priority[a][src_idx], kind="stable")[:max_points_per_pair]])
-            plane = planes(b, idx[src_idx])
+            plane = planes(b, nearest)
             n_b, reach, plane_rms = plane[:, 3:6], plane[:, 6], plane[:, 7]
             n_a_in_b = sa.normals[src_idx] @ T_b_a[:3, :3].T
             cos = np.einsum("ij,ij->i", n_a_in_b, n_b)

@@ -157,3 +157,30 @@ def test_normal_space_priority_takes_slopes_before_more_plate():
     plain = np.argsort(_priority(normals, seed=3, normal_space=False), kind="stable")[:200]
     assert on_slope[plain].sum() < 20
     assert np.array_equal(_priority(normals, seed=3, normal_space=True), _priority(normals, seed=3, normal_space=True))
+
+
+@pytest.mark.parametrize("reach, most, max_cells", [(1.0, 50, 1 << 24), (1.0, 100_000, 1 << 24), (0.7, 300, 64)],
+                         ids=["first-few", "all", "coarse-grid"])
+def test_the_matched_points_are_those_of_querying_every_point(reach, most, max_cells):
+    """tasks.refine._matched searches only where a neighbour may be and stops once it has
+    ``most``: the same points and nearest neighbours as querying every point and keeping the first
+    ``most`` found in the priority order (also on a grid coarsened to ``max_cells``), points
+    exactly ``reach`` from a dense point included."""
+    from scipy.spatial import cKDTree
+
+    from tasks.refine import _matched, _Occupied
+
+    rng = np.random.default_rng(7)
+    dense = rng.uniform([0, 0, 0], [30, 10, 2], (4000, 3))
+    src = np.concatenate([rng.uniform([-5, -5, -2], [40, 15, 4], (3000, 3)),
+                          dense[:200] + reach * np.eye(3)[rng.integers(0, 3, 200)]])  # on the bound
+    order = rng.permutation(len(src))
+    tree = cKDTree(dense)
+    got, nearest = _matched(src, order, tree, _Occupied(dense, reach, max_cells=max_cells), most=most)
+
+    dist, every_nearest = tree.query(src, distance_upper_bound=reach)
+    found = np.flatnonzero(np.isfinite(dist))
+    rank = np.argsort(order)  # position of each point in the priority order
+    expected = np.sort(found[np.argsort(rank[found], kind="stable")[:most]])
+    assert len(found) > 300 and np.array_equal(got, expected)
+    assert np.array_equal(nearest, every_nearest[expected])
