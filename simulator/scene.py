@@ -36,12 +36,48 @@ class StickerSet:
             object.__setattr__(self, "_tree", cKDTree(self.centres))
         return self._tree
 
+    def _near_cells(self, bound_mm: float) -> tuple[np.ndarray, float, np.ndarray]:
+        """A boolean grid (its lower corner, its cell) of the cells next to a centre's cell, cells
+        a hair wider than ``bound_mm``: a point within the bound of a centre lies at most one cell
+        off it. Kept for the last few bounds asked for."""
+        grids = self.__dict__.setdefault("_grids", {})
+        if bound_mm not in grids:
+            cell = bound_mm * (1 + 1e-6)
+            span = self.centres.max(axis=0) - self.centres.min(axis=0)
+            while np.prod(np.floor(span / cell) + 5) > 1 << 22:
+                cell *= 2
+            low = self.centres.min(axis=0) - 2 * cell
+            occupied = np.zeros(tuple(np.floor(span / cell).astype(np.int64) + 5), bool)
+            home = np.floor((self.centres - low) / cell).astype(np.int64)
+            for offset in np.ndindex(3, 3, 3):  # each centre's cell and its 26 neighbours
+                occupied[tuple((home + np.subtract(offset, 1)).T)] = True
+            if len(grids) >= 8:
+                grids.clear()
+            grids[bound_mm] = (low, cell, occupied)
+        return grids[bound_mm]
+
+    def _nearest_centre(self, points: np.ndarray, bound_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """``cKDTree.query(points, k=1, distance_upper_bound=bound_mm)`` of the centres: (distance,
+        index), inf and len(centres) where no centre is within ``bound_mm``. Most points of a
+        profile are far from every sticker: only those in a cell (a hair wider than the bound) next
+        to a cell holding a centre are searched; the answer is the same."""
+        dist = np.full(len(points), np.inf)
+        idx = np.full(len(points), len(self.centres), dtype=np.intp)
+        low, cell, occupied = self._near_cells(bound_mm)
+        cells = np.floor((points - low) / cell)
+        inside = np.all((cells >= 0) & (cells < occupied.shape), axis=1)
+        near = np.flatnonzero(inside)
+        near = near[occupied[tuple(cells[near].astype(np.int64).T)]]
+        if len(near):
+            dist[near], idx[near] = self._centre_tree().query(points[near], k=1, distance_upper_bound=bound_mm)
+        return dist, idx
+
     def lookup(self, points: np.ndarray) -> np.ndarray:
         """Sticker id under each point (n, 3) (same frame), NO_STICKER where none."""
         out = np.full(len(points), NO_STICKER, dtype=np.int32)
         if len(self.ids) == 0 or len(points) == 0:
             return out
-        dist, idx = self._centre_tree().query(points, k=1, distance_upper_bound=self.radius_mm + 0.6)
+        dist, idx = self._nearest_centre(points, self.radius_mm + 0.6)
         near = np.isfinite(dist)
         d = points[near] - self.centres[idx[near]]
         h = np.einsum("ij,ij->i", d, self.normals[idx[near]])
@@ -80,7 +116,7 @@ class StickerSet:
         if len(self.ids) == 0 or len(points) == 0:
             return frac
         reach = float(np.max(line_box_mm, initial=0.0)) * 4 + 4 * scan_sigma_mm + 0.1
-        dist, idx = self._centre_tree().query(points, k=1, distance_upper_bound=self.radius_mm + reach)
+        dist, idx = self._nearest_centre(points, self.radius_mm + reach)
         near = np.flatnonzero(np.isfinite(dist))
         if len(near) == 0:
             return frac

@@ -50,19 +50,20 @@ def sticker_candidates(specimen: Specimen, cfg: SimulationConfig, step_mm: float
     hw_min = np.minimum.reduce([specimen.half_width(xs + dx) for dx in (-r, 0.0, r)])
     centres, normals, faces = [], [], []
     eps = 0.05
+    # the grid across each x, all x at once (the faces' heights are pointwise functions of x, y)
+    rows = [_grid(-(hw - r - clear), hw - r - clear, step_mm) for hw in hw_min]
+    ys = np.concatenate(rows) if rows else np.zeros(0)
+    xx = np.repeat(xs, [len(row) for row in rows]) if rows else np.zeros(0)
     for face, z_of, sign in ((Face.TOP, specimen.top_z, 1.0), (Face.BOTTOM, specimen.bottom_z, -1.0)):
-        for x, hw in zip(xs, hw_min):
-            ys = _grid(-(hw - r - clear), hw - r - clear, step_mm)
-            if ys.size == 0:
-                continue
-            xx = np.full_like(ys, x)
-            z = z_of(xx, ys)
-            dzdx = (z_of(xx + eps, ys) - z_of(xx - eps, ys)) / (2 * eps)
-            dzdy = (z_of(xx, ys + eps) - z_of(xx, ys - eps)) / (2 * eps)
-            n = np.stack([-dzdx * sign, -dzdy * sign, np.full_like(ys, sign)], 1)
-            centres.append(np.stack([xx, ys, z], 1))
-            normals.append(n / np.linalg.norm(n, axis=1, keepdims=True))
-            faces.append(np.full(ys.size, face))
+        if ys.size == 0:
+            continue
+        z = z_of(xx, ys)
+        dzdx = (z_of(xx + eps, ys) - z_of(xx - eps, ys)) / (2 * eps)
+        dzdy = (z_of(xx, ys + eps) - z_of(xx, ys - eps)) / (2 * eps)
+        n = np.stack([-dzdx * sign, -dzdy * sign, np.full_like(ys, sign)], 1)
+        centres.append(np.stack([xx, ys, z], 1))
+        normals.append(n / np.linalg.norm(n, axis=1, keepdims=True))
+        faces.append(np.full(ys.size, face))
     half_t = sc.thickness_mm / 2 - r - clear
     if half_t >= 0:
         for face, s in ((Face.SIDE_NEG, -1.0), (Face.SIDE_POS, 1.0)):

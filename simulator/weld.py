@@ -38,6 +38,15 @@ def _smooth(rng: np.random.Generator, ys: np.ndarray, low: float, high: float) -
     return _Smooth(ys, rng.uniform(low, high, size=ys.size))
 
 
+def _shape_exponent(half: np.ndarray, height: np.ndarray, flank_deg: np.ndarray) -> np.ndarray:
+    """The cap's shape exponent on one side from its half width, height and drawn flank angle."""
+    return np.maximum(half * np.tan(np.radians(flank_deg)) / height, _MIN_SHAPE_EXPONENT)
+
+
+def _effective_flank_deg(half: np.ndarray, height: np.ndarray, shape_exponent: np.ndarray) -> np.ndarray:
+    return np.degrees(np.arctan(height * shape_exponent / half))
+
+
 @dataclass(frozen=True)
 class WeldCap:
     """A drawn weld cap. All functions take y (mm, specimen frame) arrays."""
@@ -65,14 +74,12 @@ class WeldCap:
         return half + float(np.max(np.abs(self.centre(ys) - self.centre_x_mm)))
 
     def shape_exponent(self, y: np.ndarray, side: int) -> np.ndarray:
-        half = self.width(y) / 2
-        n = half * np.tan(np.radians(self.flank_deg[side](y))) / self.height(y)
-        return np.maximum(n, _MIN_SHAPE_EXPONENT)
+        return _shape_exponent(self.width(y) / 2, self.height(y), self.flank_deg[side](y))
 
     def effective_flank_deg(self, y: np.ndarray, side: int) -> np.ndarray:
         """Flank angle the cap really has (the drawn one unless the shape had to be limited)."""
-        half = self.width(y) / 2
-        return np.degrees(np.arctan(self.height(y) * self.shape_exponent(y, side) / half))
+        half, height = self.width(y) / 2, self.height(y)
+        return _effective_flank_deg(half, height, _shape_exponent(half, height, self.flank_deg[side](y)))
 
     def height_mm(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cap height above the plate (mm, may be negative in grooves) and a reflective mask."""
@@ -84,8 +91,12 @@ class WeldCap:
         au = np.abs(u)
         s = au / half
         right = u >= 0
-        n = np.where(right, self.shape_exponent(y, 1), self.shape_exponent(y, 0))
-        theta = np.radians(np.where(right, self.effective_flank_deg(y, 1), self.effective_flank_deg(y, 0)))
+        # each smooth function of y evaluated once (the same numbers as shape_exponent and
+        # effective_flank_deg give, which evaluate them each time)
+        n_side = [_shape_exponent(half, h, self.flank_deg[side](y)) for side in (0, 1)]
+        n = np.where(right, n_side[1], n_side[0])
+        theta = np.radians(np.where(right, _effective_flank_deg(half, h, n_side[1]),
+                                    _effective_flank_deg(half, h, n_side[0])))
         inside = s < 1
         z = np.where(inside, h * (1 - np.minimum(s, 1) ** n), 0.0)
         # Crescent ripples, fading toward the toes.

@@ -93,17 +93,14 @@ def ci_config():
     return preset_config("ci")
 
 
-def no_pose_log_config():
-    """The ``ci`` preset from a cell that logs no flange pose per profile (``log_profile_poses:
-    false``): the passes are placed by their nominal sweeps alone."""
-    config = preset_config("ci")
-    return config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
-
-
 @pytest.fixture(scope="session")
-def no_pose_log_sample(tmp_path_factory) -> Path:
-    return _made_once(tmp_path_factory, "no-pose-log-sample",
-                      lambda out: simulate(no_pose_log_config(), out, previews=False))
+def no_pose_log_sample(ci_sample, tmp_path_factory) -> Path:
+    """The ``ci`` sample from a cell that logs no flange pose per profile (``log_profile_poses:
+    false``): its passes are placed by their nominal sweeps alone. The profiles are the ci
+    sample's (the simulator draws nothing for the log): made from it, not simulated again."""
+    from tests.flows.samples import without_pose_logs
+
+    return _made_once(tmp_path_factory, "no-pose-log-sample", lambda out: without_pose_logs(ci_sample, out))
 
 
 def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None = None):

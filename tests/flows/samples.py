@@ -33,3 +33,30 @@ def as_published(run) -> dict:
     return {**body, "outputs": run.outputs, "refs": run.refs, "cached": run.cached, "seconds": run.seconds,
             "trail_head": {"seq": run.trail_head.seq, "hash": run.trail_head.hash},
             "stage_paths": {n: run.stage_path(n) for n in run.refs}}
+
+
+def without_pose_logs(sample: Path, dst: Path) -> Path:
+    """``sample`` as a cell that logs no flange pose per profile (``robot.log_profile_poses:
+    false``) would have written it: the same profiles, no ``T_world_flange`` in the pass stores,
+    the manifest saying so (``has_profile_poses`` false, the stores' hashes anew) and the truth's
+    settings too. The simulator draws nothing for the log it writes, so this is the sample it
+    simulates with the flag off (tests/simulator/test_ci_sample.py checks that on a small plan)."""
+    from data_catalog.hashing import sha256_tree
+    from data_catalog.manifests import write_manifest
+    from schemas.manifest import SampleManifest
+    from schemas.simulation import SimulationConfig
+
+    dst.mkdir(parents=True)
+    manifest = json.loads((sample / "manifest.json").read_text())
+    for setup in manifest["setups"]:
+        for p in setup["passes"]:
+            shutil.copytree(sample / p["file"], dst / p["file"], ignore=shutil.ignore_patterns("T_world_flange"))
+            p["has_profile_poses"] = False
+            p["content_sha256"] = sha256_tree(dst / p["file"])
+    write_manifest(dst / "manifest.json", SampleManifest.model_validate(manifest))  # as the simulator writes it
+    shutil.copytree(sample / "truth", dst / "truth")
+    config = SimulationConfig.model_validate_json((sample / "truth" / "simulation.json").read_text())
+    config = config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
+    (dst / "truth" / "simulation.json").write_text(
+        config.model_dump_json(indent=2, exclude={"tjoint"} if config.tjoint is None else None) + "\n")
+    return dst

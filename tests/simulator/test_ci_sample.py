@@ -210,6 +210,28 @@ def test_same_seed_gives_identical_files(ci_sample, tmp_path, ci_config):
         assert sha256_tree(again / rel) == sha256_tree(ci_sample / rel), rel
 
 
+def test_a_cell_without_a_pose_log_writes_the_same_profiles_and_no_log(ci_config, tmp_path):
+    """``robot.log_profile_poses: false`` on a two-pass plan of the ci preset: the sample is the
+    one with the log, less the log, byte for byte (tests.flows.samples.without_pose_logs, which
+    the session's sample without a pose log is made with)."""
+    from simulator.run import simulate
+    from tests.flows.samples import without_pose_logs
+
+    plan = ci_config.plan.model_copy(update={"setups": ["top"], "vertical_offsets_mm": [-15.0, 15.0],
+                                             "side_rolls_deg": [], "width_passes": []})
+    runs = {}
+    for logged in (True, False):
+        config = ci_config.model_copy(update={"plan": plan, "robot": ci_config.robot.model_copy(
+            update={"log_profile_poses": logged})})
+        simulate(config, tmp_path / str(logged), previews=False)
+        runs[logged] = tmp_path / str(logged)
+    manifest = load_manifest(runs[False])
+    assert [e.has_profile_poses for _, e in manifest.passes()] == [False, False]
+    assert not any((runs[False] / e.file / "T_world_flange").exists() for _, e in manifest.passes())
+    derived = without_pose_logs(runs[True], tmp_path / "derived")
+    assert sha256_tree(derived) == sha256_tree(runs[False])
+
+
 def test_previews_exist(ci_sample):
     pngs = sorted(p.name for p in (ci_sample / "preview").glob("*.png"))
     assert "footprints_top.png" in pngs and "footprints_bottom.png" in pngs
