@@ -82,3 +82,30 @@ def test_mesh_view_draws_the_faces_toward_the_viewer_in_the_highlight_colour():
     inverted = Image.open(io.BytesIO(mesh_view(v, t[:, ::-1], azimuth_deg=0, elevation_deg=90, title="",
                                                highlight=top, width_in=2, height_in=2))).convert("RGB")
     assert np.asarray(inverted)[100, 100].astype(int)[2] >= np.asarray(inverted)[100, 100].astype(int)[0]
+
+
+def test_circles_added_at_once_give_add_patchs_limits_and_picture():
+    """tasks.report_figures._add_circles (the stickers on a pass's picture) against add_patch one
+    by one: the same data limits (circles reaching past the image included) and the same PNG."""
+    from matplotlib.patches import Ellipse
+
+    from tasks.report_figures import _add_circles, _figure, png
+
+    rng = np.random.default_rng(2)
+    centres = np.r_[rng.uniform(0, 40, (12, 2)), [[-1.0, 20.0], [41.5, 3.0]]]  # two past the edges
+    pictures, limits = [], []
+    for at_once in (False, True):
+        fig = _figure(5.6, 1.9, margins=(0.5, 0.45, 0.1, 0.25))
+        ax = fig.add_subplot()
+        ax.imshow(rng.random((8, 8)) if not pictures else image, extent=(0, 40, 0, 40), aspect="auto")
+        image = ax.get_images()[0].get_array()
+        circles = [Ellipse(tuple(c), 5.0, 5.0, fill=False, color="tab:red", lw=0.8) for c in centres]
+        if at_once:
+            _add_circles(ax, circles)
+        else:
+            for circle in circles:
+                ax.add_patch(circle)
+        limits.append(ax.dataLim.get_points().copy())
+        pictures.append(png(fig))
+    assert np.array_equal(limits[0], limits[1]) and limits[0][0, 0] < -3  # grown by the circles past the edge
+    assert pictures[0] == pictures[1]
