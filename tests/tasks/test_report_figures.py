@@ -93,12 +93,12 @@ def test_circles_added_at_once_give_add_patchs_limits_and_picture():
 
     rng = np.random.default_rng(2)
     centres = np.r_[rng.uniform(0, 40, (12, 2)), [[-1.0, 20.0], [41.5, 3.0]]]  # two past the edges
+    image = rng.random((8, 8))
     pictures, limits = [], []
     for at_once in (False, True):
         fig = _figure(5.6, 1.9, margins=(0.5, 0.45, 0.1, 0.25))
         ax = fig.add_subplot()
-        ax.imshow(rng.random((8, 8)) if not pictures else image, extent=(0, 40, 0, 40), aspect="auto")
-        image = ax.get_images()[0].get_array()
+        ax.imshow(image, extent=(0, 40, 0, 40), aspect="auto")
         circles = [Ellipse(tuple(c), 5.0, 5.0, fill=False, color="tab:red", lw=0.8) for c in centres]
         if at_once:
             _add_circles(ax, circles)
