@@ -28,6 +28,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
+from tasks.gmsh_volume import RESULT
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
@@ -163,7 +164,6 @@ def _surface_pieces(triangles: np.ndarray) -> int:
 # process of its own, always with one thread of each: the same surface, the same bytes, from any
 # caller.
 ONE_THREAD_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-_RESULT = b"\n--weldrecon-gmsh-result--\n"
 
 
 def dies_with_parent():
@@ -180,113 +180,23 @@ def dies_with_parent():
 
 
 def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
-    """``_gmsh_volume_here`` in a fresh child process with one thread (see ``ONE_THREAD_ENV``)."""
-    root = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, **ONE_THREAD_ENV,
-           "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
+    """``tasks.gmsh_volume.gmsh_volume`` in a fresh child process with one thread (see ``ONE_THREAD_ENV``)."""
+    # run by its path, not imported from the package: the child loads numpy and gmsh alone, not
+    # what ``tasks`` loads for every stage (pymeshlab, scipy: 1.2 s of a ~10 s child)
+    env = {**os.environ, **ONE_THREAD_ENV}
     try:
-        done = subprocess.run([sys.executable, "-c", "from tasks.volume_mesh import _child; _child()"],
+        done = subprocess.run([sys.executable, str(Path(__file__).with_name("gmsh_volume.py"))],
                               input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
                               preexec_fn=dies_with_parent(), timeout=timeout_s)
     except subprocess.TimeoutExpired:  # the child is killed
         raise VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)") from None
-    if done.returncode != 0 or _RESULT not in done.stdout:
+    if done.returncode != 0 or RESULT not in done.stdout:
         tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
         raise VolumeMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
-    kind, value = pickle.loads(done.stdout.rsplit(_RESULT, 1)[1])
+    kind, value = pickle.loads(done.stdout.rsplit(RESULT, 1)[1])
     if kind == "error":
         raise VolumeMeshError(value)
     return value
-
-
-def _child() -> None:
-    """The child's side: the arguments pickled on stdin, the result (or the error) on stdout."""
-    vertices, triangles, weld, settings = pickle.loads(sys.stdin.buffer.read())
-    try:
-        result = ("ok", _gmsh_volume_here(vertices, triangles, weld, **settings))
-    except VolumeMeshError as exc:
-        result = ("error", str(exc))
-    sys.stdout.buffer.write(_RESULT + pickle.dumps(result))
-    sys.stdout.flush()
-
-
-def _ramp(gmsh, points: np.ndarray, size_min: float, reach: float, size_max: float, growth: float) -> int:
-    """A gmsh size field: ``size_min`` within ``reach`` of ``points`` (n, 3), then growing by
-    ``growth`` per mm up to ``size_max`` (a Distance field into a Threshold)."""
-    tags = [gmsh.model.geo.addPoint(*map(float, p)) for p in points]
-    gmsh.model.geo.synchronize()
-    distance = gmsh.model.mesh.field.add("Distance")
-    gmsh.model.mesh.field.setNumbers(distance, "PointsList", tags)
-    ramp = gmsh.model.mesh.field.add("Threshold")
-    for name, value in (("InField", distance), ("SizeMin", size_min), ("SizeMax", size_max), ("DistMin", reach),
-                        ("DistMax", reach + max(size_max - size_min, 0.0) / growth)):
-        gmsh.model.mesh.field.setNumber(ramp, name, value)
-    return ramp
-
-
-# gmsh's 3-D algorithm: HXT (Marot, Pellerin & Remacle 2019), one thread, and gmsh's optimizer on
-# the elements of a quality (gamma) under _OPTIMIZE_BELOW. On the ci sample's surface (53,296
-# triangles): 6.2 s against 23.0 s for Delaunay with Netgen's optimizer (the algorithm before),
-# smallest dihedral worst 16.7 deg (the same), 1st percentile 27.6 deg (31.7), aspect ratio worst 3.9,
-# no element under 10 deg. gmsh's default threshold, 0.3: 13.8 deg worst, 20.0 deg 1st percentile;
-# 0.6: 18.9 / 31.5 deg but 126 s. Netgen's optimizer after HXT (volume.optimize): 20.0 deg worst
-# in 15.4 s (at threshold 0.3).
-_HXT = 10
-_OPTIMIZE_BELOW = 0.45
-
-
-def _gmsh_volume_here(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
-                      feature_angle_deg, optimize, seed, toes=None, toe_size_mm=None, toe_zone_mm=0.0):
-    """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
-    or kept as it is, the inside meshed."""
-    import gmsh
-
-    gmsh.initialize(readConfigFiles=False, interruptible=False)
-    try:
-        for name, value in (("General.Terminal", 0), ("General.NumThreads", 1), ("Mesh.RandomSeed", seed),
-                            ("Mesh.MeshSizeExtendFromBoundary", 1), ("Mesh.MeshSizeFromPoints", 0),
-                            ("Mesh.MeshSizeFromCurvature", 0), ("Mesh.MeshSizeMax", size_mm),
-                            ("Mesh.Algorithm", 6), ("Mesh.Algorithm3D", _HXT), ("Mesh.Optimize", 1),
-                            ("Mesh.OptimizeThreshold", _OPTIMIZE_BELOW), ("Mesh.OptimizeNetgen", 0)):
-            gmsh.option.setNumber(name, value)
-        gmsh.model.add("part")
-        surface = gmsh.model.addDiscreteEntity(2)
-        gmsh.model.mesh.addNodes(2, surface, np.arange(1, len(vertices) + 1), vertices.ravel())
-        gmsh.model.mesh.addElementsByType(surface, 2, [], (triangles + 1).ravel())
-        if remesh:
-            gmsh.model.mesh.classifySurfaces(np.radians(feature_angle_deg), True, True, np.pi)
-            gmsh.model.mesh.createGeometry()
-        # remeshed: the reparametrised patches; else the discrete surface, its triangles kept
-        patches = [tag for _, tag in gmsh.model.getEntities(2)]
-        gmsh.model.geo.addVolume([gmsh.model.geo.addSurfaceLoop(patches)])
-        if weld is not None and len(weld):
-            # the size field, in gmsh: weld_size_mm within weld_zone_mm of the weld's points, then
-            # growing linearly by `growth` per mm up to size_mm
-            ramp = _ramp(gmsh, weld, weld_size_mm, weld_zone_mm, size_mm, growth)
-            field = ramp
-            if toes is not None and len(toes):  # finer at the toes, the smaller of the two sizes wins
-                # growing at the same rate up to the largest size (a Threshold is SizeMax beyond
-                # DistMax: capped at the weld's size it would cap the whole part there)
-                field = gmsh.model.mesh.field.add("Min")
-                gmsh.model.mesh.field.setNumbers(field, "FieldsList", [
-                    ramp, _ramp(gmsh, toes, toe_size_mm, toe_zone_mm, size_mm, growth)])
-            sized = field
-            if remesh:  # on the surface only: inside, sizes grow from the surface's
-                field = gmsh.model.mesh.field.add("Restrict")
-                gmsh.model.mesh.field.setNumber(field, "InField", sized)
-                gmsh.model.mesh.field.setNumbers(field, "SurfacesList", patches)
-            gmsh.model.mesh.field.setAsBackgroundMesh(field)
-        gmsh.model.geo.synchronize()
-        gmsh.model.mesh.generate(3)
-        if optimize:  # (Mesh.OptimizeNetgen is not applied after HXT: asked for here)
-            gmsh.model.mesh.optimize("Netgen")
-        node_tags, coords, _ = gmsh.model.mesh.getNodes()
-        _, element_nodes = gmsh.model.mesh.getElementsByType(4)
-    except Exception as exc:  # gmsh raises a bare Exception with its last error
-        raise VolumeMeshError(f"gmsh could not mesh the surface's volume: {exc}") from exc
-    finally:
-        gmsh.finalize()
-    return np.asarray(node_tags), np.asarray(coords), np.asarray(element_nodes)
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
