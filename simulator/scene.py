@@ -10,6 +10,7 @@ from scipy.spatial import cKDTree
 from scipy.special import ndtr
 
 from simulator.specimen import SurfaceMesh
+from tasks.cells import ReachGrid
 from tasks.frames import apply, invert
 
 __all__ = ["StickerSet", "Scene", "NO_STICKER"]
@@ -29,6 +30,7 @@ class StickerSet:
     radius_mm: float
     thickness_mm: float
     _tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
+    _grids: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def _centre_tree(self) -> cKDTree:
         """A k-d tree of the sticker centres, built on first use (the set itself is frozen)."""
@@ -36,38 +38,19 @@ class StickerSet:
             object.__setattr__(self, "_tree", cKDTree(self.centres))
         return self._tree
 
-    def _near_cells(self, bound_mm: float) -> tuple[np.ndarray, float, np.ndarray]:
-        """A boolean grid (its lower corner, its cell) of the cells next to a centre's cell, cells
-        a hair wider than ``bound_mm``: a point within the bound of a centre lies at most one cell
-        off it. Kept for the last few bounds asked for."""
-        grids = self.__dict__.setdefault("_grids", {})
-        if bound_mm not in grids:
-            cell = bound_mm * (1 + 1e-6)
-            span = self.centres.max(axis=0) - self.centres.min(axis=0)
-            while np.prod(np.floor(span / cell) + 5) > 1 << 22:
-                cell *= 2
-            low = self.centres.min(axis=0) - 2 * cell
-            occupied = np.zeros(tuple(np.floor(span / cell).astype(np.int64) + 5), bool)
-            home = np.floor((self.centres - low) / cell).astype(np.int64)
-            for offset in np.ndindex(3, 3, 3):  # each centre's cell and its 26 neighbours
-                occupied[tuple((home + np.subtract(offset, 1)).T)] = True
-            if len(grids) >= 8:
-                grids.clear()
-            grids[bound_mm] = (low, cell, occupied)
-        return grids[bound_mm]
-
     def _nearest_centre(self, points: np.ndarray, bound_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """``cKDTree.query(points, k=1, distance_upper_bound=bound_mm)`` of the centres: (distance,
         index), inf and len(centres) where no centre is within ``bound_mm``. Most points of a
-        profile are far from every sticker: only those in a cell (a hair wider than the bound) next
-        to a cell holding a centre are searched; the answer is the same."""
+        profile are far from every sticker: only those a ``tasks.cells.ReachGrid`` of the centres
+        says may be within the bound are searched (grids kept for the last few bounds asked for);
+        the answer is the same."""
+        if bound_mm not in self._grids:
+            if len(self._grids) >= 8:
+                self._grids.clear()
+            self._grids[bound_mm] = ReachGrid(self.centres, bound_mm, max_cells=1 << 22)
         dist = np.full(len(points), np.inf)
         idx = np.full(len(points), len(self.centres), dtype=np.intp)
-        low, cell, occupied = self._near_cells(bound_mm)
-        cells = np.floor((points - low) / cell)
-        inside = np.all((cells >= 0) & (cells < occupied.shape), axis=1)
-        near = np.flatnonzero(inside)
-        near = near[occupied[tuple(cells[near].astype(np.int64).T)]]
+        near = np.flatnonzero(self._grids[bound_mm].may_reach(points))
         if len(near):
             dist[near], idx[near] = self._centre_tree().query(points[near], k=1, distance_upper_bound=bound_mm)
         return dist, idx

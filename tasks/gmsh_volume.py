@@ -49,7 +49,7 @@ _OPTIMIZE_BELOW = 0.45
 
 
 def gmsh_volume(vertices, triangles, weld, *, remesh: bool, size_mm, weld_size_mm, weld_zone_mm, growth,
-                      feature_angle_deg, optimize, seed, toes=None, toe_size_mm=None, toe_zone_mm=0.0):
+                feature_angle_deg, optimize, seed, toes=None, toe_size_mm=None, toe_zone_mm=0.0):
     """gmsh's nodes and tetrahedra: the surface remeshed on its reparametrised patches (``remesh``)
     or kept as it is, the inside meshed."""
     import gmsh

@@ -31,6 +31,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from tasks.cells import ReachGrid, first_in_each_cell
 from tasks.checks import check_points
 from tasks.frames import apply
 
@@ -99,7 +100,7 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     pts = pts[np.isfinite(pts).all(axis=1)]
     if len(pts) < neighbours:
         return SurfaceSample(np.zeros((0, 3)), np.zeros((0, 3)), pts, view_direction=view_direction)
-    first = np.sort(_first_in_each_cell(np.floor(pts / spacing_mm).astype(np.int64)))
+    first = first_in_each_cell(np.floor(pts / spacing_mm).astype(np.int64))
     tree = cKDTree(pts)
     planes = _planes_at(pts, tree, first, neighbours)
     # a full neighbourhood close by (not an edge or a lone point), and a flat one
@@ -110,54 +111,7 @@ def surface_sample(grid_mm: np.ndarray, *, spacing_mm: float, normal_radius_mm: 
     return SurfaceSample(pts[first[keep]], normals, pts, tree, view_direction)
 
 
-def _first_in_each_cell(cells: np.ndarray) -> np.ndarray:
-    """The index of the first of the rows of ``cells`` (n, 3) int64 in each distinct cell (as
-    ``np.unique(cells, axis=0, return_index=True)``, in its order), from one int64 key per cell
-    (several times quicker than comparing rows) where the cells' span allows it."""
-    low = cells.min(axis=0)
-    span = cells.max(axis=0) - low + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0 ** 62:
-        return np.unique(cells, axis=0, return_index=True)[1]
-    key = ((cells[:, 0] - low[0]) * span[1] + (cells[:, 1] - low[1])) * span[2] + (cells[:, 2] - low[2])
-    return np.unique(key, return_index=True)[1]
-
-
-class _Occupied:
-    """Where a point may have a dense point within ``reach_mm``: the cells (at least ``reach_mm``
-    wide) that hold a dense point, and their neighbours (a point within reach of a dense point
-    lies in a cell at most one away from that point's cell), as a boolean grid over the dense
-    points' box of at most ``max_cells`` cells."""
-
-    def __init__(self, dense_mm: np.ndarray, reach_mm: float, max_cells: int = 1 << 24):
-        self.reach_mm = reach_mm
-        # a hair wider than the reach, so that rounding never puts a point within reach two cells away
-        self.cell_mm = reach_mm * (1 + 1e-6)
-        span = dense_mm.max(axis=0) - dense_mm.min(axis=0)
-        while np.prod(np.floor(span / self.cell_mm) + 3) > max_cells:
-            self.cell_mm *= 2
-        self.low = dense_mm.min(axis=0) - self.cell_mm
-        cells = np.floor((dense_mm - self.low) / self.cell_mm).astype(np.int64)
-        grid = np.zeros(tuple(cells.max(axis=0) + 2), bool)
-        grid[tuple(cells.T)] = True
-        for axis in range(3):  # grown by one cell along each axis in turn: the 27-cell neighbourhood
-            lower, upper = [slice(None)] * 3, [slice(None)] * 3
-            lower[axis], upper[axis] = slice(None, -1), slice(1, None)
-            grown = grid.copy()
-            grown[tuple(lower)] |= grid[tuple(upper)]
-            grown[tuple(upper)] |= grid[tuple(lower)]
-            grid = grown
-        self.grid = grid
-
-    def may_reach(self, points: np.ndarray) -> np.ndarray:
-        """(m,) bool: False where no dense point can lie within reach of the point."""
-        cells = np.floor((points - self.low) / self.cell_mm)
-        inside = np.all((cells >= 0) & (cells < self.grid.shape), axis=1)
-        out = np.zeros(len(points), bool)
-        out[inside] = self.grid[tuple(cells[inside].astype(np.int64).T)]
-        return out
-
-
-def _matched(src: np.ndarray, order: np.ndarray, tree: cKDTree, occupied: _Occupied, *,
+def _matched(src: np.ndarray, order: np.ndarray, tree: cKDTree, occupied: ReachGrid, *,
              most: int) -> tuple[np.ndarray, np.ndarray]:
     """The source points ``src`` (m, 3) that have a point of ``tree`` within ``occupied.reach_mm``,
     at most ``most`` of them, the first in ``order`` (a permutation of range(m)): their indices,
@@ -276,7 +230,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     gates += [final_distance_mm] * max(max_iterations - len(gates), 0)
     gates = gates[:max_iterations]
     cache = [np.full((len(s.dense_mm), 8), np.nan) for s in samples]
-    occupied = [_Occupied(s.dense_mm, neighbour_mm) if tree is not None else None for s, tree in zip(samples, trees)]
+    occupied = [ReachGrid(s.dense_mm, neighbour_mm) if tree is not None else None for s, tree in zip(samples, trees)]
     # each pass's points in the order they are taken, when a pair has more than it may use: by a
     # fixed priority, the same points every iteration
     by_priority = [np.argsort(_priority(s.normals, seed=k, normal_space=normal_space), kind="stable")

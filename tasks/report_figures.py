@@ -8,6 +8,7 @@ gathers the data (``flows.stages.qa_report``).
 
 from __future__ import annotations
 
+import functools
 import io
 import math
 from collections.abc import Sequence
@@ -21,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402 - after the backend is chosen
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
 from matplotlib.patches import Ellipse  # noqa: E402
+from matplotlib.path import Path  # noqa: E402
 
 __all__ = ["png", "face_map", "intensity_image", "registration_graph", "mesh_view", "weld_section", "along_weld",
            "histogram", "sample_chart", "ViewedFace", "AlongWeldSeries"]
@@ -138,28 +140,27 @@ def intensity_image(image: np.ndarray, *, extent_mm: tuple[float, float, float, 
     return png(fig)
 
 
-_UNIT_CIRCLE_EXTREMA: np.ndarray | None = None
+@functools.cache
+def _unit_circle_extrema() -> np.ndarray:
+    """The start, end and axis-aligned extrema of each Bezier segment of the unit circle's path
+    (an Ellipse's), as ``Axes._update_patch_limits`` finds them."""
+    vertices = []
+    for curve, _ in Path.unit_circle().iter_bezier(simplify=False):
+        _, dzeros = curve.axis_aligned_extrema()
+        vertices.append(curve([0, *dzeros, 1]))
+    return np.vstack(vertices)
 
 
 def _add_circles(ax, circles: Sequence[Ellipse]) -> None:
-    """``ax.add_patch`` of each circle, with the data limits it would give them (its start, end
-    and extrema of each Bezier segment of the circle's path, placed) updated once for all: the
-    same limits, drawn the same, without add_patch finding the unit circle's extrema again for
-    every circle (it was 40 % of a pass's picture)."""
-    global _UNIT_CIRCLE_EXTREMA
+    """``ax.add_patch`` of each circle, with the data limits it would give them (the unit circle's
+    extrema, placed) updated once for all: the same limits, drawn the same, without add_patch
+    finding the unit circle's extrema again for every circle (it was 40 % of a pass's picture)."""
     if not circles:
         return
-    if _UNIT_CIRCLE_EXTREMA is None:  # as Axes._update_patch_limits finds them
-        vertices = []
-        for curve, _ in circles[0].get_path().iter_bezier(simplify=False):
-            _, dzeros = curve.axis_aligned_extrema()
-            vertices.append(curve([0, *dzeros, 1]))
-        _UNIT_CIRCLE_EXTREMA = np.vstack(vertices)
-    placed = []
     for circle in circles:
         ax.add_artist(circle)
-        placed.append((circle.get_transform() - ax.transData).transform(_UNIT_CIRCLE_EXTREMA))
-    ax.update_datalim(np.concatenate(placed))
+    ax.update_datalim(np.concatenate([(circle.get_transform() - ax.transData).transform(_unit_circle_extrema())
+                                      for circle in circles]))
 
 
 def registration_graph(names: Sequence[str], groups: Sequence[str], edges: Sequence[tuple[int, int, int, float]],

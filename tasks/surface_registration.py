@@ -47,6 +47,7 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from tasks.cells import first_in_each_cell
 from tasks.checks import check_points
 from tasks.frames import apply
 from tasks.matching import pose_difference
@@ -195,8 +196,7 @@ def scan_features(points_mm: np.ndarray, *, view_direction: np.ndarray, voxel_mm
         raise ValueError(f"view_direction must be a finite non-zero (3,) vector, got {view_direction!r}")
     if not (voxel_mm > 0 and sample_spacing_mm > 0):
         raise ValueError(f"voxel_mm and sample_spacing_mm must be > 0, got {voxel_mm}, {sample_spacing_mm}")
-    _, first = np.unique(np.floor(pts / voxel_mm).astype(np.int64), axis=0, return_index=True)
-    keys = pts[np.sort(first)]
+    keys = pts[first_in_each_cell(np.floor(pts / voxel_mm).astype(np.int64))]
     if len(keys) < 10:
         raise ValueError(f"points_mm gives {len(keys)} keypoints at voxel_mm {voxel_mm}; need 10 or more")
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(keys))

@@ -168,7 +168,8 @@ def test_the_matched_points_are_those_of_querying_every_point(reach, most, max_c
     exactly ``reach`` from a dense point included."""
     from scipy.spatial import cKDTree
 
-    from tasks.refine import _matched, _Occupied
+    from tasks.cells import ReachGrid
+    from tasks.refine import _matched
 
     rng = np.random.default_rng(7)
     dense = rng.uniform([0, 0, 0], [30, 10, 2], (4000, 3))
@@ -176,7 +177,7 @@ def test_the_matched_points_are_those_of_querying_every_point(reach, most, max_c
                           dense[:200] + reach * np.eye(3)[rng.integers(0, 3, 200)]])  # on the bound
     order = rng.permutation(len(src))
     tree = cKDTree(dense)
-    got, nearest = _matched(src, order, tree, _Occupied(dense, reach, max_cells=max_cells), most=most)
+    got, nearest = _matched(src, order, tree, ReachGrid(dense, reach, max_cells=max_cells), most=most)
 
     dist, every_nearest = tree.query(src, distance_upper_bound=reach)
     found = np.flatnonzero(np.isfinite(dist))
