@@ -80,8 +80,15 @@ def _ccx() -> str:
     return found
 
 
-def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: DisplacementCase, material: Material):
-    kind = {4: "C3D4", 10: "C3D10"}[elements.shape[1]]
+def _element_type(nodes_per_element: int, plane: str | None) -> str:
+    if plane is None:
+        return {4: "C3D4", 10: "C3D10"}[nodes_per_element]
+    return {"strain": "CPE6", "stress": "CPS6"}[plane]
+
+
+def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: DisplacementCase, material: Material,
+                plane: str | None = None, thickness_mm: float = 1.0):
+    kind = _element_type(elements.shape[1], plane)
     with open(path, "w", encoding="ascii") as f:
         f.write("*HEADING\nweldrecon linear static solve (mm, N, MPa)\n*NODE, NSET=NALL\n")
         f.writelines(f"{i + 1},{x:.12e},{y:.12e},{z:.12e}\n" for i, (x, y, z) in enumerate(points))
@@ -95,7 +102,8 @@ def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: Disp
             ids = np.asarray(nodes, np.int64) + 1
             f.writelines(",".join(map(str, ids[k:k + 16])) + "\n" for k in range(0, len(ids), 16))
         f.write(f"*MATERIAL, NAME=STEEL\n*ELASTIC\n{material.youngs_modulus_mpa:.6e},{material.poisson_ratio:.6f}\n"
-                "*SOLID SECTION, ELSET=EALL, MATERIAL=STEEL\n*STEP\n*STATIC\n*BOUNDARY\n")
+                "*SOLID SECTION, ELSET=EALL, MATERIAL=STEEL\n" + (f"{thickness_mm:.12e}\n" if plane else "")
+                + "*STEP\n*STATIC\n*BOUNDARY\n")
         for name, dofs in case.prescribed.items():
             f.writelines(f"{name},{dof},{dof},{value:.12e}\n" for dof, value in sorted(dofs.items()))
         f.write("*NODE FILE\nU,S\n")
@@ -106,13 +114,26 @@ def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: Disp
 
 def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCase, *,
                  material: Material = Material(), timeout_s: float = 3600.0,
-                 workdir: Path | None = None) -> FESolution:
+                 workdir: Path | None = None, plane: str | None = None, thickness_mm: float = 1.0) -> FESolution:
     """Solve the model (see the module's description). ``workdir``: where CalculiX's files are kept
-    (default: a temporary folder, removed)."""
+    (default: a temporary folder, removed). ``plane``: a 2-D model in the x-y plane, ``"strain"``
+    (CPE6) or ``"stress"`` (CPS6) of ``thickness_mm``: ``points`` (n, 2), ``elements`` (e, 6)
+    6-node triangles (corners counter-clockwise, then the edge nodes of 0-1, 1-2, 2-0); the
+    displacements and reactions then have a zero third component, the stresses their
+    out-of-plane ``zz`` (plane strain: Poisson's ratio times the in-plane sum)."""
     ccx = _ccx()
     points = np.asarray(points, np.float64)
     elements = np.asarray(elements, np.int64)
-    if elements.ndim != 2 or elements.shape[1] not in (4, 10):
+    if plane is not None:
+        if plane not in ("strain", "stress"):
+            raise ValueError(f"plane: expected 'strain' or 'stress', got {plane!r}")
+        if points.ndim != 2 or points.shape[1] != 2 or elements.ndim != 2 or elements.shape[1] != 6:
+            raise ValueError(f"a plane model takes (n, 2) points and (e, 6) triangles, got {points.shape} and "
+                             f"{elements.shape}")
+        if not thickness_mm > 0:
+            raise ValueError(f"thickness_mm must be positive, got {thickness_mm}")
+        points = np.c_[points, np.zeros(len(points))]
+    elif elements.ndim != 2 or elements.shape[1] not in (4, 10):
         raise ValueError(f"elements: expected (e, 4) or (e, 10) node numbers, got shape {elements.shape}")
     if len(elements) and (elements.min() < 0 or elements.max() >= len(points)):
         raise ValueError(f"elements: node numbers must lie in 0..{len(points) - 1}")
@@ -124,7 +145,7 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
     with place as where:
         folder = Path(where)
         folder.mkdir(parents=True, exist_ok=True)
-        _write_deck(folder / "job.inp", points, elements, case, material)
+        _write_deck(folder / "job.inp", points, elements, case, material, plane, thickness_mm)
         log = _run(ccx, folder, timeout_s)
         displacement, stress = _read_frd(folder / "job.frd", len(points))
         reactions = _read_totals(folder / "job.dat", list(case.prescribed))

@@ -1,0 +1,114 @@
+"""2-D section models (tasks.section_model) against handbook answers: a finite-width plate with a
+central hole (Howland) and a strip with two opposite semicircular edge notches (Ling, Isida: Roark
+table 17.1), both pulled through the code the stress stage runs, and the checks that cannot pass by
+accident: the two ends' reactions equal, the stress away from the notch the load over the area."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tasks.section_model import (PlaneSection, SectionMeshSettings, boundary_nodes, mesh_sections, peaks_near,
+                                 pull_sections)
+
+
+def _notched_strip(D: float, r: float, L: float) -> PlaneSection:
+    """A strip of width D and length L with a semicircular notch of radius r in each edge at x = 0,
+    counter-clockwise, its four corners kept."""
+    h = D / 2
+    th = np.linspace(np.pi, 0.0, 721)
+    bottom = np.r_[[[-L / 2, -h]], np.c_[r * np.cos(th), -h + r * np.sin(th)], [[L / 2, -h]]]
+    top = bottom[::-1] * [1.0, -1.0]
+    outline = np.r_[bottom, top]
+    return PlaneSection(outline, fine_mm=np.array([[0.0, h - r], [0.0, -h + r]]),
+                        corners=(0, len(bottom) - 1, len(bottom), len(outline) - 1))
+
+
+def _plate_with_hole(W: float, d: float, L: float) -> PlaneSection:
+    th = np.linspace(0.0, 2 * np.pi, 721)[:-1]
+    hole = np.c_[d / 2 * np.cos(th), d / 2 * np.sin(th)][::-1]
+    outline = np.array([[-L / 2, -W / 2], [L / 2, -W / 2], [L / 2, W / 2], [-L / 2, W / 2]])
+    return PlaneSection(outline, fine_mm=hole[::30], corners=(0, 1, 2, 3), holes_mm=(hole,))
+
+
+@pytest.fixture(scope="module")
+def solved():
+    """Both handbook cases meshed in one gmsh child and solved in one CalculiX run, as the stage
+    does with a weld's sections."""
+    sections = [_plate_with_hole(50.0, 10.0, 200.0), _notched_strip(40.0, 1.0, 200.0)]
+    meshes = mesh_sections(sections, SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0, growth=0.3))
+    return sections, pull_sections(meshes, stretch_mm=0.02)
+
+
+def test_a_plate_with_a_hole_has_howlands_stress_concentration(solved):
+    _, (hole, _) = solved
+    (peak, at), = peaks_near(hole, np.array([[0.0, 5.0]]), 1.0)
+    nominal = hole.force_n / (50.0 - 10.0)  # net section, 1 mm thick
+    # Howland (1930), d/W = 0.2: 2.51 on the net section (Peterson's fit 2 + 0.284 q - 0.600 q^2 +
+    # 1.32 q^3, q = 1 - d/W: 2.519); measured 2.522
+    q = 1 - 0.2
+    howland = 2 + 0.284 * q - 0.600 * q ** 2 + 1.32 * q ** 3
+    assert peak / nominal == pytest.approx(howland, rel=0.01)
+    assert abs(at[0]) < 0.1 and at[1] == pytest.approx(5.0, abs=0.01)  # at the hole's side, across the pull
+
+
+def test_two_semicircular_edge_notches_match_the_handbook(solved):
+    _, (_, strip) = solved
+    nominal = strip.force_n / (40.0 - 2 * 1.0)
+    peaks = peaks_near(strip, np.array([[0.0, 19.0], [0.0, -19.0]]), 0.5)
+    # Roark table 17.1, two U-notches in tension, h/r = 1: 3.065 - 3.370 x + 0.647 x^2 + 0.659 x^3,
+    # x = 2h/D = 0.05: 2.898 (3.065 at x -> 0: Ling's semi-infinite plate); measured 2.907 both
+    x = 2 * 1.0 / 40.0
+    roark = 3.065 - 3.370 * x + 0.647 * x ** 2 + 0.659 * x ** 3
+    for peak, at in peaks:
+        assert peak / nominal == pytest.approx(roark, rel=0.01)
+        assert abs(at[0]) < 0.05  # at the notch's root
+    assert peaks[0][0] == pytest.approx(peaks[1][0], rel=1e-3)  # the two notches alike
+
+
+@pytest.mark.parametrize("case", [0, 1])
+def test_equilibrium_and_the_nominal_stress_away_from_the_notch(solved, case):
+    sections, solutions = solved
+    s = solutions[case]
+    assert s.imbalance < 1e-3  # the two ends' reactions, 0.1 %
+    width = 50.0 if case == 0 else 40.0
+    # 60 mm from the notch, across the whole width: the load over the area within 1 %
+    far = np.abs(s.mesh.points[:, 0] - 60.0) < 2.0
+    assert np.mean(s.stress_mpa[far, 0]) == pytest.approx(s.force_n / width, rel=0.01)
+    assert np.all(np.abs(s.stress_mpa[far, 0] / (s.force_n / width) - 1) < 0.02)
+
+
+def test_the_mesh_is_finest_at_the_fine_points_and_its_outline_is_the_sections(solved):
+    sections, solutions = solved
+    strip = solutions[1].mesh
+    corners = strip.points[strip.triangles[:, :3]]
+    edge = np.linalg.norm(corners[:, 1] - corners[:, 0], axis=1)
+    centre = corners.mean(axis=1)
+    at_notch = np.hypot(centre[:, 0], np.abs(centre[:, 1]) - 19.0) < 0.5
+    assert edge[at_notch].max() < 0.2 and edge[~at_notch].max() > 2.0
+    outline = strip.points[boundary_nodes(strip.triangles)]
+    # every node of the outline on the strip's outline: its straight edges or a notch's circle (the
+    # edge nodes midway along a chord: at most 0.25^2 / 8 = 8 um inside it)
+    on_circle = np.abs(np.hypot(outline[:, 0], 20.0 - np.abs(outline[:, 1])) - 1.0) < 8e-3
+    on_edge = (np.abs(np.abs(outline[:, 1]) - 20.0) < 1e-9) | (np.abs(np.abs(outline[:, 0]) - 100.0) < 1e-9)
+    assert np.all(on_circle | on_edge)
+
+
+def test_the_same_sections_give_the_same_mesh_again(solved):
+    sections, solutions = solved
+    again = mesh_sections(sections[1:], SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0,
+                                                            growth=0.3))[0]
+    assert np.array_equal(again.points, solutions[1].mesh.points)
+    assert np.array_equal(again.triangles, solutions[1].mesh.triangles)
+
+
+def test_a_section_not_cut_straight_at_its_ends_is_refused_naming_it():
+    tilted = PlaneSection(np.array([[0.0, 0.0], [10.0, 0.0], [11.0, 2.0], [1.0, 2.0]]), corners=(0, 1, 2, 3))
+    mesh = mesh_sections([tilted], SectionMeshSettings(fine_size_mm=0.5, fine_reach_mm=1.0, size_mm=0.5))
+    with pytest.raises(ValueError, match=r"section 0: its ends are not cut straight across"):
+        pull_sections(mesh)
+
+
+def test_a_malformed_outline_is_refused_before_gmsh_runs():
+    with pytest.raises(ValueError, match=r"section 0: outline_mm must be \(k >= 3, 2\)"):
+        mesh_sections([PlaneSection(np.zeros((2, 2)))], SectionMeshSettings(1.0, 1.0, 1.0))
