@@ -39,3 +39,24 @@ def write_vtu(path: Path, points: np.ndarray, tetrahedra: np.ndarray, cell_data:
     """VTU (binary, zlib) of the tetrahedra with one array per element in ``cell_data``."""
     out = meshio.Mesh(points, [("tetra", tetrahedra)], cell_data={k: [np.asarray(v)] for k, v in cell_data.items()})
     meshio.vtu.write(str(path), out, binary=True, compression="zlib")
+
+
+def write_section_vtu(path: Path, frames, solutions) -> None:
+    """VTU (binary, zlib) of 2-D section models placed in 3-D: each section's 6-node triangles at
+    ``origin + x * across + y * up`` (``frames``: one (origin, across, up) per solution, (3,) each);
+    per node its stresses (``stress_mpa``, xx yy zz xy yz zx in the section's own axes: x across,
+    y up) and ``max_principal_mpa``; per triangle the section's number."""
+    points, cells, stress, principal, section = [], [], [], [], []
+    start = 0
+    for k, ((origin, across, up), sol) in enumerate(zip(frames, solutions)):
+        p = np.asarray(sol.mesh.points, np.float64)
+        points.append(np.asarray(origin) + p[:, :1] * np.asarray(across) + p[:, 1:2] * np.asarray(up))
+        cells.append(np.asarray(sol.mesh.triangles, np.int64) + start)
+        stress.append(np.asarray(sol.stress_mpa, np.float32))
+        principal.append(np.asarray(sol.max_principal_mpa, np.float32))
+        section.append(np.full(len(sol.mesh.triangles), k, np.int32))
+        start += len(p)
+    out = meshio.Mesh(np.concatenate(points), [("triangle6", np.concatenate(cells))],
+                      point_data={"stress_mpa": np.concatenate(stress), "max_principal_mpa": np.concatenate(principal)},
+                      cell_data={"section": [np.concatenate(section)]})
+    meshio.vtu.write(str(path), out, binary=True, compression="zlib")

@@ -16,7 +16,7 @@ PROVENANCE_SCHEMA_VERSION = "1.0"
 # every stage's one name, in run order: a closed set (the registry, flows/stages/__init__.py,
 # declares each of them once, and a test holds the two together)
 StageName = Literal["denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh", "export",
-                    "volume", "report", "qa_report"]
+                    "volume", "stress", "report", "qa_report"]
 STAGE_NAMES: tuple[str, ...] = StageName.__args__
 
 

@@ -253,6 +253,43 @@ class VolumeConfig(StrictModel):
         "volume.json and the report; the run publishes the rest)"))
 
 
+class StressConfig(StrictModel):
+    """The stress at the weld toes (``flows.stages.stress``): 2-D plane-strain models of the part's
+    cross-sections across the weld, pulled along their length as the fatigue test pulls the part
+    (``tasks.section_model``), made from the measured points (``tasks.plate_section``)."""
+
+    section_step_mm: float = Field(default=2.0, gt=0, le=1000, description=(
+        "distance between the stress sections along the weld (each a 2-D model; the weld stage's "
+        "sections nearest to every step are used)"))
+    half_width_mm: float = Field(default=0.5, gt=0, le=10, description=(
+        "the points within this distance of a section's plane make its outline"))
+    bin_mm: float = Field(default=0.1, gt=0, le=5, description="the outline's spacing along the pull (median height per bin)")
+    smooth_mm: float = Field(default=0.3, ge=0, le=10, description=(
+        "half-window of the outline's smoothing (a quadratic Savitzky-Golay filter, then a Gaussian of one "
+        "bin): the points' noise would otherwise read as notches; 0: none"))
+    cut_mm: float = Field(default=15.0, ge=0, le=1000, description=(
+        "the section is cut straight across this far inside either end of its measured length, where it is "
+        "held and pulled (the unscanned ends are not loaded)"))
+    toe_size_mm: float = Field(default=0.1, gt=0, le=10, description=(
+        "element size at the measured toes (the IIW notch-stress rule: at most a quarter of the radius)"))
+    toe_zone_mm: float = Field(default=0.5, ge=0, le=100, description="distance from a toe kept at toe_size_mm")
+    size_mm: float = Field(default=2.0, gt=0, le=100, description="largest element, away from the toes")
+    growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm away from the toes")
+    peak_reach_mm: float = Field(default=1.5, gt=0, le=20, description=(
+        "a toe's peak stress is the highest on the outline within this distance of the measured toe"))
+    plate_window_mm: tuple[float, float] = Field(default=(16.0, 30.0), description=(
+        "a toe's plate (its thickness: the nominal stress's area; the membrane stress check) from .. to "
+        "this far from the weld's centre, on the toe's side"))
+    timeout_s: float = Field(default=1800.0, gt=0, le=86_400, description="gmsh and CalculiX get this long each")
+
+    @model_validator(mode="after")
+    def _windows(self) -> "StressConfig":
+        near, far = self.plate_window_mm
+        if not 0 < near < far:
+            raise ValueError(f"plate_window_mm must be 0 < from < to, got {list(self.plate_window_mm)}")
+        return self
+
+
 class QaReportConfig(StrictModel):
     """The sample's QA report (``report.html``, ``flows.stages.qa_report``): how finely its maps
     are gridded and how much of the data its pictures show."""
@@ -279,4 +316,5 @@ class ReconstructionConfig(StrictModel):
     mesh: PoissonConfig = PoissonConfig()
     weld: WeldGeometryConfig = WeldGeometryConfig()
     volume: VolumeConfig = VolumeConfig()
+    stress: StressConfig = StressConfig()
     qa_report: QaReportConfig = QaReportConfig()

@@ -129,6 +129,89 @@ class FEModelSummary(StrictModel):
     sets: VolumeSets | None = None
 
 
+# --- stage stress ---
+class ToeStress(StrictModel):
+    """One toe in one section: the highest maximum principal stress on the outline within reach
+    of the measured toe over the nominal stress (the force over its plate's measured thickness)."""
+
+    line: str  # the weld line the toe belongs to
+    side: Literal["minus", "plus"]
+    factor: float | None  # None: no outline node within reach
+    peak_mpa: float | None
+    nominal_mpa: float
+    plate_thickness_mm: float
+    toe_specimen_mm: tuple[float, float, float]  # the measured toe where the section crosses it
+    peak_specimen_mm: tuple[float, float, float] | None  # where the peak is
+
+
+class StressSection(StrictModel):
+    """One 2-D section model: where it is, its size and its checks."""
+
+    position_mm: float  # along the driving weld line (the weld stage's position)
+    origin_specimen_mm: tuple[float, float, float]
+    nodes: int
+    elements: int
+    force_n_per_mm: float  # the force through it, per mm of the weld's length
+    imbalance: float  # |held + pulled| / pulled reaction
+    membrane_error: float | None  # the membrane stress in the plate windows against force / thickness, relative (the larger)
+    toes: list[ToeStress]
+
+
+class ToeHotSpot(StrictModel):
+    """A toe line's highest section: the predicted crack start."""
+
+    line: str
+    side: Literal["minus", "plus"]
+    position_mm: float
+    factor: float
+    at_specimen_mm: tuple[float, float, float]
+    sections: int
+    median_factor: float
+
+
+class StressConvergence(StrictModel):
+    """The hot spot's section again with elements half the size at the toes."""
+
+    position_mm: float
+    line: str
+    side: Literal["minus", "plus"]
+    toe_size_mm: float
+    factor: float
+    finer_factor: float
+    change: float  # finer / default - 1
+
+
+class StressSummary(StrictModel):
+    """``stress.json``: the stress concentration along every measured toe, or why not computed."""
+
+    schema_version: Literal["1"] = "1"
+    made: bool
+    why: str | None = None
+    model: str | None = None  # in words: element, plane, load, ends
+    driving_line: str | None = None
+    sections: list[StressSection] = []
+    hot_spots: list[ToeHotSpot] = []
+    hot_spot: ToeHotSpot | None = None  # the highest of all
+    convergence: StressConvergence | None = None
+    max_imbalance: float | None = None
+    max_membrane_error: float | None = None
+
+
+class StressReport(StrictModel):
+    """The stress's part of the report: the hot spots and the checks (each section's figures stay
+    in the stress stage's stress.json)."""
+
+    made: bool
+    why: str | None = None
+    model: str | None = None
+    sections: int = 0
+    hot_spot: ToeHotSpot | None = None
+    hot_spots: list[ToeHotSpot] = []
+    convergence: StressConvergence | None = None
+    max_imbalance: float | None = None
+    max_membrane_error: float | None = None
+
+
 # --- report.json ---
 class Check(StrictModel):
     """One consistency check of the run: ``result`` "ok" or "flagged", ``what`` in words."""
@@ -178,6 +261,7 @@ class Report(StrictModel):
     registration_method: dict[str, str]  # per pass: "targets", "surfaces from given poses", ...
     mesh: dict[str, Any]
     volume_mesh: FEModelSummary
+    stress: StressReport
     weld: WeldReport
     checks: list[Check]
     deliverables: dict[str, str]  # results/ file name -> sha256

@@ -177,3 +177,18 @@ def summarise_weld_errors(errors: dict[str, list[tuple[float, float]]]) -> dict[
     return out
 
 
+
+
+def true_specimen(sample_dir: Path):
+    """The simulated dog-bone of a sample as the simulator drew it (``simulator.specimen.Specimen``:
+    its welds' height functions, its misalignment), drawn again from ``truth/simulation.json`` with
+    the same seed: exact surface heights anywhere, where ``truth/specimen.ply`` holds them at its
+    vertices only (a toe of 0.46 mm radius on ~5 vertices 0.08 mm apart on the ci preset)."""
+    from schemas.simulation import SimulationConfig
+    from simulator.specimen import build_specimen
+
+    config = SimulationConfig.model_validate_json((Path(sample_dir) / TRUTH_DIR / "simulation.json").read_text())
+    if config.tjoint is not None:
+        raise ValueError(f"{sample_dir}: a T-joint sample; true_specimen draws the dog-bone only")
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(5)[0])
+    return build_specimen(config.specimen, config.weld, config.mesh, rng)

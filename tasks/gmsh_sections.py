@@ -85,7 +85,12 @@ def _one(gmsh, n: int, section: dict):
     index[node_tags.astype(np.int64)] = np.arange(len(node_tags))
     points = np.asarray(coords, np.float64).reshape(-1, 3)[:, :2]
     triangles = index[np.asarray(element_nodes, np.int64)].reshape(-1, 6)
-    return points, triangles
+    # only the nodes the triangles use (gmsh also gives a node for every point the splines were
+    # drawn through), numbered in gmsh's order
+    used = np.unique(triangles)
+    renumber = np.full(len(points), -1, np.int64)
+    renumber[used] = np.arange(len(used))
+    return points[used], renumber[triangles]
 
 
 def gmsh_sections(sections: list[dict], *, seed: int = 1) -> list[tuple[np.ndarray, np.ndarray]]:

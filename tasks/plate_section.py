@@ -6,8 +6,9 @@ x runs along ``frame.across`` (the pull, across the weld) and y along ``frame.up
 outward normal, through the thickness). The points within ``half_width_mm`` of the plane are read
 as two profiles, the top face (normals within ``min_normal_cos`` of up) and the bottom face
 (within it of down): per ``bin_mm`` along x the median height of each, bins without points filled
-along the profile between the bins around them, then smoothed by a Gaussian of ``smooth_mm``
-(the measured points' noise would otherwise be read as notches). The outline is the two profiles
+along the profile between the bins around them, then smoothed over ``smooth_mm`` either side (a
+quadratic Savitzky-Golay filter and a Gaussian of one bin: the measured points' noise would
+otherwise be read as notches). The outline is the two profiles
 where both faces were measured, cut straight across ``cut_mm`` inside either end of that range
 (the unscanned ends, which a Poisson surface closes with rounded caps, are not part of it).
 Arrays in, arrays out: no files, no solver."""
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
+from scipy.signal import savgol_filter
 
 from tasks.section_model import PlaneSection
 
@@ -81,12 +83,19 @@ def _face(x: np.ndarray, y: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, 
     return median, np.isfinite(median)
 
 
-def _filled_smoothed(values: np.ndarray, measured: np.ndarray, lo: int, hi: int, sigma_bins: float) -> np.ndarray:
+def _filled_smoothed(values: np.ndarray, measured: np.ndarray, lo: int, hi: int, half_window_bins: float) -> np.ndarray:
+    """The face's heights from bin ``lo`` to ``hi``: empty bins filled along the profile, then a
+    quadratic Savitzky-Golay filter of ``half_window_bins`` either side (it keeps a toe's curvature
+    where a Gaussian of the same reach blunts it) and a Gaussian of one bin (the Savitzky-Golay
+    filter lets through some of the noise at the bins' own scale, which a notch model reads)."""
     out = np.full(len(values), np.nan)
     idx = np.arange(lo, hi + 1)
     have = np.flatnonzero(measured[lo:hi + 1]) + lo
     filled = np.interp(idx, have, values[have])
-    out[lo:hi + 1] = gaussian_filter1d(filled, sigma_bins, mode="nearest") if sigma_bins > 0 else filled
+    half = int(round(half_window_bins))
+    if half >= 2 and len(filled) > 2 * half + 1:
+        filled = gaussian_filter1d(savgol_filter(filled, 2 * half + 1, 2, mode="interp"), 1.0, mode="nearest")
+    out[lo:hi + 1] = filled
     return out
 
 
@@ -116,9 +125,9 @@ def plate_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, 
     hi = min(np.flatnonzero(has_top)[-1], np.flatnonzero(has_bottom)[-1])
     if hi - lo < 10:
         return None
-    sigma = smooth_mm / bin_mm
-    return PlateProfile(x_mm=0.5 * (edges[:-1] + edges[1:]), top_mm=_filled_smoothed(top, has_top, lo, hi, sigma),
-                        bottom_mm=_filled_smoothed(bottom, has_bottom, lo, hi, sigma), measured_top=has_top,
+    half = smooth_mm / bin_mm
+    return PlateProfile(x_mm=0.5 * (edges[:-1] + edges[1:]), top_mm=_filled_smoothed(top, has_top, lo, hi, half),
+                        bottom_mm=_filled_smoothed(bottom, has_bottom, lo, hi, half), measured_top=has_top,
                         measured_bottom=has_bottom)
 
 

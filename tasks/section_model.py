@@ -62,7 +62,7 @@ class SectionMeshSettings:
     fine_size_mm: float
     fine_reach_mm: float
     size_mm: float
-    growth: float = 0.2
+    growth: float
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ class SectionSolution:
 
 
 def mesh_sections(sections: Sequence[PlaneSection], settings: SectionMeshSettings, *,
-                  timeout_s: float = 600.0) -> list[SectionMesh]:
+                  timeout_s: float) -> list[SectionMesh]:
     """The sections' meshes (``tasks.gmsh_sections`` in one child process, one thread)."""
     payload = [{"outline": np.asarray(s.outline_mm, np.float64), "corners": list(s.corners),
                 "holes": [np.asarray(h, np.float64) for h in s.holes_mm],
@@ -124,7 +124,7 @@ def boundary_nodes(triangles: np.ndarray) -> np.ndarray:
 
 
 def pull_sections(meshes: Sequence[SectionMesh], *, stretch_mm: float = 0.01, plane: str = "strain",
-                  material: Material = Material(), timeout_s: float = 600.0,
+                  material: Material = Material(), timeout_s: float,
                   workdir: Path | None = None) -> list[SectionSolution]:
     """Each section pulled along x by ``stretch_mm`` (see the module's description), all in one
     CalculiX run."""

@@ -61,6 +61,14 @@ def print_run_summary(run, out: Path) -> None:
               f"aspect ratio {quality.aspect_ratio.worst:.1f}")
     else:
         print(f"FE model: not made: {volume.why}")
+    stress = report.stress
+    if stress.made and stress.hot_spot is not None:
+        hot, c = stress.hot_spot, stress.convergence
+        print(f"stress: hot spot at the {hot.line} weld's {hot.side} toe, {hot.position_mm:g} mm along it, stress "
+              f"concentration {hot.factor:.2f} under axial tension ({stress.sections} sections"
+              + (f"; {100 * c.change:+.1f} % with half-size elements" if c is not None else "") + ")")
+    elif not stress.made:
+        print(f"stress: not computed: {stress.why}")
     for item in run.outputs.values():
         print(f"  {item['path']}")
     if "report.html" in run.outputs:

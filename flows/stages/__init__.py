@@ -51,8 +51,12 @@ STAGES: tuple[Stage, ...] = (
           "flows.stages.volume:volume", "flows.stages.views:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
           "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
+    Stage("stress", False, ("refine", "segment", "weld"), "stress", (outputs.STRESS_SUMMARY, outputs.STRESS_VTU),
+          "flows.stages.stress:stress", "flows.stages.views:stress_view",
+          "the stress concentration along every measured toe: 2-D plane-strain sections across the weld from the "
+          "measured points, pulled by CalculiX; hot spots, equilibrium and convergence checked"),
     Stage("report", False, ("denoise", "targets", "registration", "refine", "merge", "segment", "weld", "mesh",
-                            "export", "volume"), "*",
+                            "export", "volume", "stress"), "*",
           (outputs.REPORT,), "flows.stages.report:report", "flows.stages.views:report_view", "the sample's report"),
     Stage("qa_report", False, ("denoise", "targets", "registration", "refine", "segment", "weld", "mesh", "volume",
                                "report"), "qa_report", (outputs.QA_REPORT,), "flows.stages.qa_report:qa_report",

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, TextFile
-from schemas.stage_documents import FEModelSummary, RefineSummary, RegistrationSummary, Report
+from schemas.stage_documents import FEModelSummary, RefineSummary, RegistrationSummary, Report, StressSummary
 from schemas.weld_document import WeldGeometry
 
 
@@ -128,6 +128,11 @@ PLY = MeshFile("mesh.ply")  # binary PLY, mm
 VOLUME_INP = MeshFile("model.inp", optional=True)  # Abaqus, C3D4, mm: ALL, WELD_ZONE_NODES, WELD_ZONE_SURFACE
 VOLUME_VTU = MeshFile("model.vtu", optional=True)  # VTU (zlib): min_dihedral_deg, aspect_ratio, weld_zone_boundary
 VOLUME_SUMMARY = JsonFile("volume.json", FEModelSummary)  # whether it was made, the solid checks, the quality figures
+
+
+# --- stage stress ---
+STRESS_SUMMARY = JsonFile("stress.json", StressSummary)  # the factor per toe and section, hot spots, checks
+STRESS_VTU = MeshFile("sections.vtu", optional=True)  # VTU (zlib): the section models in the specimen frame, their stresses
 
 
 @dataclass(frozen=True)

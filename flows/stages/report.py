@@ -14,14 +14,15 @@ from typing import Any
 
 from data_catalog.atomic import default_mode, fsync_tree, owner_tag, replace_directory
 from flows.stages.contracts import StageRef
-from flows.stages.outputs import (PLY, QA_REPORT, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, VOLUME_INP, VOLUME_SUMMARY,
-                                  VOLUME_VTU, WELD_GEOMETRY)
+from flows.stages.outputs import (PLY, QA_REPORT, REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STL, STRESS_SUMMARY,
+                                  STRESS_VTU, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
 from flows.stages.qa_audit import UNVERIFIED, fill_audit
-from schemas.stage_documents import Check, FEModelSummary, Report, WeldReport
+from schemas.stage_documents import Check, FEModelSummary, Report, StressReport, StressSummary, WeldReport
 from schemas.weld_document import WeldGeometry
 
-__all__ = ["report", "publish", "checks", "fe_model_check", "weld_summary", "RESULTS", "CONFIG_NAME"]
+__all__ = ["report", "publish", "checks", "fe_model_check", "stress_check", "stress_summary", "weld_summary", "RESULTS",
+           "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
@@ -31,7 +32,8 @@ def _deliverables(sample_id: str) -> dict[str, tuple[str, str]]:
     """results/ file name -> (the stage, its output) it is a copy of (the volume's files only
     where the stage made them)."""
     return {f"{sample_id}.stl": ("export", STL.name), f"{sample_id}.ply": ("export", PLY.name),
-            f"{sample_id}.inp": ("volume", VOLUME_INP.name), f"{sample_id}.vtu": ("volume", VOLUME_VTU.name)}
+            f"{sample_id}.inp": ("volume", VOLUME_INP.name), f"{sample_id}.vtu": ("volume", VOLUME_VTU.name),
+            f"{sample_id}_stress.vtu": ("stress", STRESS_VTU.name)}
 
 
 def _metrics(ref: StageRef | list[StageRef]) -> Any:
@@ -105,9 +107,48 @@ def fe_model_check(summary: FEModelSummary) -> Check:
                            "min_dihedral_deg": summary.quality.min_dihedral_deg.worst})
 
 
+def stress_summary(summary: StressSummary) -> StressReport:
+    """The stress's part of the report (the per-section figures stay in stress.json)."""
+    return StressReport(made=summary.made, why=summary.why, model=summary.model, sections=len(summary.sections),
+                        hot_spot=summary.hot_spot, hot_spots=summary.hot_spots, convergence=summary.convergence,
+                        max_imbalance=summary.max_imbalance, max_membrane_error=summary.max_membrane_error)
+
+
+# what the stress's checks allow: the ends' reactions 0.1 % apart, the plate's membrane stress 1 %
+# off the force over its thickness, the hot spot 5 % apart with half-size elements at the toe
+STRESS_LIMITS = {"imbalance": 1e-3, "membrane": 0.01, "convergence": 0.05}
+
+
+def stress_check(summary: StressSummary) -> Check:
+    """The stress's check: equilibrium, the membrane stress and the hot spot's convergence within
+    ``STRESS_LIMITS``, or why there is no stress."""
+    if not summary.made:
+        return Check(check="stress at the toes", pass_="all", result="flagged", what=f"not computed: {summary.why}",
+                     measured={})
+    problems = []
+    if not (summary.max_imbalance is not None and summary.max_imbalance <= STRESS_LIMITS["imbalance"]):
+        problems.append(f"the ends' reactions {summary.max_imbalance} apart (at most {STRESS_LIMITS['imbalance']})")
+    if not (summary.max_membrane_error is not None and abs(summary.max_membrane_error) <= STRESS_LIMITS["membrane"]):
+        problems.append(f"the plate's membrane stress {summary.max_membrane_error} off the force over its thickness "
+                        f"(at most {STRESS_LIMITS['membrane']})")
+    c = summary.convergence
+    if c is not None and abs(c.change) > STRESS_LIMITS["convergence"]:
+        problems.append(f"the hot spot's factor moves by {100 * c.change:+.1f} % with half-size elements at the toe "
+                        f"(at most {100 * STRESS_LIMITS['convergence']:.0f} %)")
+    hot = summary.hot_spot
+    what = (f"{len(summary.sections)} sections; hot spot {hot.line} {hot.side} toe at {hot.position_mm:g} mm, factor "
+            f"{hot.factor:.2f}" if hot is not None else f"{len(summary.sections)} sections, no toe within reach")
+    return Check(check="stress at the toes", pass_="all", result="flagged" if problems else "ok",
+                 what="; ".join([what, *problems]),
+                 measured={"max_imbalance": summary.max_imbalance, "max_membrane_error": summary.max_membrane_error,
+                           "convergence": None if c is None else c.change})
+
+
 def report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     volume = VOLUME_SUMMARY.read(inputs["volume"])
+    stress = STRESS_SUMMARY.read(inputs["stress"])
+    weld = WELD_GEOMETRY.read(inputs["weld"])
     body = Report(
         sample_id=ctx.manifest.sample_id,
         passes=ctx.names,
@@ -119,8 +160,11 @@ def report(ctx) -> dict[str, Any]:
         registration_method=inputs["refine"].metrics.get("registration_method", {}),
         mesh=_metrics(inputs["mesh"]),
         volume_mesh=volume,
-        weld=weld_summary(WELD_GEOMETRY.read(inputs["weld"])),
-        checks=checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(volume)],
+        stress=stress_summary(stress),
+        weld=weld_summary(weld),
+        # the stress is checked where the weld was measured (elsewhere the weld's part says why not)
+        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(volume)]
+                + ([stress_check(stress)] if weld.measured else [])),
         deliverables={name: inputs[stage].outputs[source]
                       for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
                       if source in inputs[stage].outputs},
@@ -142,8 +186,9 @@ def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str,
     have (another sample id's) go with it. Returns file name -> {path, sha256}."""
     out_dir = Path(out_dir)
     results = out_dir / RESULTS
+    # an optional output the stage left out (or a stage that did not run for this sample) is not published
     sources = {name: (refs[stage], source) for name, (stage, source) in _deliverables(sample_id).items()
-               if source in refs[stage].outputs}  # an optional output the stage left out is not published
+               if stage in refs and source in refs[stage].outputs}
     sources[REPORT.name] = (report_ref, REPORT.name)
     staging = Path(tempfile.mkdtemp(prefix=f".{RESULTS}.{owner_tag()}.", suffix=".partial", dir=out_dir))
     try:

@@ -86,6 +86,18 @@ def weld_view(manifest: SampleManifest, entry: PassEntry | None = None) -> dict[
             "default_acceptance_sha256": sha256_file(DEFAULT_ACCEPTANCE_FILE)}
 
 
+def stress_view(manifest: SampleManifest, entry: PassEntry | None = None) -> dict[str, Any]:
+    """What the stress stage reads: the passes (in order), the weld lines and joint, each setup's
+    nominal placement (the specimen frame), and the part's kind (the load case)."""
+    weld = manifest.weld
+    return {"passes": [e.pass_id for _, e in manifest.passes()],
+            "weld_lines_mm": {line.name: [list(p) for p in line.points_mm] for line in manifest.weld_lines()},
+            "joint": getattr(weld, "joint", "double-sided butt"),
+            "setups": [{"name": s.name, "first_pass": s.passes[0].pass_id,
+                        "T_world_specimen_nominal": s.T_world_specimen_nominal} for s in manifest.setups],
+            "part": None if manifest.specimen is None else manifest.specimen.kind}
+
+
 def report_view(manifest: SampleManifest, entry: PassEntry | None = None) -> dict[str, Any]:
     """The sample and its passes by setup."""
     return {"sample_id": manifest.sample_id, "passes": [[s, e.pass_id] for s, e in manifest.passes()]}

@@ -41,10 +41,10 @@ def test_array_outputs_name_their_arrays():
 
 
 def test_downstream_and_lookup():
-    assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "report",
-                                        "qa_report"]
-    assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "report", "qa_report"]
-    assert downstream_of("weld") == ["volume", "report", "qa_report"]
+    assert downstream_of("denoise") == ["refine", "merge", "segment", "weld", "mesh", "export", "volume", "stress",
+                                        "report", "qa_report"]
+    assert downstream_of("segment") == ["weld", "mesh", "export", "volume", "stress", "report", "qa_report"]
+    assert downstream_of("weld") == ["volume", "stress", "report", "qa_report"]
     assert downstream_of("mesh") == ["export", "volume", "report", "qa_report"]
     assert downstream_of("report") == ["qa_report"]
     assert downstream_of("qa_report") == []
@@ -59,7 +59,9 @@ def test_a_stop_makes_the_stage_and_what_it_needs_only():
     assert names("denoise") == ["denoise"]
     assert names("refine") == ["denoise", "targets", "registration", "refine"]
     assert names("mesh") == ["denoise", "targets", "registration", "refine", "merge", "segment", "mesh"]  # no weld
-    assert names("volume") == [n for n in STAGE_NAMES if n not in ("export", "report", "qa_report")]
+    assert names("volume") == [n for n in STAGE_NAMES if n not in ("export", "stress", "report", "qa_report")]
+    # the stress reads the measured points and toes, not the meshes
+    assert names("stress") == ["denoise", "targets", "registration", "refine", "merge", "segment", "weld", "stress"]
     assert names("qa_report") == [n for n in STAGE_NAMES]
     with pytest.raises(KeyError, match="no stage 'meshing'"):
         needed_for("meshing")

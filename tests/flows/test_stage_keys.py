@@ -76,7 +76,8 @@ def base_versions(tmp_path_factory) -> dict[str, str]:
     ("tasks/checks.py", "", "# edited\n", {"denoise", "refine", "merge", "segment", "mesh", "export", "volume",
                                            "qa_report"}),
     ("data_catalog/passes.py", "", "# edited\n", {"denoise", "targets", "registration", "refine", "merge", "segment",
-                                                      "weld", "mesh", "export", "volume", "report", "qa_report"}),
+                                                      "weld", "mesh", "export", "volume", "stress", "report",
+                                                      "qa_report"}),
     ("tasks/report_figures.py", "", "# edited\n", {"qa_report"}),
     ("tasks/weld_fits.py", "", "# edited\n", {"weld"}),
 ])

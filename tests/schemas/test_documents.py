@@ -12,12 +12,13 @@ from pathlib import Path
 import pytest
 
 from flows.stages.contracts import DocumentError, JsonFile
-from flows.stages.outputs import REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, VOLUME_SUMMARY, WELD_GEOMETRY
+from flows.stages.outputs import (REFINE_SUMMARY, REGISTRATION_SUMMARY, REPORT, STRESS_SUMMARY, VOLUME_SUMMARY,
+                                  WELD_GEOMETRY)
 from schemas.stage_documents import Check, FEModelSummary, Report
 from schemas.weld_document import SECTION_FIGURES, TOE_FIGURES, WeldGeometry
 
 DOCUMENTS = Path(__file__).resolve().parents[1] / "data" / "documents"
-FILES = (WELD_GEOMETRY, VOLUME_SUMMARY, REGISTRATION_SUMMARY, REFINE_SUMMARY, REPORT)
+FILES = (WELD_GEOMETRY, VOLUME_SUMMARY, REGISTRATION_SUMMARY, REFINE_SUMMARY, STRESS_SUMMARY, REPORT)
 
 
 @pytest.mark.parametrize("file", FILES, ids=[f.name for f in FILES])
@@ -32,6 +33,7 @@ def test_a_stage_document_reads_into_its_model_and_writes_back_the_same_bytes(fi
     ("weld_geometry.json", '"toe_radius_mm": {', '"radius_mm": {'),
     ("weld_geometry.json", '"reinforcement_height_mm": {', '"height_mm": {'),
     ("volume.json", '"tetrahedra":', '"elements":'),
+    ("stress.json", '"factor":', '"scf":'),
     ("report.json", '"volume_mesh":', '"fe_model":'),
     ("registration.json", '"common_targets":', '"targets_in_common":'),
 ])
@@ -120,6 +122,9 @@ def test_the_published_report_holds_the_stage_documents_unchanged():
     assert report.volume_mesh == VOLUME_SUMMARY.read_path(DOCUMENTS / VOLUME_SUMMARY.name)
     assert report.registration == REGISTRATION_SUMMARY.read_path(DOCUMENTS / REGISTRATION_SUMMARY.name)
     assert report.refinement == REFINE_SUMMARY.read_path(DOCUMENTS / REFINE_SUMMARY.name)
+    from flows.stages.report import stress_summary
+
+    assert report.stress == stress_summary(STRESS_SUMMARY.read_path(DOCUMENTS / STRESS_SUMMARY.name))
 
 
 def test_the_command_line_summary_reads_the_report(capsys):
@@ -138,6 +143,9 @@ def test_the_command_line_summary_reads_the_report(capsys):
     assert f"weld: {report.weld.sections_measured} of {report.weld.sections} sections measured, " \
            f"{report.weld.verdict}" in out
     assert f"FE model: {report.volume_mesh.solid.tetrahedra:,} tetrahedra" in out
+    hot = report.stress.hot_spot
+    assert (f"stress: hot spot at the {hot.line} weld's {hot.side} toe, {hot.position_mm:g} mm along it, stress "
+            f"concentration {hot.factor:.2f}") in out
     assert f"checks: {len(report.checks)} of {len(report.checks)} ok" in out
     assert "audit trail head: seq 7" in out
 

@@ -36,8 +36,9 @@ def solved():
     """Both handbook cases meshed in one gmsh child and solved in one CalculiX run, as the stage
     does with a weld's sections."""
     sections = [_plate_with_hole(50.0, 10.0, 200.0), _notched_strip(40.0, 1.0, 200.0)]
-    meshes = mesh_sections(sections, SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0, growth=0.3))
-    return sections, pull_sections(meshes, stretch_mm=0.02)
+    meshes = mesh_sections(sections, SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0, growth=0.3),
+                           timeout_s=120)
+    return sections, pull_sections(meshes, stretch_mm=0.02, timeout_s=120)
 
 
 def test_a_plate_with_a_hole_has_howlands_stress_concentration(solved):
@@ -97,18 +98,19 @@ def test_the_mesh_is_finest_at_the_fine_points_and_its_outline_is_the_sections(s
 def test_the_same_sections_give_the_same_mesh_again(solved):
     sections, solutions = solved
     again = mesh_sections(sections[1:], SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0,
-                                                            growth=0.3))[0]
+                                                            growth=0.3), timeout_s=120)[0]
     assert np.array_equal(again.points, solutions[1].mesh.points)
     assert np.array_equal(again.triangles, solutions[1].mesh.triangles)
 
 
 def test_a_section_not_cut_straight_at_its_ends_is_refused_naming_it():
     tilted = PlaneSection(np.array([[0.0, 0.0], [10.0, 0.0], [11.0, 2.0], [1.0, 2.0]]), corners=(0, 1, 2, 3))
-    mesh = mesh_sections([tilted], SectionMeshSettings(fine_size_mm=0.5, fine_reach_mm=1.0, size_mm=0.5))
+    mesh = mesh_sections([tilted], SectionMeshSettings(fine_size_mm=0.5, fine_reach_mm=1.0, size_mm=0.5, growth=0.3),
+                         timeout_s=120)
     with pytest.raises(ValueError, match=r"section 0: its ends are not cut straight across"):
-        pull_sections(mesh)
+        pull_sections(mesh, timeout_s=120)
 
 
 def test_a_malformed_outline_is_refused_before_gmsh_runs():
     with pytest.raises(ValueError, match=r"section 0: outline_mm must be \(k >= 3, 2\)"):
-        mesh_sections([PlaneSection(np.zeros((2, 2)))], SectionMeshSettings(1.0, 1.0, 1.0))
+        mesh_sections([PlaneSection(np.zeros((2, 2)))], SectionMeshSettings(1.0, 1.0, 1.0, 0.3), timeout_s=120)

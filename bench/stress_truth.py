@@ -1,0 +1,138 @@
+"""The stress stage against the truth: a finished run's stress sections of a simulated dog-bone,
+and the same sections of the simulator's true surface through the same code (outline, meshing,
+solver, peaks), toe by toe.
+
+    .venv/bin/python bench/stress_truth.py RUN_FOLDER SAMPLE_FOLDER
+
+The truth is the surface the simulator drew (``simulator.evaluate.true_specimen``: exact heights,
+not ``truth/specimen.ply``'s vertices, which hold a toe of 0.46 mm radius on ~5 points on the ci
+preset), sampled every 0.01 mm along the run's section planes, put where the run's specimen frame
+has it (the stickers fit the true frame to the run's: ``simulator.evaluate.fit_gauge``), read
+without smoothing (bins of 0.02 mm) and meshed, pulled and read at the run's toes exactly as the
+stage does. Prints each toe's factors and the differences; writes nothing."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+import tasks  # noqa: F401  (pymeshlab first: tasks/__init__.py)
+from data_catalog.manifests import load_manifest
+from flows.stages.outputs import REFINED, STRESS_SUMMARY
+from flows.stages.placement import weld_frame
+from schemas.reconstruction import ReconstructionConfig
+from simulator.evaluate import fit_gauge, true_specimen
+from tasks.frames import apply, invert, rotate
+from tasks.plate_section import SectionFrame, plate_profile, profile_section
+from tasks.section_model import SectionMeshSettings, mesh_sections, peaks_near, pull_sections
+
+__all__ = ["true_factors", "compare"]
+
+
+class _Ref:
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def file(self, name: str) -> Path:
+        return self.folder / name
+
+
+def _stage(run: Path, name: str) -> _Ref:
+    return _Ref(next(p for p in (Path(run) / "stages" / name).iterdir() if p.is_dir()))
+
+
+def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], list[list[float | None]]]:
+    """(the run's factors, the truth's) per section and toe, in stress.json's order."""
+    summary = STRESS_SUMMARY.read(_stage(run, "stress"))
+    config = ReconstructionConfig.model_validate(json.loads((Path(run) / "results" / "config.json").read_text()))
+    s = config.stress
+    manifest = load_manifest(Path(sample) / "manifest.json")
+    refined = REFINED.read(_stage(run, "refine"))
+    positions = refined.track_positions_mm
+    G = fit_gauge(sample, positions[refined.specimen_track], positions).T_recon_specimen  # true -> common
+    T = weld_frame(manifest, np.asarray(refined.T_common_pass))  # the run's specimen frame -> common
+    run_to_true, true_to_run = invert(G) @ T, invert(T) @ G
+    specimen = true_specimen(sample)
+    half = specimen.config.length_mm / 2
+    x = np.arange(-half, half + 1e-9, 0.01)
+    lines = {line.name: line for line in load_geometry_lines(run)}
+    planes, fine = [], []
+    for section in summary.sections:
+        line = lines[summary.driving_line]
+        up, across = np.asarray(line.face_normal), np.asarray(line.across)
+        along = np.cross(across, up)
+        along /= np.linalg.norm(along)
+        frame = SectionFrame(np.asarray(section.origin_specimen_mm), across, up, along)
+        # the plane in the true frame: y where it crosses each x (it runs across y, the weld's direction)
+        o, n = apply(run_to_true, frame.origin[None])[0], rotate(run_to_true, frame.along[None])[0]
+        y = o[1] - (n[0] * (x - o[0])) / n[1]
+        top, bottom = specimen.top_z(x, y), specimen.bottom_z(x, y)
+        points = apply(true_to_run, np.r_[np.c_[x, y, top], np.c_[x, y, bottom]])
+        normals = rotate(true_to_run, np.r_[np.tile([0.0, 0.0, 1.0], (len(x), 1)), np.tile([0.0, 0.0, -1.0], (len(x), 1))])
+        profile = plate_profile(points, normals, frame, half_width_mm=0.05, bin_mm=0.02, smooth_mm=0.0)
+        toes = np.array([[(np.asarray(t.toe_specimen_mm) - frame.origin) @ across,
+                          (np.asarray(t.toe_specimen_mm) - frame.origin) @ up] for t in section.toes])
+        planes.append((profile, profile_section(profile, cut_mm=s.cut_mm, fine_mm=toes)))
+        fine.append(toes)
+    settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
+                                   growth=s.growth)
+    solutions = pull_sections(mesh_sections([p for _, p in planes], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s)
+    ours, truth = [], []
+    near, far = s.plate_window_mm
+    for section, (profile, _), toes, solution in zip(summary.sections, planes, fine, solutions):
+        peaks = peaks_near(solution, toes, s.peak_reach_mm)
+        row = []
+        for toe, (peak, _) in zip(section.toes, peaks):
+            sign = -1.0 if toe.side == "minus" else 1.0
+            thickness = profile.thickness_mm(sign * near, sign * far)
+            row.append(peak / (solution.force_n / thickness) if math.isfinite(peak) else None)
+        truth.append(row)
+        ours.append([t.factor for t in section.toes])
+    return ours, truth
+
+
+def load_geometry_lines(run: Path):
+    from flows.stages.outputs import WELD_GEOMETRY
+
+    return WELD_GEOMETRY.read(_stage(run, "weld")).lines
+
+
+def compare(run: Path, sample: Path) -> dict:
+    """Per toe line: the run's and the truth's hot spot, their difference and how far apart along
+    the weld; and over every section and toe the median and worst difference."""
+    summary = STRESS_SUMMARY.read(_stage(run, "stress"))
+    ours, truth = true_factors(run, sample)
+    by_toe: dict[tuple[str, str], list[tuple[float, float, float]]] = {}
+    differences = []
+    for section, o_row, t_row in zip(summary.sections, ours, truth):
+        for toe, o, t in zip(section.toes, o_row, t_row):
+            if o is None or t is None:
+                continue
+            by_toe.setdefault((toe.line, toe.side), []).append((section.position_mm, o, t))
+            differences.append(o / t - 1)
+    toes = {}
+    for (line, side), rows in sorted(by_toe.items()):
+        o_at, o_hot, _ = max(rows, key=lambda r: r[1])
+        t_at, _, t_hot = max(rows, key=lambda r: r[2])
+        toes[f"{line} {side}"] = {"ours": round(o_hot, 4), "truth": round(t_hot, 4),
+                                  "difference": round(o_hot / t_hot - 1, 4), "apart_mm": round(abs(o_at - t_at), 3),
+                                  "sections": len(rows)}
+    d = np.abs(np.array(differences))
+    return {"toes": toes, "median_difference": round(float(np.median(d)), 4), "worst_difference": round(float(d.max()), 4),
+            "toe_sections": len(d)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("run", type=Path)
+    parser.add_argument("sample", type=Path)
+    args = parser.parse_args()
+    print(json.dumps(compare(args.run, args.sample), indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,84 @@
+"""Stage ``stress`` on the session's ci run: the stress concentration along every measured toe from
+2-D section models, its checks (equilibrium, the plate's membrane stress, the hot spot's
+convergence), the published VTU, and the factors against the simulator's true surface through the
+same code (bench/stress_truth.py)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from flows.stages.outputs import STRESS_SUMMARY
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_every_toe_gets_its_factor_and_the_checks_hold(ci_run):
+    out, report = ci_run
+    summary = STRESS_SUMMARY.read(report["refs"]["stress"])
+    assert summary.made and len(summary.sections) == 5  # every 10 mm along the ci gauge (deploy/configs/ci.yaml)
+    assert summary.max_imbalance <= 1e-3
+    assert abs(summary.max_membrane_error) <= 0.01  # measured 0.5 %
+    toes = {(t.line, t.side) for s in summary.sections for t in s.toes}
+    assert toes == {("top", "minus"), ("top", "plus"), ("bottom", "minus"), ("bottom", "plus")}
+    factors = [t.factor for s in summary.sections for t in s.toes]
+    assert all(f is not None and 1.2 < f < 4.0 for f in factors), factors  # a toe raises the stress, not tenfold
+    # each toe line's hot spot is its highest section, the sample's the highest of those
+    for hot in summary.hot_spots:
+        rows = [(s.position_mm, t.factor) for s in summary.sections for t in s.toes if (t.line, t.side) == (hot.line, hot.side)]
+        assert (hot.position_mm, hot.factor) == max(rows, key=lambda r: r[1])
+    assert summary.hot_spot == max(summary.hot_spots, key=lambda h: h.factor)
+    c = summary.convergence
+    assert (c.line, c.side, c.position_mm) == (summary.hot_spot.line, summary.hot_spot.side, summary.hot_spot.position_mm)
+    assert abs(c.change) < 0.05  # measured +1.0 %
+    # the peak lies on the part's surface near its toe, in the specimen frame
+    for s in summary.sections:
+        for t in s.toes:
+            assert np.linalg.norm(np.subtract(t.peak_specimen_mm, t.toe_specimen_mm)) <= 1.5 + 1e-6
+            assert 19.5 < t.plate_thickness_mm < 20.5  # the ci dog-bone's 20 mm
+
+
+def test_the_report_and_the_terminal_say_the_hot_spot(ci_run):
+    out, report = ci_run
+    published = json.loads((out / "results" / "report.json").read_text())
+    stress = published["stress"]
+    assert stress["made"] and stress["hot_spot"]["factor"] == max(h["factor"] for h in stress["hot_spots"])
+    check = next(c for c in published["checks"] if c["check"] == "stress at the toes")
+    assert check["result"] == "ok" and f"factor {stress['hot_spot']['factor']:.2f}" in check["what"]
+
+
+def test_the_section_models_are_published_as_vtu(ci_run):
+    out, report = ci_run
+    sample_id = json.loads((out / "results" / "report.json").read_text())["sample_id"]
+    model = meshio.read(out / "results" / f"{sample_id}_stress.vtu")
+    summary = STRESS_SUMMARY.read(report["refs"]["stress"])
+    assert len(model.cells_dict["triangle6"]) == sum(s.elements for s in summary.sections)
+    principal = model.point_data["max_principal_mpa"]
+    assert np.all(np.isfinite(principal))
+    # the highest stress in the file is the hot spot's peak, where stress.json puts it
+    hot = max((t for s in summary.sections for t in s.toes), key=lambda t: t.peak_mpa)
+    k = int(np.argmax(principal))
+    assert principal[k] >= hot.peak_mpa - 1e-3 * abs(hot.peak_mpa)
+    assert np.linalg.norm(model.points[k] - np.asarray(hot.peak_specimen_mm)) < 1e-3 or principal[k] > hot.peak_mpa
+
+
+def test_the_factors_against_the_true_surface(ci_run, ci_sample):
+    """The same sections of the simulator's true surface through the same code. Measured on the ci
+    sample (0.32 mm points, 0.3 mm merge cells; its smallest true toe radii 0.42-0.47 mm, which that
+    sampling blunts): 16 toe sections, median difference 5.1 %, worst 14.3 %; the hot spots +3.2,
+    -11.2, -14.3 and -7.3 %, in the same section. Far from issue 26's 5 % at the hot spot on this
+    coarse preset: the bounds below hold what is measured, so that a change for the worse fails."""
+    sys.path.insert(0, str(REPO / "bench"))
+    from stress_truth import compare
+
+    out, _ = ci_run
+    result = compare(out, ci_sample)
+    assert result["toe_sections"] >= 16
+    assert result["median_difference"] < 0.07
+    assert result["worst_difference"] < 0.17
+    for name, toe in result["toes"].items():
+        assert abs(toe["difference"]) < 0.17 and toe["apart_mm"] <= 10.0, (name, toe)
