@@ -25,7 +25,7 @@ from matplotlib.patches import Ellipse  # noqa: E402
 from matplotlib.path import Path  # noqa: E402
 
 __all__ = ["png", "face_map", "intensity_image", "registration_graph", "mesh_view", "weld_section", "along_weld",
-           "histogram", "sample_chart", "ViewedFace", "AlongWeldSeries"]
+           "histogram", "sample_chart", "stress_along_toes", "stress_field", "ViewedFace", "AlongWeldSeries"]
 
 _DPI = 100
 _STYLE = {"font.size": 8, "axes.titlesize": 9, "axes.labelsize": 8, "legend.fontsize": 7, "svg.hashsalt": "weldrecon",
@@ -350,3 +350,50 @@ def sample_chart(samples: Sequence[str], residual_um: np.ndarray, verdicts: Sequ
     ax.set_xlabel("median target residual after refinement, um (bar colour: the weld's verdict)")
     ax.grid(axis="x", alpha=0.3)
     return png(fig)
+
+
+def stress_along_toes(factors: Sequence[tuple[str, np.ndarray, np.ndarray]],
+                      radii: Sequence[tuple[str, np.ndarray, np.ndarray]], *, hot: tuple[float, float] | None) -> bytes:
+    """The stress concentration along each toe (``factors``: (label, positions mm, factors)) above
+    the measured toe radius along the same toes (``radii``: (label, positions mm, radii mm)); the
+    hot spot (position, factor) ringed."""
+    fig = _figure(7.5, 3.6)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    palette = plt.get_cmap("tab10")
+    colour = {label: palette(k % 10) for k, label in enumerate(sorted({f[0] for f in factors} | {r[0] for r in radii}))}
+    for label, pos, val in factors:
+        top.plot(pos, val, "o-", ms=3, lw=0.8, color=colour[label], label=label)
+    if hot is not None:
+        top.plot([hot[0]], [hot[1]], "o", ms=10, mfc="none", mec="tab:red", mew=1.2)
+    for label, pos, val in radii:
+        bottom.plot(pos, val, "-", lw=0.8, color=colour[label], label=label)
+    top.set_ylabel("stress concentration")
+    bottom.set_ylabel("toe radius, mm")
+    bottom.set_xlabel("position along the weld line, mm")
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    top.legend(loc="upper right", ncols=4, frameon=False)
+    top.set_title("Stress concentration at each toe under axial tension (ringed: the hot spot)", loc="left")
+    return png(fig)
+
+
+def stress_field(points: np.ndarray, triangles: np.ndarray, factor: np.ndarray, *, toe: np.ndarray, title: str,
+                 half_span_mm: float = 6.0) -> bytes:
+    """The maximum principal stress over the nominal stress on a section model's triangles, within
+    ``half_span_mm`` of the ``toe`` (x, y; mm), the toe marked."""
+    fig = _figure(7.5, 3.4)
+    ax = fig.add_subplot()
+    x0, y0 = float(toe[0]), float(toe[1])
+    near = np.all(np.abs(points[triangles].mean(axis=1) - [x0, y0]) < 1.5 * half_span_mm, axis=1)
+    shown = ax.tripcolor(points[:, 0], points[:, 1], triangles[near], np.asarray(factor, np.float64), shading="gouraud",
+                         cmap="inferno", vmin=0.0)
+    ax.plot([x0], [y0], "+", color="tab:cyan", ms=10)
+    ax.set_xlim(x0 - half_span_mm, x0 + half_span_mm)
+    ax.set_ylim(y0 - 0.5 * half_span_mm, y0 + 0.5 * half_span_mm)
+    ax.set_aspect("equal")
+    ax.set_xlabel("across the weld, mm")
+    ax.set_ylabel("through the thickness, mm")
+    fig.colorbar(shown, ax=ax, label="max principal / nominal")
+    ax.set_title(title, loc="left")
+    return png(fig)
+

@@ -51,7 +51,8 @@ STAGES: tuple[Stage, ...] = (
           "flows.stages.volume:volume", "flows.stages.views:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
           "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),
-    Stage("stress", False, ("refine", "segment", "weld"), "stress", (outputs.STRESS_SUMMARY, outputs.STRESS_VTU),
+    Stage("stress", False, ("refine", "segment", "weld"), "stress",
+          (outputs.STRESS_SUMMARY, outputs.STRESS_VTU, outputs.HOT_SECTION),
           "flows.stages.stress:stress", "flows.stages.views:stress_view",
           "the stress concentration along every measured toe: 2-D plane-strain sections across the weld from the "
           "measured points, pulled by CalculiX; hot spots, equilibrium and convergence checked"),
@@ -59,7 +60,7 @@ STAGES: tuple[Stage, ...] = (
                             "export", "volume", "stress"), "*",
           (outputs.REPORT,), "flows.stages.report:report", "flows.stages.views:report_view", "the sample's report"),
     Stage("qa_report", False, ("denoise", "targets", "registration", "refine", "segment", "weld", "mesh", "volume",
-                               "report"), "qa_report", (outputs.QA_REPORT,), "flows.stages.qa_report:qa_report",
+                               "stress", "report"), "qa_report", (outputs.QA_REPORT,), "flows.stages.qa_report:qa_report",
           "flows.stages.views:qa_report_view",
           "the QA report people read: one self-contained HTML page (coverage, stickers, registration graph, "
           "disagreement of overlapping passes, mesh renderings, weld sections and figures, FE model, provenance)"),

@@ -136,6 +136,17 @@ STRESS_VTU = MeshFile("sections.vtu", optional=True)  # VTU (zlib): the section 
 
 
 @dataclass(frozen=True)
+class HotSection:
+    points_mm: np.ndarray  # (n, 2) float64: the hot spot's section model's nodes (x across the weld, y up), mm
+    triangles: np.ndarray  # (e, 3) int64: its triangles' corners
+    factor: np.ndarray  # (n,) float32: each node's maximum principal stress over the hot toe's nominal stress
+    toe_mm: np.ndarray  # (2,) float64: the hot toe where the section crosses it
+
+# the hot spot's section for the QA page's stress map (empty when no stress was computed)
+HOT_SECTION = ArrayFile("hot_section.zarr", HotSection)
+
+
+@dataclass(frozen=True)
 class ElementQualityArrays:
     min_dihedral_deg: np.ndarray  # (e,) float32, each tetrahedron's smallest dihedral angle
     aspect_ratio: np.ndarray  # (e,) float32, circumradius / (3 x inradius)

@@ -36,8 +36,9 @@ from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescap
 
 from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
-from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION,
-                                  REGISTRATION_SUMMARY, REPORT, SPECIMEN, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
+from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, QA_REPORT, REFINE_SUMMARY, REFINED,
+                                  REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY, TARGETS,
+                                  VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, Finding, WeldGeometry
@@ -46,7 +47,7 @@ from tasks.mesh import simplify_surface
 from tasks.qa_views import (PassRow, SurfaceView, coverage_maps, mesh_in_view, overlap_edges, pass_in_view, pass_rows,
                             plan_view_lines, registration_edges, sticker_marks, surface_view, thinning_steps)
 from tasks.report_figures import (along_weld, face_map, histogram, intensity_image, mesh_view, registration_graph,
-                                  weld_section)
+                                  stress_along_toes, stress_field, weld_section)
 from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut
 from tasks.weld_zone import WeldZone
 
@@ -214,6 +215,41 @@ def _quality_picture(ctx) -> list[dict[str, str]]:
                      "dashed: 10 deg")]
 
 
+def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
+    """The stress concentration along every toe beside the measured toe radius, and the stress map
+    of the hot spot's section (the stress stage's stress.json and hot_section.zarr)."""
+    stress = STRESS_SUMMARY.read(ctx.inputs["stress"])
+    if not stress.made or stress.hot_spot is None:
+        return []
+    rows: dict[str, list[tuple[float, float]]] = {}
+    for sec in stress.sections:
+        for toe in sec.toes:
+            if toe.factor is not None:
+                rows.setdefault(f"{toe.line} {toe.side}", []).append((sec.position_mm, toe.factor))
+    factors = [(label, np.array([p for p, _ in r]), np.array([f for _, f in r])) for label, r in sorted(rows.items())]
+    radii_rows: dict[str, list[tuple[float, float]]] = {}
+    for sec in geometry.sections:
+        for side, toe in sec.toes.sides():
+            if toe is not None and toe.toe_radius_mm.value is not None:
+                radii_rows.setdefault(f"{sec.line} {side}", []).append((sec.position_mm, toe.toe_radius_mm.value))
+    radii = [(label, np.array([p for p, _ in r]), np.array([v for _, v in r])) for label, r in sorted(radii_rows.items())]
+    hot = stress.hot_spot
+    pictures = [_picture(stress_along_toes(factors, radii, hot=(hot.position_mm, hot.factor)),
+                         "stress concentration along the toes",
+                         f"{len(stress.sections)} sections, each a 2-D plane-strain model of the measured part pulled "
+                         f"across the weld (CalculiX); factor: the highest maximum principal stress within reach of the "
+                         f"toe over the force per area of the toe's plate")]
+    section = HOT_SECTION.read(ctx.inputs["stress"])
+    if len(section.triangles):
+        pictures.append(_picture(
+            stress_field(section.points_mm, section.triangles, section.factor, toe=section.toe_mm,
+                         title=f"Hot spot: {hot.line} weld, {hot.side} toe, {hot.position_mm:g} mm along it, "
+                               f"factor {hot.factor:.2f}"),
+            "stress map of the hot spot's section",
+            "The section's maximum principal stress over the nominal stress, around the hot toe (+)"))
+    return pictures
+
+
 def qa_report(ctx) -> dict[str, Any]:
     inputs = ctx.inputs
     report = REPORT.read(inputs["report"])
@@ -249,6 +285,7 @@ def qa_report(ctx) -> dict[str, Any]:
         mesh=report.mesh, maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
         pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, view.T_view_common, zone),
         weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report.deliverables,
+        stress=report.stress, stress_pictures=_stress_pictures(ctx, geometry) if geometry.measured else [],
         stage_keys=report.stage_keys, config=json.dumps(report.config, indent=1, sort_keys=True),
         report_sha256=inputs["report"].outputs[REPORT.name])
     QA_REPORT.write_text(ctx.out, page)

@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from data_catalog.volume_meshes import write_section_vtu
-from flows.stages.outputs import REFINED, SPECIMEN, STRESS_SUMMARY, STRESS_VTU, WELD_GEOMETRY
+from flows.stages.outputs import (HOT_SECTION, REFINED, SPECIMEN, STRESS_SUMMARY, STRESS_VTU, WELD_GEOMETRY,
+                                  HotSection)
 from flows.stages.placement import weld_frame
 from schemas.stage_documents import StressConvergence, StressSection, StressSummary, ToeHotSpot, ToeStress
 from schemas.weld_document import WeldGeometry
@@ -42,6 +43,8 @@ MODEL = ("2-D sections across the weld, plane strain, 6-node triangles (CalculiX
 
 def _not_made(ctx, why: str) -> dict[str, Any]:
     STRESS_SUMMARY.write(ctx.out, StressSummary(made=False, why=why))
+    HOT_SECTION.write(ctx.out, HotSection(points_mm=np.zeros((0, 2)), triangles=np.zeros((0, 3), np.int64),
+                                          factor=np.zeros(0, np.float32), toe_mm=np.full(2, np.nan)))
     return {"made": False, "why": why}
 
 
@@ -180,7 +183,10 @@ def stress(ctx) -> dict[str, Any]:
                                     sections=len(rows), median_factor=round(float(np.median([r[1] for r in rows])), 4)))
     hot = max(hot_spots, key=lambda h: h.factor) if hot_spots else None
     convergence = None
-    if hot is not None:
+    if hot is None:
+        HOT_SECTION.write(ctx.out, HotSection(points_mm=np.zeros((0, 2)), triangles=np.zeros((0, 3), np.int64),
+                                              factor=np.zeros(0, np.float32), toe_mm=np.full(2, np.nan)))
+    else:
         k = next(i for i, m in enumerate(models) if m[0].position_mm == hot.position_mm)
         sec, frame, profile, plane, crossing = models[k]
         finer = SectionMeshSettings(fine_size_mm=s.toe_size_mm / 2, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
@@ -190,6 +196,10 @@ def stress(ctx) -> dict[str, Any]:
             j = next(i for i, c in enumerate(crossing) if (c[0], c[1]) == (hot.line, hot.side))
             (peak, _), = peaks_near(solution, crossing[j][2][None], s.peak_reach_mm)
             toe = sections[k].toes[j]
+            hot_solution = solutions[k]
+            HOT_SECTION.write(ctx.out, HotSection(
+                points_mm=hot_solution.mesh.points, triangles=hot_solution.mesh.triangles[:, :3].astype(np.int64),
+                factor=(hot_solution.max_principal_mpa / toe.nominal_mpa).astype(np.float32), toe_mm=crossing[j][2]))
             finer_factor = peak / (solution.force_n / toe.plate_thickness_mm)
             convergence = StressConvergence(position_mm=hot.position_mm, line=hot.line, side=hot.side,
                                             toe_size_mm=s.toe_size_mm / 2, factor=hot.factor,

@@ -64,7 +64,8 @@ def test_the_report_opens_offline_in_chromium_with_every_picture_loaded(ci_run, 
         [alt for alt, loaded, _ in images if not loaded]
     alts = [alt for alt, _, _ in images]
     for expected in ("scan plan and coverage", "disagreement of overlapping passes", "registration graph",
-                     "mesh from above", "mesh from below", "mesh weld zone", "FE model element quality"):
+                     "mesh from above", "mesh from below", "mesh weld zone", "FE model element quality",
+                     "stress concentration along the toes", "stress map of the hot spot's section"):
         assert expected in alts
     assert sum(a.startswith("pass ") and a.endswith(" intensity") for a in alts) == len(report["passes"])
     lines = {line["name"] for line in report["weld"]["lines"]}
@@ -72,6 +73,9 @@ def test_the_report_opens_offline_in_chromium_with_every_picture_loaded(ci_run, 
     assert "weld figures along the weld" in alts
     text = found["text"]
     assert f"QA report: {report['sample_id']}" in text and "Audit trail intact" in text
+    hot = report["stress"]["hot_spot"]
+    assert f"{hot['line']} weld, {hot['side']} toe, {hot['position_mm']} mm along it: stress concentration " \
+           f"{hot['factor']:.2f}" in text
     assert f"{len(report['checks'])} of {len(report['checks'])} ok" in text
     from PIL import Image
 
@@ -87,7 +91,8 @@ def test_the_report_is_the_same_bytes_when_drawn_again(ci_run, ci_sample, tmp_pa
     shutil.copytree(out / "stages", again / "stages", ignore=lambda d, names: ["qa_report"] if d.endswith("stages") else [])
     refs = run_in_process(store=StageStore(again, shared=False), sample_dir=ci_sample, manifest=load_manifest(ci_sample),
                           config=load_config(CI_CONFIG))
-    assert not refs["qa_report"].cached and all(refs[n].cached for n in ("refine", "weld", "mesh", "volume", "report"))
+    assert not refs["qa_report"].cached and all(refs[n].cached for n in ("refine", "weld", "mesh", "volume", "stress",
+                                                                          "report"))
     assert refs["qa_report"].file(QA_REPORT.name).read_bytes() == stored.read_bytes()
     # the published page is the stage's, its audit section filled in and nothing else changed
     drawn = stored.read_text()
