@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["quiet_prefect", "log_to_file", "end_log_file", "say_error"]
+__all__ = ["quiet_prefect", "log_to_file", "end_log_file", "say_error", "run_log_handler"]
 
 _LOG_FILE: Path | None = None  # the log file a command opened (log_to_file), for its traceback
 _UNDO: list = []  # what end_log_file does to undo log_to_file, last first
@@ -26,6 +26,33 @@ def _log_path(folder: Path, name: str) -> Path:
     return folder / f"{name}-{datetime.now(UTC).strftime('%Y%m%dT%H%M%SZ')}-{os.getpid()}.log"
 
 
+def run_log_handler(path: Path):
+    """A file handler for ``path`` (created on the first record) that never writes to the
+    terminal when the file cannot be written; ``.lost`` counts the records it dropped."""
+    import logging
+
+    class _Handler(logging.FileHandler):
+        lost = 0
+
+        def handleError(self, record):  # noqa: N802 - logging's name
+            self.lost += 1
+
+        def flush(self):
+            try:
+                super().flush()
+            except OSError:
+                self.lost += 1
+
+        def close(self):
+            try:
+                super().close()
+            except OSError:  # what the buffer still held is lost with the disk's space
+                self.lost += 1
+                self.stream = None
+
+    return _Handler(path, encoding="utf-8", delay=True)
+
+
 def log_to_file(folder: Path, name: str) -> Path:
     """Send Prefect's and the libraries' log records (tracebacks included) to a log file in
     ``folder`` instead of the terminal, which gets one line per problem; returns the file."""
@@ -39,7 +66,7 @@ def log_to_file(folder: Path, name: str) -> Path:
     setup_logging()  # Prefect's own configuration first (later calls only adjust it)
     folder.mkdir(parents=True, exist_ok=True)
     path = _log_path(folder, name)
-    handler = logging.FileHandler(path, encoding="utf-8", delay=True)
+    handler = run_log_handler(path)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s %(threadName)s: %(message)s"))
     root = logging.getLogger()
     shown, level = warnings.showwarning, root.level
