@@ -80,7 +80,8 @@ def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], lis
         fine.append(toes)
     settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                    growth=s.growth)
-    solutions = pull_sections(mesh_sections([p for _, p in planes], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s)
+    solutions = pull_sections(mesh_sections([p for _, p in planes], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
+                              max_nodes_per_run=s.max_nodes_per_solve)
     ours, truth = [], []
     near, far = s.plate_window_mm
     for section, (profile, _), toes, solution in zip(summary.sections, planes, fine, solutions):

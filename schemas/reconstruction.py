@@ -280,6 +280,9 @@ class StressConfig(StrictModel):
     plate_window_mm: tuple[float, float] = Field(default=(16.0, 30.0), description=(
         "a toe's plate (its thickness: the nominal stress's area; the membrane stress check) from .. to "
         "this far from the weld's centre, on the toe's side"))
+    max_nodes_per_solve: int = Field(default=100_000, ge=1000, le=50_000_000, description=(
+        "as many sections go to one CalculiX run as this many nodes hold (its memory: ~16 kB a node, "
+        "~1.6 GB at the default)"))
     timeout_s: float = Field(default=1800.0, gt=0, le=86_400, description="gmsh and CalculiX get this long each")
 
     @model_validator(mode="after")

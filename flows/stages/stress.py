@@ -5,7 +5,7 @@ Every ``stress.section_step_mm`` along the first measured weld line, the part's 
 the weld is read from the measured points (``tasks.plate_section``: both faces, smoothed, cut
 straight across ``stress.cut_mm`` inside the measured length), meshed with 6-node triangles
 finest at the toes the weld stage measured, and pulled along its length in plane strain, its
-ends held straight (all sections in one CalculiX run). Each toe's factor is the highest maximum
+ends held straight (as many sections in one CalculiX run as ``stress.max_nodes_per_solve`` nodes hold). Each toe's factor is the highest maximum
 principal stress on the outline within ``peak_reach_mm`` of it over the nominal stress, the force
 over the measured thickness of the toe's plate; each toe line's hot spot is its highest section,
 and the highest of all is checked again with elements half the size at the toes.
@@ -148,7 +148,7 @@ def stress(ctx) -> dict[str, Any]:
         return _not_made(ctx, "no section of the weld has both faces measured across it")
     try:
         meshes = mesh_sections([m[3] for m in models], settings, timeout_s=s.timeout_s)
-        solutions = pull_sections(meshes, timeout_s=s.timeout_s)
+        solutions = pull_sections(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
     sections, factors = [], {}
@@ -192,7 +192,8 @@ def stress(ctx) -> dict[str, Any]:
         finer = SectionMeshSettings(fine_size_mm=s.toe_size_mm / 2, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                     growth=s.growth)
         try:
-            (solution,) = pull_sections(mesh_sections([plane], finer, timeout_s=s.timeout_s), timeout_s=s.timeout_s)
+            (solution,) = pull_sections(mesh_sections([plane], finer, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
+                                        max_nodes_per_run=s.max_nodes_per_solve)
             j = next(i for i, c in enumerate(crossing) if (c[0], c[1]) == (hot.line, hot.side))
             (peak, _), = peaks_near(solution, crossing[j][2][None], s.peak_reach_mm)
             toe = sections[k].toes[j]

@@ -38,7 +38,7 @@ def solved():
     sections = [_plate_with_hole(50.0, 10.0, 200.0), _notched_strip(40.0, 1.0, 200.0)]
     meshes = mesh_sections(sections, SectionMeshSettings(fine_size_mm=0.1, fine_reach_mm=1.0, size_mm=4.0, growth=0.3),
                            timeout_s=120)
-    return sections, pull_sections(meshes, stretch_mm=0.02, timeout_s=120)
+    return sections, pull_sections(meshes, stretch_mm=0.02, timeout_s=120, max_nodes_per_run=1_000_000)
 
 
 def test_a_plate_with_a_hole_has_howlands_stress_concentration(solved):
@@ -108,9 +108,21 @@ def test_a_section_not_cut_straight_at_its_ends_is_refused_naming_it():
     mesh = mesh_sections([tilted], SectionMeshSettings(fine_size_mm=0.5, fine_reach_mm=1.0, size_mm=0.5, growth=0.3),
                          timeout_s=120)
     with pytest.raises(ValueError, match=r"section 0: its ends are not cut straight across"):
-        pull_sections(mesh, timeout_s=120)
+        pull_sections(mesh, timeout_s=120, max_nodes_per_run=1_000_000)
 
 
 def test_a_malformed_outline_is_refused_before_gmsh_runs():
     with pytest.raises(ValueError, match=r"section 0: outline_mm must be \(k >= 3, 2\)"):
         mesh_sections([PlaneSection(np.zeros((2, 2)))], SectionMeshSettings(1.0, 1.0, 1.0, 0.3), timeout_s=120)
+
+
+def test_sections_solved_in_several_runs_give_what_one_run_gives(solved):
+    """The stage bounds CalculiX's memory by solving as many sections in one run as a number of
+    nodes holds: each section's answer is its own either way."""
+    sections, together = solved
+    meshes = [s.mesh for s in together]
+    apart = pull_sections(meshes, stretch_mm=0.02, timeout_s=120, max_nodes_per_run=1000)  # one section a run
+    for a, b in zip(apart, together):
+        np.testing.assert_allclose(a.stress_mpa, b.stress_mpa, rtol=1e-6, atol=1e-9)
+        assert a.force_n == pytest.approx(b.force_n, rel=1e-9)
+
