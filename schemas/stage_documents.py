@@ -138,8 +138,8 @@ class ToeStress(StrictModel):
     side: Literal["minus", "plus"]
     factor: float | None  # None: no outline node within reach
     peak_mpa: float | None
-    nominal_mpa: float
-    plate_thickness_mm: float
+    nominal_mpa: float | None  # None: no plate measured in the toe's plate window
+    plate_thickness_mm: float | None
     toe_specimen_mm: tuple[float, float, float]  # the measured toe where the section crosses it
     peak_specimen_mm: tuple[float, float, float] | None  # where the peak is
 

@@ -160,12 +160,13 @@ def stress(ctx) -> dict[str, Any]:
             sign = -1.0 if side == "minus" else 1.0
             window = (sign * near, sign * far)
             thickness = profile.thickness_mm(*window)
-            nominal = solution.force_n / thickness
+            nominal = solution.force_n / thickness if thickness > 0 else math.nan  # NaN: no plate measured there
             errors.append(_membrane_error(solution, profile, *window))
-            factor = peak / nominal if math.isfinite(peak) else None
+            factor = peak / nominal if math.isfinite(peak) and math.isfinite(nominal) else None
             toe_rows.append(ToeStress(line=line, side=side, factor=None if factor is None else round(factor, 4),
                                       peak_mpa=None if factor is None else round(peak, 3),
-                                      nominal_mpa=round(nominal, 4), plate_thickness_mm=round(thickness, 4),
+                                      nominal_mpa=round(nominal, 4) if math.isfinite(nominal) else None,
+                                      plate_thickness_mm=round(thickness, 4) if math.isfinite(thickness) else None,
                                       toe_specimen_mm=tuple(round(float(v), 4) for v in hit),
                                       peak_specimen_mm=None if factor is None else _to_specimen(frame, at)))
             if factor is not None:
