@@ -35,6 +35,21 @@ def latest_stage(run: Path, stage: str) -> Path:
     return run / "stages" / stage / entries[-1]["cache_key"]
 
 
+class StageFolder:
+    """A finished stage's folder as the stage outputs read it (``OUTPUT.read(folder)``: ``.file(name)``)."""
+
+    def __init__(self, folder: Path):
+        self.folder = Path(folder)
+
+    def file(self, name: str) -> Path:
+        return self.folder / name
+
+
+def stage_folder(run: Path, stage: str) -> StageFolder:
+    """The folder of ``stage`` the run's audit trail names last (``latest_stage``), to read its outputs."""
+    return StageFolder(latest_stage(run, stage))
+
+
 def evaluate(sample: Path, run: Path) -> dict:
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR, read_truth

@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 import tasks  # noqa: F401  (pymeshlab first: tasks/__init__.py)
+from accuracy import stage_folder
 from data_catalog.manifests import load_manifest
 from flows.stages.outputs import REFINED, WELD_TOES
 from flows.stages.placement import model_weld_zone
@@ -39,18 +40,6 @@ from tasks.volume_mesh import boundary_faces, face_nodes, tetrahedralize
 
 ROOT = Path(__file__).resolve().parents[1]
 _EDGES = [[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]]  # C3D10's mid-side nodes 5..10, Abaqus order
-
-
-class _Ref:
-    def __init__(self, folder: Path):
-        self.folder = folder
-
-    def file(self, name: str) -> Path:
-        return self.folder / name
-
-
-def _stage(run: Path, name: str) -> _Ref:
-    return _Ref(next(p for p in (run / "stages" / name).iterdir() if p.is_dir()))
 
 
 def _boundary(tets: np.ndarray) -> np.ndarray:
@@ -129,17 +118,17 @@ def main() -> None:
     args = parser.parse_args()
     manifest = load_manifest(args.sample / "manifest.json")
     spec = manifest.specimen
-    refined = REFINED.read(_stage(args.run, "refine"))
+    refined = REFINED.read(stage_folder(args.run, "refine"))
     positions = refined.track_positions_mm
     T_common_specimen = fit_gauge(args.sample, positions[refined.specimen_track], positions).T_recon_specimen
     S = invert(T_common_specimen)
-    toes = [apply(S, t) for t in WELD_TOES.read(_stage(args.run, "weld")).polylines()]
+    toes = [apply(S, t) for t in WELD_TOES.read(stage_folder(args.run, "weld")).polylines()]
     config = ReconstructionConfig.model_validate(yaml.safe_load(args.config.read_text()) or {})
 
     import meshio
     import open3d as o3d
 
-    model = meshio.read(_stage(args.run, "volume").file("model.vtu"))
+    model = meshio.read(stage_folder(args.run, "volume").file("model.vtu"))
     rec = apply(S, model.points.astype(np.float64)), model.cells_dict["tetra"].astype(np.int64)
     truth = o3d.io.read_triangle_mesh(str(args.sample / "truth" / "specimen.ply"))
     v, f = simplify_surface(np.asarray(truth.vertices, np.float64), np.asarray(truth.triangles, np.int64),

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import tasks  # noqa: F401  (pymeshlab first: tasks/__init__.py)
+from accuracy import stage_folder
 from data_catalog.manifests import load_manifest
 from flows.stages.outputs import REFINED, STRESS_SUMMARY
 from flows.stages.placement import weld_frame
@@ -33,25 +34,13 @@ from tasks.section_model import SectionMeshSettings, mesh_sections, peaks_near, 
 __all__ = ["true_factors", "compare"]
 
 
-class _Ref:
-    def __init__(self, folder: Path):
-        self.folder = folder
-
-    def file(self, name: str) -> Path:
-        return self.folder / name
-
-
-def _stage(run: Path, name: str) -> _Ref:
-    return _Ref(next(p for p in (Path(run) / "stages" / name).iterdir() if p.is_dir()))
-
-
 def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], list[list[float | None]]]:
     """(the run's factors, the truth's) per section and toe, in stress.json's order."""
-    summary = STRESS_SUMMARY.read(_stage(run, "stress"))
+    summary = STRESS_SUMMARY.read(stage_folder(run, "stress"))
     config = ReconstructionConfig.model_validate(json.loads((Path(run) / "results" / "config.json").read_text()))
     s = config.stress
     manifest = load_manifest(Path(sample) / "manifest.json")
-    refined = REFINED.read(_stage(run, "refine"))
+    refined = REFINED.read(stage_folder(run, "refine"))
     positions = refined.track_positions_mm
     G = fit_gauge(sample, positions[refined.specimen_track], positions).T_recon_specimen  # true -> common
     T = weld_frame(manifest, np.asarray(refined.T_common_pass))  # the run's specimen frame -> common
@@ -99,13 +88,13 @@ def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], lis
 def load_geometry_lines(run: Path):
     from flows.stages.outputs import WELD_GEOMETRY
 
-    return WELD_GEOMETRY.read(_stage(run, "weld")).lines
+    return WELD_GEOMETRY.read(stage_folder(run, "weld")).lines
 
 
 def compare(run: Path, sample: Path) -> dict:
     """Per toe line: the run's and the truth's hot spot, their difference and how far apart along
     the weld; and over every section and toe the median and worst difference."""
-    summary = STRESS_SUMMARY.read(_stage(run, "stress"))
+    summary = STRESS_SUMMARY.read(stage_folder(run, "stress"))
     ours, truth = true_factors(run, sample)
     by_toe: dict[tuple[str, str], list[tuple[float, float, float]]] = {}
     differences = []

@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = ["RESULT", "GmshFailed", "gmsh_sections", "split_at_corners"]
 
-RESULT = b"\n--weldrecon-gmsh-result--\n"
+RESULT = b"\n--weldrecon-gmsh-result--\n"  # gmsh_volume.RESULT, which the parent reads (run by path, it imports neither)
 
 
 class GmshFailed(Exception):

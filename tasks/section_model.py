@@ -19,10 +19,6 @@ the default, as for a weld across a wide plate.
 
 from __future__ import annotations
 
-import os
-import pickle
-import subprocess
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,8 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from tasks.fe_solve import DisplacementCase, FESolution, Material, max_principal, solve_static
-from tasks.gmsh_sections import RESULT
-from tasks.volume_mesh import ONE_THREAD_ENV, dies_with_parent
+from tasks.volume_mesh import run_gmsh_child
 
 __all__ = ["PlaneSection", "SectionMeshSettings", "SectionMesh", "SectionSolution", "SectionMeshError",
            "mesh_sections", "pull_sections", "peaks_near", "boundary_nodes"]
@@ -97,18 +92,8 @@ def mesh_sections(sections: Sequence[PlaneSection], settings: SectionMeshSetting
     for k, s in enumerate(payload):
         if s["outline"].ndim != 2 or s["outline"].shape[1] != 2 or len(s["outline"]) < 3:
             raise ValueError(f"section {k}: outline_mm must be (k >= 3, 2), got {s['outline'].shape}")
-    try:
-        done = subprocess.run([sys.executable, str(Path(__file__).with_name("gmsh_sections.py"))],
-                              input=pickle.dumps((payload, {})), capture_output=True,
-                              env={**os.environ, **ONE_THREAD_ENV}, preexec_fn=dies_with_parent(), timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        raise SectionMeshError(f"gmsh did not mesh the sections within {timeout_s:g} s") from None
-    if done.returncode != 0 or RESULT not in done.stdout:
-        tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
-        raise SectionMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
-    kind, value = pickle.loads(done.stdout.rsplit(RESULT, 1)[1])
-    if kind == "error":
-        raise SectionMeshError(value)
+    value = run_gmsh_child("gmsh_sections.py", (payload, {}), timeout_s=timeout_s, failed=SectionMeshError,
+                           too_slow=SectionMeshError(f"gmsh did not mesh the sections within {timeout_s:g} s"))
     return [SectionMesh(points, triangles) for points, triangles in value]
 
 

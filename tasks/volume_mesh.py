@@ -179,24 +179,33 @@ def dies_with_parent():
     return in_the_child
 
 
-def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
-    """``tasks.gmsh_volume.gmsh_volume`` in a fresh child process with one thread (see ``ONE_THREAD_ENV``)."""
-    # run by its path, not imported from the package: the child loads numpy and gmsh alone, not
-    # what ``tasks`` loads for every stage (pymeshlab, scipy: 1.2 s of a ~10 s child)
+def run_gmsh_child(script: str, payload, *, timeout_s: float, failed: type[Exception], too_slow: Exception):
+    """``tasks/<script>`` (a gmsh child: ``gmsh_volume.py``, ``gmsh_sections.py``) run by its path in
+    a fresh process with one thread (``ONE_THREAD_ENV``), ``payload`` pickled on its stdin; returns
+    what it answers after ``RESULT``. Run by path, not imported from the package: the child loads
+    numpy and gmsh alone, not what ``tasks`` loads for every stage (pymeshlab, scipy: 1.2 s of a
+    ~10 s child). Raises ``too_slow`` (its process killed) past ``timeout_s``, ``failed(message)``
+    when it dies or says an error."""
     env = {**os.environ, **ONE_THREAD_ENV}
     try:
-        done = subprocess.run([sys.executable, str(Path(__file__).with_name("gmsh_volume.py"))],
-                              input=pickle.dumps((vertices, triangles, weld, settings)), capture_output=True, env=env,
-                              preexec_fn=dies_with_parent(), timeout=timeout_s)
+        done = subprocess.run([sys.executable, str(Path(__file__).with_name(script))], input=pickle.dumps(payload),
+                              capture_output=True, env=env, preexec_fn=dies_with_parent(), timeout=timeout_s)
     except subprocess.TimeoutExpired:  # the child is killed
-        raise VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)") from None
+        raise too_slow from None
     if done.returncode != 0 or RESULT not in done.stdout:
         tail = done.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no message"]
-        raise VolumeMeshError(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
+        raise failed(f"the gmsh process failed (exit {done.returncode}): {tail[0]}")
     kind, value = pickle.loads(done.stdout.rsplit(RESULT, 1)[1])
     if kind == "error":
-        raise VolumeMeshError(value)
+        raise failed(value)
     return value
+
+
+def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
+    """``tasks.gmsh_volume.gmsh_volume`` in a fresh child process with one thread (``run_gmsh_child``)."""
+    return run_gmsh_child("gmsh_volume.py", (vertices, triangles, weld, settings), timeout_s=timeout_s,
+                          failed=VolumeMeshError,
+                          too_slow=VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)"))
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
