@@ -29,6 +29,7 @@ __all__ = [
     "WELD_LINE_MARGIN_MM",
     "JOINTS",
     "DogBoneSpecimen",
+    "LoadCase",
     "PlateSpecimen",
     "TJointSpecimen",
     "CruciformSpecimen",
@@ -428,6 +429,21 @@ class Setup(StrictModel):
         "how far the specimen's weld lines may lie from where T_world_specimen_nominal puts them"))
 
 
+class LoadCase(StrictModel):
+    """The load the part is tested or designed for (schema 1.1, optional). ``axial``: tension across
+    the weld, the part pulled along its length by its ends (a butt weld's fatigue test; for a
+    T-joint or a cruciform, its base plate pulled along its length, across the stems: the
+    non-load-carrying fillet weld's test). ``nominal_stress_range_mpa``: the range of the nominal
+    stress (force over the plate's section) in each load cycle, for the fatigue estimate
+    (``stress.notch_stress``); ``stress_ratio`` the cycle's smallest over its largest stress,
+    recorded with it (the IIW notch stress classes hold for any ratio as welded)."""
+
+    kind: Literal["axial"] = "axial"
+    nominal_stress_range_mpa: float | None = Field(default=None, gt=0, le=2000, description=(
+        "nominal stress range of a load cycle, MPa (force over the plate's section)"))
+    stress_ratio: float | None = Field(default=None, ge=-1, lt=1, description="smallest over largest stress of a cycle")
+
+
 class SampleManifest(StrictModel):
     """A sample's manifest. ``schema_version`` 1.1 is written; 1.0 (a dog-bone, its weld given by
     ``centre_x_mm``: ``CentreLineWeld``) is read as it is. Read the weld's lines through
@@ -447,6 +463,8 @@ class SampleManifest(StrictModel):
         "schema_version 1.1: WeldDescription (weld_lines); 1.0: CentreLineWeld (centre_x_mm)"))
     sticker_diameter_mm: float | None = Field(default=None, gt=0, le=100)
     scanner: ScannerSettings | None = None
+    load: LoadCase | None = Field(default=None, description=(
+        "the load the part is tested or designed for; none: axial tension across the weld, no fatigue estimate"))
     setups: list[Setup] = Field(min_length=1)
 
     @field_validator("weld", mode="wrap")
@@ -507,8 +525,11 @@ class SampleManifest(StrictModel):
     @model_serializer(mode="wrap")
     def _targets_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """Written as before for a sticker sample (no ``registration`` field, as every manifest
-        written before it); the optional sections a surfaces sample leaves out are left out."""
+        written before it); the optional sections a surfaces sample leaves out are left out, and
+        so is a load none was given for."""
         data = handler(self)
+        if data.get("load", 0) is None:
+            data.pop("load")
         if self.registration == "targets":
             data.pop("registration", None)
         else:

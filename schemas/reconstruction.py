@@ -284,6 +284,17 @@ class StressConfig(StrictModel):
         "as many sections go to one CalculiX run as this many nodes hold (its memory: ~16 kB a node, "
         "~1.6 GB at the default)"))
     timeout_s: float = Field(default=1800.0, gt=0, le=86_400, description="gmsh and CalculiX get this long each")
+    notch_stress: bool = Field(default=False, description=(
+        "the IIW effective notch stress too: every section solved again with its notches rounded to "
+        "notch_radius_mm (twice the solving time), each toe line's notch hot spot and, with a load range in "
+        "the manifest, its fatigue life"))
+    notch_radius_mm: float = Field(default=1.0, gt=0, le=10, description=(
+        "the notches' fictitious radius (IIW: 1 mm for steel plates 5 mm thick or more); the drawn weld's "
+        "toes are rounded to it too"))
+    fat_mpa: float = Field(default=225.0, gt=0, le=2000, description=(
+        "the fatigue class (notch stress range at 2 million cycles) the estimate uses: IIW's 225 MPa for "
+        "steel, as welded, maximum principal stress"))
+    fat_slope: float = Field(default=3.0, gt=0, le=30, description="the S-N curve's slope up to 1e7 cycles (22 beyond)")
 
     @model_validator(mode="after")
     def _windows(self) -> "StressConfig":

@@ -142,6 +142,8 @@ class ToeStress(StrictModel):
     plate_thickness_mm: float | None
     toe_specimen_mm: tuple[float, float, float]  # the measured toe where the section crosses it
     peak_specimen_mm: tuple[float, float, float] | None  # where the peak is
+    toe_radius_mm: float | None = None  # the weld stage's measured toe radius in the nearest section (None: not measured)
+    notch_factor: float | None = None  # the same section with its notches rounded to the IIW reference radius (stress.notch_stress)
 
 
 class StressSection(StrictModel):
@@ -181,6 +183,44 @@ class StressConvergence(StrictModel):
     change: float  # finer / default - 1
 
 
+class DrawnToe(StrictModel):
+    """A toe of the drawn weld: its factor with the toe rounded to the notch radius."""
+
+    line: str
+    side: Literal["minus", "plus"]
+    factor: float | None  # None: no outline node within reach
+    at_section_mm: tuple[float, float]  # the drawn toe in the section (x across, y up; mm)
+
+
+class DrawnStress(StrictModel):
+    """The same computation on the drawn (idealised) weld: the manifest's plate, straight and
+    aligned, each face's cap a circular segment of the median measured width and height, the toes
+    rounded to ``notch_radius_mm`` (a drawn toe is a sharp corner, whose stress has no finite peak)."""
+
+    made: bool
+    why: str | None = None
+    thickness_mm: float | None = None
+    notch_radius_mm: float | None = None
+    caps: dict[str, tuple[float, float]] = {}  # face ("top", "bottom") -> (width, height), mm
+    toes: list[DrawnToe] = []
+
+
+class FatigueEstimate(StrictModel):
+    """A toe line's fatigue life by the IIW effective notch stress method at its notch hot spot:
+    cycles = 2e6 (FAT / notch stress range)^slope (constant amplitude; beyond 1e7 cycles the
+    slope is 22)."""
+
+    line: str
+    side: Literal["minus", "plus"]
+    position_mm: float
+    notch_factor: float
+    nominal_range_mpa: float
+    notch_range_mpa: float
+    fat_mpa: float
+    slope: float
+    cycles: float
+
+
 class StressSummary(StrictModel):
     """``stress.json``: the stress concentration along every measured toe, or why not computed."""
 
@@ -195,6 +235,13 @@ class StressSummary(StrictModel):
     convergence: StressConvergence | None = None
     max_imbalance: float | None = None
     max_membrane_error: float | None = None
+    notch_radius_mm: float | None = None  # None: no notch stress (stress.notch_stress off)
+    notch_hot_spots: list[ToeHotSpot] = []  # each toe line's highest notch factor
+    fatigue: list[FatigueEstimate] = []
+    fatigue_basis: str | None = None  # the method, class and assumptions; or why there is no estimate
+    drawn: DrawnStress | None = None
+    point_spacing_mm: float | None = None  # the measured points' median spacing in the sections' slabs
+    toes_finer_than_points: int | None = None  # toes whose measured radius is under the point spacing
 
 
 class StressReport(StrictModel):
@@ -210,6 +257,13 @@ class StressReport(StrictModel):
     convergence: StressConvergence | None = None
     max_imbalance: float | None = None
     max_membrane_error: float | None = None
+    notch_radius_mm: float | None = None
+    notch_hot_spots: list[ToeHotSpot] = []
+    fatigue: list[FatigueEstimate] = []
+    fatigue_basis: str | None = None
+    drawn: DrawnStress | None = None
+    point_spacing_mm: float | None = None
+    toes_finer_than_points: int | None = None
 
 
 # --- report.json ---

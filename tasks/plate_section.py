@@ -23,7 +23,8 @@ from scipy.signal import savgol_filter
 
 from tasks.section_model import PlaneSection
 
-__all__ = ["SectionFrame", "PlateProfile", "plate_profile", "profile_section", "to_section"]
+__all__ = ["SectionFrame", "PlateProfile", "plate_profile", "profile_section", "to_section", "rounded_notches",
+           "drawn_profile"]
 
 
 @dataclass(frozen=True)
@@ -147,3 +148,71 @@ def profile_section(profile: PlateProfile, *, cut_mm: float, fine_mm: np.ndarray
     outline = np.r_[np.c_[x, bottom], np.c_[x[::-1], top[::-1]]]
     n = len(x)
     return PlaneSection(outline, fine_mm=np.asarray(fine_mm, np.float64).reshape(-1, 2), corners=(0, n - 1, n, 2 * n - 1))
+
+
+def _closed_from_above(height: np.ndarray, step_mm: float, radius_mm: float) -> np.ndarray:
+    """A face seen from above (the part below ``height``, bins ``step_mm`` apart) as a disk of
+    ``radius_mm`` rolling on it from above traces it: the lowest a disk centred over each bin can
+    sit without entering the part, then the lowest of the disks' undersides over each bin. Every
+    concave corner sharper than the disk becomes an arc of its radius tangent to both sides;
+    nothing the disk touches moves (material is only added)."""
+    k = int(np.floor(radius_mm / step_mm))
+    offsets = np.arange(-k, k + 1)
+    drop = np.sqrt(np.maximum(radius_mm ** 2 - (offsets * step_mm) ** 2, 0.0))
+    padded = np.pad(height, k, mode="edge")  # flat beyond the ends
+    n = len(height)
+    centre = np.max([padded[k + o:k + o + n] + d for o, d in zip(offsets, drop)], axis=0)
+    centre = np.pad(centre, k, mode="edge")
+    return np.min([centre[k + o:k + o + n] - d for o, d in zip(offsets, drop)], axis=0)
+
+
+def rounded_notches(profile: PlateProfile, radius_mm: float) -> PlateProfile:
+    """The profile with every notch of either face rounded to ``radius_mm`` at least: the face as a
+    disk of that radius rolling along it outside the part traces it (a morphological closing of
+    the part). A weld toe sharper than the disk, an undercut narrower than it, becomes an arc of
+    its radius tangent to the plate and the flank; a notch as wide or wider (an HFMI groove of a
+    larger radius) and every convex shape are kept. The IIW effective notch stress method's
+    fictitious rounding (Hobbacher, IIW recommendations, r_ref = 1 mm for steel plates of 5 mm and
+    thicker): the worst-case notch, a sharp one, made the reference radius."""
+    if not radius_mm > 0:
+        raise ValueError(f"radius_mm must be positive, got {radius_mm}")
+    x = profile.x_mm
+    step = float(np.median(np.diff(x)))
+    out = {}
+    for name, sign in (("top_mm", 1.0), ("bottom_mm", -1.0)):
+        values = getattr(profile, name)
+        finite = np.flatnonzero(np.isfinite(values))
+        rounded = np.full(len(values), np.nan)
+        if len(finite):
+            lo, hi = finite[0], finite[-1]
+            rounded[lo:hi + 1] = sign * _closed_from_above(sign * values[lo:hi + 1], step, radius_mm)
+        out[name] = rounded
+    return PlateProfile(x_mm=x, top_mm=out["top_mm"], bottom_mm=out["bottom_mm"], measured_top=profile.measured_top,
+                        measured_bottom=profile.measured_bottom)
+
+
+def drawn_profile(*, thickness_mm: float, caps: dict[str, tuple[float, float]], half_length_mm: float,
+                  bin_mm: float) -> PlateProfile:
+    """The drawn (idealised) section of a double-sided butt weld: a plate of ``thickness_mm``, its
+    faces at +-thickness/2, straight and aligned, and on each face in ``caps`` ("top", "bottom":
+    (width, height) mm) a cap shaped as a circular segment centred at x = 0, the plate's face
+    meeting it in a sharp toe; ``half_length_mm`` either side, bins of ``bin_mm``."""
+    if not (thickness_mm > 0 and half_length_mm > 0 and bin_mm > 0):
+        raise ValueError(f"thickness_mm, half_length_mm and bin_mm must be positive, got {thickness_mm}, "
+                         f"{half_length_mm}, {bin_mm}")
+    x = np.arange(-half_length_mm, half_length_mm + bin_mm / 2, bin_mm)
+    faces = {}
+    for face, sign in (("top", 1.0), ("bottom", -1.0)):
+        height = np.zeros(len(x))
+        if face in caps:
+            width, rise = caps[face]
+            if not (width > 0 and rise > 0 and width < 2 * half_length_mm):
+                raise ValueError(f"the {face} cap must have a positive width (under {2 * half_length_mm:g} mm) and "
+                                 f"height, got {width}, {rise}")
+            radius = (width ** 2 / 4 + rise ** 2) / (2 * rise)
+            inside = np.abs(x) < width / 2
+            height[inside] = np.sqrt(radius ** 2 - x[inside] ** 2) - (radius - rise)
+        faces[face] = sign * (thickness_mm / 2 + height)
+    everywhere = np.ones(len(x), bool)
+    return PlateProfile(x_mm=x, top_mm=faces["top"], bottom_mm=faces["bottom"], measured_top=everywhere,
+                        measured_bottom=everywhere)

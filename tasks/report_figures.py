@@ -353,16 +353,27 @@ def sample_chart(samples: Sequence[str], residual_um: np.ndarray, verdicts: Sequ
 
 
 def stress_along_toes(factors: Sequence[tuple[str, np.ndarray, np.ndarray]],
-                      radii: Sequence[tuple[str, np.ndarray, np.ndarray]], *, hot: tuple[float, float] | None) -> bytes:
+                      radii: Sequence[tuple[str, np.ndarray, np.ndarray]], *, hot: tuple[float, float] | None,
+                      notch: Sequence[tuple[str, np.ndarray, np.ndarray]] = (),
+                      drawn: dict[str, float] | None = None) -> bytes:
     """The stress concentration along each toe (``factors``: (label, positions mm, factors)) above
     the measured toe radius along the same toes (``radii``: (label, positions mm, radii mm)); the
-    hot spot (position, factor) ringed."""
+    hot spot (position, factor) ringed; dashed, each toe's notch stress factor (``notch``, as
+    ``factors``); dotted, the drawn weld's factor of each toe (``drawn``: label -> factor)."""
     fig = _figure(7.5, 3.6)
     top, bottom = fig.subplots(2, 1, sharex=True)
     palette = plt.get_cmap("tab10")
-    colour = {label: palette(k % 10) for k, label in enumerate(sorted({f[0] for f in factors} | {r[0] for r in radii}))}
+    drawn = drawn or {}
+    labels = {f[0] for f in factors} | {r[0] for r in radii} | {n[0] for n in notch} | set(drawn)
+    colour = {label: palette(k % 10) for k, label in enumerate(sorted(labels))}
     for label, pos, val in factors:
         top.plot(pos, val, "o-", ms=3, lw=0.8, color=colour[label], label=label)
+    for label, pos, val in notch:
+        top.plot(pos, val, "--", lw=0.8, color=colour[label])
+    span = [min((float(p.min()) for _, p, _ in factors if len(p)), default=0.0),
+            max((float(p.max()) for _, p, _ in factors if len(p)), default=1.0)]
+    for label, value in sorted(drawn.items()):
+        top.plot(span, [value, value], ":", lw=1.0, color=colour[label])
     if hot is not None:
         top.plot([hot[0]], [hot[1]], "o", ms=10, mfc="none", mec="tab:red", mew=1.2)
     for label, pos, val in radii:

@@ -67,6 +67,22 @@ def print_run_summary(run, out: Path) -> None:
         print(f"stress: hot spot at the {hot.line} weld's {hot.side} toe, {hot.position_mm:g} mm along it, stress "
               f"concentration {hot.factor:.2f} under axial tension ({stress.sections} sections"
               + (f"; {100 * c.change:+.1f} % with half-size elements" if c is not None else "") + ")")
+        if stress.notch_hot_spots:
+            notch = max(stress.notch_hot_spots, key=lambda h: h.factor)
+            print(f"stress: notch stress (IIW, r = {stress.notch_radius_mm:g} mm) highest at the {notch.line} weld's "
+                  f"{notch.side} toe, {notch.position_mm:g} mm along it, factor {notch.factor:.2f}")
+        if stress.fatigue:
+            life = min(stress.fatigue, key=lambda f: f.cycles)
+            print(f"fatigue: {life.cycles:.3g} cycles at the {life.line} weld's {life.side} toe "
+                  f"(notch stress range {life.notch_range_mpa:.0f} MPa, FAT {life.fat_mpa:g})")
+        drawn = stress.drawn
+        if drawn is not None and drawn.made:
+            worst = max((t for t in drawn.toes if t.factor is not None), key=lambda t: t.factor, default=None)
+            if worst is not None:
+                print(f"stress: the drawn weld (toes r = {drawn.notch_radius_mm:g} mm) {worst.factor:.2f} at most")
+        if stress.toes_finer_than_points:
+            print(f"stress: {stress.toes_finer_than_points} toe(s) measured finer than the points' spacing "
+                  f"({stress.point_spacing_mm:g} mm): their factors are lower bounds")
     elif not stress.made:
         print(f"stress: not computed: {stress.why}")
     for item in run.outputs.values():

@@ -227,6 +227,14 @@ def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
             if toe.factor is not None:
                 rows.setdefault(f"{toe.line} {toe.side}", []).append((sec.position_mm, toe.factor))
     factors = [(label, np.array([p for p, _ in r]), np.array([f for _, f in r])) for label, r in sorted(rows.items())]
+    notch_rows: dict[str, list[tuple[float, float]]] = {}
+    for sec in stress.sections:
+        for toe in sec.toes:
+            if toe.notch_factor is not None:
+                notch_rows.setdefault(f"{toe.line} {toe.side}", []).append((sec.position_mm, toe.notch_factor))
+    notch = [(label, np.array([p for p, _ in r]), np.array([f for _, f in r])) for label, r in sorted(notch_rows.items())]
+    drawn = {f"{t.line} {t.side}": t.factor for t in stress.drawn.toes if t.factor is not None} \
+        if stress.drawn is not None and stress.drawn.made else {}
     radii_rows: dict[str, list[tuple[float, float]]] = {}
     for sec in geometry.sections:
         for side, toe in sec.toes.sides():
@@ -234,11 +242,14 @@ def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
                 radii_rows.setdefault(f"{sec.line} {side}", []).append((sec.position_mm, toe.toe_radius_mm.value))
     radii = [(label, np.array([p for p, _ in r]), np.array([v for _, v in r])) for label, r in sorted(radii_rows.items())]
     hot = stress.hot_spot
-    pictures = [_picture(stress_along_toes(factors, radii, hot=(hot.position_mm, hot.factor)),
+    pictures = [_picture(stress_along_toes(factors, radii, hot=(hot.position_mm, hot.factor), notch=notch, drawn=drawn),
                          "stress concentration along the toes",
                          f"{len(stress.sections)} sections, each a 2-D plane-strain model of the measured part pulled "
                          f"across the weld (CalculiX); factor: the highest maximum principal stress within reach of the "
-                         f"toe over the force per area of the toe's plate")]
+                         f"toe over the force per area of the toe's plate"
+                         + (f"; dashed: the toes rounded to r = {stress.notch_radius_mm:g} mm (IIW notch stress)"
+                            if notch else "")
+                         + ("; dotted: the drawn weld, toes rounded likewise" if drawn else ""))]
     section = HOT_SECTION.read(ctx.inputs["stress"])
     if len(section.triangles):
         pictures.append(_picture(

@@ -111,7 +111,10 @@ def stress_summary(summary: StressSummary) -> StressReport:
     """The stress's part of the report (the per-section figures stay in stress.json)."""
     return StressReport(made=summary.made, why=summary.why, model=summary.model, sections=len(summary.sections),
                         hot_spot=summary.hot_spot, hot_spots=summary.hot_spots, convergence=summary.convergence,
-                        max_imbalance=summary.max_imbalance, max_membrane_error=summary.max_membrane_error)
+                        max_imbalance=summary.max_imbalance, max_membrane_error=summary.max_membrane_error,
+                        notch_radius_mm=summary.notch_radius_mm, notch_hot_spots=summary.notch_hot_spots,
+                        fatigue=summary.fatigue, fatigue_basis=summary.fatigue_basis, drawn=summary.drawn,
+                        point_spacing_mm=summary.point_spacing_mm, toes_finer_than_points=summary.toes_finer_than_points)
 
 
 # what the stress's checks allow: the ends' reactions 0.1 % apart, the plate's membrane stress 1 %

@@ -20,19 +20,23 @@ test: axial tension across the weld. A sample with no measured butt weld gets no
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from data_catalog.volume_meshes import write_section_vtu
 from flows.stages.outputs import (HOT_SECTION, REFINED, SPECIMEN, STRESS_SUMMARY, STRESS_VTU, WELD_GEOMETRY,
                                   HotSection)
 from flows.stages.placement import weld_frame
-from schemas.stage_documents import StressConvergence, StressSection, StressSummary, ToeHotSpot, ToeStress
+from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, StressConvergence, StressSection,
+                                     StressSummary, ToeHotSpot, ToeStress)
 from schemas.weld_document import WeldGeometry
 from tasks.frames import apply, invert, rotate
-from tasks.plate_section import SectionFrame, plate_profile, profile_section
+from tasks.plate_section import SectionFrame, drawn_profile, plate_profile, profile_section, rounded_notches
 from tasks.section_model import SectionMeshError, SectionMeshSettings, mesh_sections, peaks_near, pull_sections
+from tasks.fatigue import notch_cycles
 from tasks.fe_solve import CalculixNotFound, FESolveError
 
 __all__ = ["stress", "MODEL"]
@@ -48,21 +52,51 @@ def _not_made(ctx, why: str) -> dict[str, Any]:
     return {"made": False, "why": why}
 
 
-def _toe_lines(geometry: WeldGeometry) -> dict[tuple[str, str], np.ndarray]:
-    """(line, side) -> the measured toe's points (k, 3), specimen frame, in order along the line:
-    each section's toe on its line's across direction from the section's centre (midway between
-    its toes), as the weld stage's toes.zarr has them."""
+def _toe_lines(geometry: WeldGeometry) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+    """(line, side) -> the measured toe's points (k, 3), specimen frame, in order along the line,
+    and its measured radius at each (k,; NaN: not measured): each section's toe on its line's
+    across direction from the section's centre (midway between its toes), as the weld stage's
+    toes.zarr has them."""
     across = {line.name: np.asarray(line.across, np.float64) for line in geometry.lines}
-    found: dict[tuple[str, str], list[tuple[float, np.ndarray]]] = {}
+    found: dict[tuple[str, str], list[tuple[float, np.ndarray, float]]] = {}
     for sec in geometry.sections:
         if not sec.toes.both():
             continue
         mid = 0.5 * (sec.toes.minus.position_u_mm + sec.toes.plus.position_u_mm)
         for side, toe in sec.toes.sides():
             point = np.asarray(sec.centre_specimen_mm) + (toe.position_u_mm - mid) * across[sec.line]
-            found.setdefault((sec.line, side), []).append((sec.position_mm, point))
-    return {key: np.array([p for _, p in sorted(rows, key=lambda r: r[0])]) for key, rows in sorted(found.items())
-            if len(rows) >= 2}
+            radius = toe.toe_radius_mm.value
+            found.setdefault((sec.line, side), []).append((sec.position_mm, point, math.nan if radius is None else radius))
+    out = {}
+    for key, rows in sorted(found.items()):
+        if len(rows) >= 2:
+            rows = sorted(rows, key=lambda r: r[0])
+            out[key] = (np.array([r[1] for r in rows]), np.array([r[2] for r in rows], np.float64))
+    return out
+
+
+@dataclass(frozen=True)
+class _Toe:
+    """A measured toe where a section crosses it: its line and side, where in the section (x, y; mm),
+    where in the specimen frame, its measured radius (NaN: not measured)."""
+
+    line: str
+    side: str
+    xy: np.ndarray
+    specimen: np.ndarray
+    radius_mm: float
+
+
+@dataclass(frozen=True)
+class _Model:
+    """One section to solve: the weld stage's section, its plane, the measured profile, the outline
+    and the toes it crosses."""
+
+    section: Any
+    frame: SectionFrame
+    profile: Any
+    plane: Any
+    toes: list[_Toe]
 
 
 def _crossing(polyline: np.ndarray, frame: SectionFrame) -> np.ndarray | None:
@@ -124,7 +158,8 @@ def stress(ctx) -> dict[str, Any]:
             last = sec.position_mm
     settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                    growth=s.growth)
-    models = []  # (section, frame, profile, plane section, [(line, side, toe xy, toe 3-D)])
+    models: list[_Model] = []
+    slabs = []
     for sec in chosen:
         frame = SectionFrame(np.asarray(sec.centre_specimen_mm, np.float64), across, up, along)
         profile = plate_profile(points, normals, frame, half_width_mm=s.half_width_mm, bin_mm=s.bin_mm,
@@ -132,76 +167,88 @@ def stress(ctx) -> dict[str, Any]:
         if profile is None:
             continue
         crossing = []
-        for (line, side), polyline in toes.items():
+        for (line, side), (polyline, radii) in toes.items():
             hit = _crossing(polyline, frame)
             if hit is not None:
                 rel = hit - frame.origin
-                crossing.append((line, side, np.array([rel @ across, rel @ up]), hit))
+                radius = radii[int(np.argmin(np.linalg.norm(polyline - hit, axis=1)))]
+                crossing.append(_Toe(line, side, np.array([rel @ across, rel @ up]), hit, float(radius)))
         if not crossing:
             continue
         try:
-            plane = profile_section(profile, cut_mm=s.cut_mm, fine_mm=np.array([c[2] for c in crossing]))
+            plane = profile_section(profile, cut_mm=s.cut_mm, fine_mm=np.array([c.xy for c in crossing]))
         except ValueError:
             continue
-        models.append((sec, frame, profile, plane, crossing))
+        models.append(_Model(sec, frame, profile, plane, crossing))
+        slabs.append(frame)
     if not models:
         return _not_made(ctx, "no section of the weld has both faces measured across it")
     try:
-        meshes = mesh_sections([m[3] for m in models], settings, timeout_s=s.timeout_s)
+        meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
         solutions = pull_sections(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
+        notch_peaks = _notch_peaks(models, s) if s.notch_stress else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
-    sections, factors = [], {}
+    spacing = _point_spacing(points, slabs, s.half_width_mm)
+    sections, factors, notch_factors = [], {}, {}
     near, far = s.plate_window_mm
-    for (sec, frame, profile, _, crossing), solution in zip(models, solutions):
-        peaks = peaks_near(solution, np.array([c[2] for c in crossing]), s.peak_reach_mm)
+    for index, (model, solution) in enumerate(zip(models, solutions)):
+        sec, frame, profile = model.section, model.frame, model.profile
+        peaks = peaks_near(solution, np.array([c.xy for c in model.toes]), s.peak_reach_mm)
         toe_rows, errors = [], []
-        for (line, side, xy, hit), (peak, at) in zip(crossing, peaks):
-            sign = -1.0 if side == "minus" else 1.0
+        for j, (toe, (peak, at)) in enumerate(zip(model.toes, peaks)):
+            sign = -1.0 if toe.side == "minus" else 1.0
             window = (sign * near, sign * far)
             thickness = profile.thickness_mm(*window)
             nominal = solution.force_n / thickness if thickness > 0 else math.nan  # NaN: no plate measured there
             errors.append(_membrane_error(solution, profile, *window))
             factor = peak / nominal if math.isfinite(peak) and math.isfinite(nominal) else None
-            toe_rows.append(ToeStress(line=line, side=side, factor=None if factor is None else round(factor, 4),
+            notch = None
+            if notch_peaks is not None:
+                (notch_peak, notch_at), notch_force = notch_peaks[index][j], notch_peaks[index][-1]
+                notch_nominal = notch_force / thickness if thickness > 0 else math.nan
+                if math.isfinite(notch_peak) and math.isfinite(notch_nominal):
+                    notch = notch_peak / notch_nominal
+                    notch_factors.setdefault((toe.line, toe.side), []).append(
+                        (sec.position_mm, notch, _to_specimen(frame, notch_at)))
+            toe_rows.append(ToeStress(line=toe.line, side=toe.side, factor=None if factor is None else round(factor, 4),
                                       peak_mpa=None if factor is None else round(peak, 3),
                                       nominal_mpa=round(nominal, 4) if math.isfinite(nominal) else None,
                                       plate_thickness_mm=round(thickness, 4) if math.isfinite(thickness) else None,
-                                      toe_specimen_mm=tuple(round(float(v), 4) for v in hit),
-                                      peak_specimen_mm=None if factor is None else _to_specimen(frame, at)))
+                                      toe_specimen_mm=tuple(round(float(v), 4) for v in toe.specimen),
+                                      peak_specimen_mm=None if factor is None else _to_specimen(frame, at),
+                                      toe_radius_mm=round(toe.radius_mm, 4) if math.isfinite(toe.radius_mm) else None,
+                                      notch_factor=None if notch is None else round(notch, 4)))
             if factor is not None:
-                factors.setdefault((line, side), []).append((sec.position_mm, factor, _to_specimen(frame, at)))
+                factors.setdefault((toe.line, toe.side), []).append((sec.position_mm, factor, _to_specimen(frame, at)))
         finite = [e for e in errors if math.isfinite(e)]
         sections.append(StressSection(
             position_mm=sec.position_mm, origin_specimen_mm=tuple(round(float(v), 4) for v in frame.origin),
             nodes=len(solution.mesh.points), elements=len(solution.mesh.triangles),
             force_n_per_mm=round(solution.force_n, 4), imbalance=round(solution.imbalance, 8),
             membrane_error=round(max(finite, key=abs), 6) if finite else None, toes=toe_rows))
-    hot_spots = []
-    for (line, side), rows in sorted(factors.items()):
-        position, factor, at = max(rows, key=lambda r: r[1])
-        hot_spots.append(ToeHotSpot(line=line, side=side, position_mm=position, factor=round(factor, 4), at_specimen_mm=at,
-                                    sections=len(rows), median_factor=round(float(np.median([r[1] for r in rows])), 4)))
+    hot_spots = _hot_spots(factors)
+    notch_hot_spots = _hot_spots(notch_factors)
     hot = max(hot_spots, key=lambda h: h.factor) if hot_spots else None
     convergence = None
     if hot is None:
         HOT_SECTION.write(ctx.out, HotSection(points_mm=np.zeros((0, 2)), triangles=np.zeros((0, 3), np.int64),
                                               factor=np.zeros(0, np.float32), toe_mm=np.full(2, np.nan)))
     else:
-        k = next(i for i, m in enumerate(models) if m[0].position_mm == hot.position_mm)
-        sec, frame, profile, plane, crossing = models[k]
+        k = next(i for i, m in enumerate(models) if m.section.position_mm == hot.position_mm)
+        model = models[k]
         finer = SectionMeshSettings(fine_size_mm=s.toe_size_mm / 2, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                     growth=s.growth)
         try:
-            (solution,) = pull_sections(mesh_sections([plane], finer, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
-                                        max_nodes_per_run=s.max_nodes_per_solve)
-            j = next(i for i, c in enumerate(crossing) if (c[0], c[1]) == (hot.line, hot.side))
-            (peak, _), = peaks_near(solution, crossing[j][2][None], s.peak_reach_mm)
+            (solution,) = pull_sections(mesh_sections([model.plane], finer, timeout_s=s.timeout_s),
+                                        timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
+            j = next(i for i, c in enumerate(model.toes) if (c.line, c.side) == (hot.line, hot.side))
+            (peak, _), = peaks_near(solution, model.toes[j].xy[None], s.peak_reach_mm)
             toe = sections[k].toes[j]
             hot_solution = solutions[k]
             HOT_SECTION.write(ctx.out, HotSection(
                 points_mm=hot_solution.mesh.points, triangles=hot_solution.mesh.triangles[:, :3].astype(np.int64),
-                factor=(hot_solution.max_principal_mpa / toe.nominal_mpa).astype(np.float32), toe_mm=crossing[j][2]))
+                factor=(hot_solution.max_principal_mpa / toe.nominal_mpa).astype(np.float32), toe_mm=model.toes[j].xy))
             finer_factor = peak / (solution.force_n / toe.plate_thickness_mm)
             convergence = StressConvergence(position_mm=hot.position_mm, line=hot.line, side=hot.side,
                                             toe_size_mm=s.toe_size_mm / 2, factor=hot.factor,
@@ -209,14 +256,128 @@ def stress(ctx) -> dict[str, Any]:
                                             change=round(finer_factor / hot.factor - 1, 5))
         except (SectionMeshError, FESolveError) as exc:
             return _not_made(ctx, f"the hot spot's section did not solve with finer elements: {exc}")
-    write_section_vtu(ctx.out / STRESS_VTU.name,
-                      [(m[1].origin, m[1].across, m[1].up) for m in models], solutions)
+    drawn = _drawn(ctx.manifest, geometry, up, across, s)
+    fatigue, basis = _fatigue(ctx.manifest, notch_hot_spots, s)
+    write_section_vtu(ctx.out / STRESS_VTU.name, [(m.frame.origin, m.frame.across, m.frame.up) for m in models],
+                      solutions)
     imbalance = max(x.imbalance for x in sections)
     membrane = [x.membrane_error for x in sections if x.membrane_error is not None]
-    summary = StressSummary(made=True, model=MODEL, driving_line=driving.name, sections=sections, hot_spots=hot_spots,
-                            hot_spot=hot, convergence=convergence, max_imbalance=imbalance,
-                            max_membrane_error=max(membrane, key=abs) if membrane else None)
+    radii = [t.toe_radius_mm for x in sections for t in x.toes if t.toe_radius_mm is not None]
+    summary = StressSummary(
+        made=True, model=MODEL, driving_line=driving.name, sections=sections, hot_spots=hot_spots, hot_spot=hot,
+        convergence=convergence, max_imbalance=imbalance, max_membrane_error=max(membrane, key=abs) if membrane else None,
+        notch_radius_mm=s.notch_radius_mm if s.notch_stress else None, notch_hot_spots=notch_hot_spots,
+        fatigue=fatigue, fatigue_basis=basis, drawn=drawn,
+        point_spacing_mm=None if spacing is None else round(spacing, 4),
+        toes_finer_than_points=None if spacing is None else sum(r < spacing for r in radii))
     STRESS_SUMMARY.write(ctx.out, summary)
     return {"made": True, "sections": len(sections), "hot_spot_factor": None if hot is None else hot.factor,
             "hot_spot": None if hot is None else f"{hot.line} {hot.side} at {hot.position_mm:g} mm",
-            "max_imbalance": imbalance}
+            "max_imbalance": imbalance,
+            "notch_hot_spot_factor": max((h.factor for h in notch_hot_spots), default=None)}
+
+
+def _hot_spots(factors: dict[tuple[str, str], list[tuple[float, float, tuple]]]) -> list[ToeHotSpot]:
+    """Each toe line's highest section (the first of equals) and its median."""
+    out = []
+    for (line, side), rows in sorted(factors.items()):
+        position, factor, at = max(rows, key=lambda r: r[1])
+        out.append(ToeHotSpot(line=line, side=side, position_mm=position, factor=round(factor, 4), at_specimen_mm=at,
+                              sections=len(rows), median_factor=round(float(np.median([r[1] for r in rows])), 4)))
+    return out
+
+
+def _notch_peaks(models: list["_Model"], s) -> list[list]:
+    """Per model: each toe's (peak, where) with the section's notches rounded to
+    ``s.notch_radius_mm`` (``tasks.plate_section.rounded_notches``), elements at the toes a quarter
+    of the radius or finer (IIW), and, last, the force through it."""
+    planes = [profile_section(rounded_notches(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
+                              fine_mm=np.array([c.xy for c in m.toes])) for m in models]
+    size = min(s.toe_size_mm, s.notch_radius_mm / 4)
+    settings = SectionMeshSettings(fine_size_mm=size, fine_reach_mm=max(s.toe_zone_mm, s.notch_radius_mm),
+                                   size_mm=s.size_mm, growth=s.growth)
+    solutions = pull_sections(mesh_sections(planes, settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
+                              max_nodes_per_run=s.max_nodes_per_solve)
+    # the rounded toe's arc may start up to a radius from the measured toe
+    reach = max(s.peak_reach_mm, s.notch_radius_mm * 1.5)
+    return [peaks_near(sol, np.array([c.xy for c in m.toes]), reach) + [sol.force_n] for m, sol in zip(models, solutions)]
+
+
+def _point_spacing(points: np.ndarray, frames: list[SectionFrame], half_width_mm: float) -> float | None:
+    """The measured points' median spacing (to the nearest other point) in the sections' slabs
+    (a margin of a millimetre either side kept, so that a slab's edge does not lengthen it)."""
+    slabs = [np.flatnonzero(np.abs((points - f.origin) @ f.along) <= half_width_mm + 1.0) for f in frames]
+    inside = np.unique(np.concatenate(slabs)) if slabs else np.zeros(0, np.int64)
+    if len(inside) < 10:
+        return None
+    mine = np.unique(np.concatenate([k[np.abs((points[k] - f.origin) @ f.along) <= half_width_mm]
+                                     for k, f in zip(slabs, frames)]))
+    mine = mine[:: max(1, len(mine) // 20000)]
+    distance, _ = cKDTree(points[inside]).query(points[mine], k=2)
+    return float(np.median(distance[:, 1]))
+
+
+def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray, s) -> DrawnStress:
+    """The drawn weld's section (``tasks.plate_section.drawn_profile``): the manifest's plate
+    thickness, each weld line's cap the median width and height measured along it, its toes
+    rounded to ``s.notch_radius_mm``; pulled as the measured sections are."""
+    thickness = getattr(manifest.specimen, "thickness_mm", None)
+    if thickness is None:
+        return DrawnStress(made=False, why=f"the manifest's {manifest.specimen.kind if manifest.specimen else 'sample'} "
+                                           "states no plate thickness")
+    caps, toes = {}, []
+    for line in geometry.lines:
+        rows = [sec for sec in geometry.sections if sec.line == line.name]
+        width = np.median([v for sec in rows if (v := sec.reinforcement_width_mm.value) is not None] or [np.nan])
+        height = np.median([v for sec in rows if (v := sec.reinforcement_height_mm.value) is not None] or [np.nan])
+        if not (width > 0 and height > 0):
+            continue
+        face = "top" if np.dot(line.face_normal, up) > 0 else "bottom"
+        caps[face] = (round(float(width), 4), round(float(height), 4))
+        turn = 1.0 if np.dot(line.across, across) > 0 else -1.0  # the line's minus side in the section's x
+        for side, sign in (("minus", -1.0), ("plus", 1.0)):
+            toes.append((line.name, side, np.array([sign * turn * width / 2,
+                                                    (1 if face == "top" else -1) * thickness / 2])))
+    if not caps:
+        return DrawnStress(made=False, why="no weld line has its cap's width and height measured")
+    near, far = s.plate_window_mm
+    half = max(far, max(w for w, _ in caps.values()) / 2 + 2 * s.notch_radius_mm) + 5.0
+    profile = rounded_notches(drawn_profile(thickness_mm=thickness, caps=caps, half_length_mm=half, bin_mm=s.bin_mm / 2),
+                              s.notch_radius_mm)
+    plane = profile_section(profile, cut_mm=0.0, fine_mm=np.array([t[2] for t in toes]))
+    settings = SectionMeshSettings(fine_size_mm=min(s.toe_size_mm, s.notch_radius_mm / 4),
+                                   fine_reach_mm=max(s.toe_zone_mm, s.notch_radius_mm), size_mm=s.size_mm, growth=s.growth)
+    try:
+        (solution,) = pull_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
+                                    max_nodes_per_run=s.max_nodes_per_solve)
+    except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
+        return DrawnStress(made=False, why=f"the drawn weld's section did not solve: {exc}")
+    nominal = solution.force_n / thickness
+    reach = max(s.peak_reach_mm, s.notch_radius_mm * 1.5)
+    peaks = peaks_near(solution, np.array([t[2] for t in toes]), reach)
+    return DrawnStress(made=True, thickness_mm=float(thickness), notch_radius_mm=s.notch_radius_mm, caps=caps, toes=[
+        DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,
+                 at_section_mm=(round(float(xy[0]), 4), round(float(xy[1]), 4)))
+        for (line, side, xy), (peak, _) in zip(toes, peaks)])
+
+
+def _fatigue(manifest, notch_hot_spots: list[ToeHotSpot], s) -> tuple[list[FatigueEstimate], str]:
+    """Each toe line's fatigue life at its notch hot spot, and the basis in words (or why none)."""
+    if not s.notch_stress:
+        return [], "no estimate: the notch stress is off (stress.notch_stress)"
+    load = manifest.load
+    if load is None or load.nominal_stress_range_mpa is None:
+        return [], "no estimate: the manifest gives no load range (load.nominal_stress_range_mpa)"
+    basis = (f"IIW effective notch stress: the notches rounded to r = {s.notch_radius_mm:g} mm, maximum principal "
+             f"stress, FAT {s.fat_mpa:g} MPa at 2e6 cycles, slope {s.fat_slope:g} to 1e7 cycles and 22 beyond, "
+             f"97.7 % survival; nominal stress range {load.nominal_stress_range_mpa:g} MPa (the manifest's load), "
+             "linear elastic, as welded (no credit for HFMI unless fat_mpa says so), no thickness or mean stress "
+             "correction")
+    out = []
+    for h in notch_hot_spots:
+        notch_range = h.factor * load.nominal_stress_range_mpa
+        out.append(FatigueEstimate(line=h.line, side=h.side, position_mm=h.position_mm, notch_factor=h.factor,
+                                   nominal_range_mpa=load.nominal_stress_range_mpa,
+                                   notch_range_mpa=round(notch_range, 3), fat_mpa=s.fat_mpa, slope=s.fat_slope,
+                                   cycles=float(f"{notch_cycles(notch_range, s.fat_mpa, s.fat_slope):.4g}")))
+    return out, basis

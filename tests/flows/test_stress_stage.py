@@ -11,6 +11,7 @@ from pathlib import Path
 
 import meshio
 import numpy as np
+import pytest
 
 from flows.stages.outputs import STRESS_SUMMARY
 
@@ -82,3 +83,65 @@ def test_the_factors_against_the_true_surface(ci_run, ci_sample):
     assert result["worst_difference"] < 0.17
     for name, toe in result["toes"].items():
         assert abs(toe["difference"]) < 0.17 and toe["apart_mm"] <= 10.0, (name, toe)
+
+
+def test_the_drawn_weld_and_the_resolution_are_reported(ci_run):
+    out, report = ci_run
+    summary = STRESS_SUMMARY.read(report["refs"]["stress"])
+    drawn = summary.drawn
+    assert drawn.made and drawn.thickness_mm == 20.0 and set(drawn.caps) == {"top", "bottom"}
+    # the caps are the weld stage's median width and height of each line
+    from flows.stages.outputs import WELD_GEOMETRY
+
+    geometry = WELD_GEOMETRY.read(report["refs"]["weld"])
+    for face, (width, height) in drawn.caps.items():
+        rows = [s for s in geometry.sections if s.line == face]
+        assert width == pytest.approx(np.median([s.reinforcement_width_mm.value for s in rows]), abs=1e-3)
+        assert height == pytest.approx(np.median([s.reinforcement_height_mm.value for s in rows]), abs=1e-3)
+    # its four toes, each rounded to 1 mm: a concentration like the measured toes', not a singularity
+    assert len(drawn.toes) == 4 and all(1.5 < t.factor < 3.5 for t in drawn.toes), drawn.toes
+    # the notch stress is off by default: no notch factors, no fatigue estimate, and the reason said
+    assert summary.notch_radius_mm is None and not summary.notch_hot_spots and not summary.fatigue
+    assert "notch stress is off" in summary.fatigue_basis
+    # the ci sample's points are 0.32 mm apart; its toes (radii 0.4-1.9 mm) are coarser than that
+    assert 0.25 < summary.point_spacing_mm < 0.4
+    radii = [t.toe_radius_mm for s in summary.sections for t in s.toes]
+    assert summary.toes_finer_than_points == sum(r < summary.point_spacing_mm for r in radii)
+
+
+def test_the_notch_stress_and_the_fatigue_estimate(ci_run, ci_sample, tmp_path):
+    """The stage's body again on the ci run's inputs, with the IIW notch stress on and a load range
+    in the manifest: every toe gets a notch factor, a toe blunter than the reference radius keeps
+    its factor (rounding adds nothing there), a sharper one gets a lower one, and the life is the
+    S-N curve's at the notch hot spot."""
+    from data_catalog.manifests import load_manifest
+    from flows.preflight import load_config
+    from flows.stages import stress as stress_stage
+    from flows.stages.runner import StageContext
+    from schemas.manifest import LoadCase
+    from tasks.fatigue import notch_cycles
+
+    out, report = ci_run
+    manifest = load_manifest(ci_sample).model_copy(update={"load": LoadCase(nominal_stress_range_mpa=80.0)})
+    config = load_config(REPO / "deploy" / "configs" / "ci.yaml")
+    settings = config.stress.model_copy(update={"notch_stress": True, "section_step_mm": 20.0})
+    ctx = StageContext(out=tmp_path, sample_dir=ci_sample, manifest=manifest, config=config, settings=settings,
+                       entry=None, inputs={k: report["refs"][k] for k in ("refine", "segment", "weld")})
+    stress_stage.stress(ctx)
+    summary = STRESS_SUMMARY.read_path(tmp_path / STRESS_SUMMARY.name)
+    assert summary.made and summary.notch_radius_mm == 1.0 and len(summary.sections) == 3
+    toes = [t for s in summary.sections for t in s.toes]
+    assert all(t.notch_factor is not None and 1.2 < t.notch_factor < 4.0 for t in toes)
+    blunt = [t for t in toes if t.toe_radius_mm > 1.2]
+    sharp = [t for t in toes if t.toe_radius_mm < 0.7]
+    assert blunt and sharp, [t.toe_radius_mm for t in toes]
+    for t in blunt:  # nothing to round: the same factor within the meshes' difference
+        assert t.notch_factor == pytest.approx(t.factor, rel=0.04), (t.toe_radius_mm, t.factor, t.notch_factor)
+    for t in sharp:  # rounded to 1 mm: blunter, a lower stress
+        assert t.notch_factor < t.factor, (t.toe_radius_mm, t.factor, t.notch_factor)
+    assert len(summary.notch_hot_spots) == 4 and len(summary.fatigue) == 4
+    for hot, life in zip(summary.notch_hot_spots, summary.fatigue):
+        assert (life.line, life.side, life.notch_factor) == (hot.line, hot.side, hot.factor)
+        assert life.notch_range_mpa == pytest.approx(80.0 * hot.factor, abs=1e-3)
+        assert life.cycles == pytest.approx(notch_cycles(life.notch_range_mpa, 225.0, 3.0), rel=1e-3)
+    assert "FAT 225" in summary.fatigue_basis and "80 MPa" in summary.fatigue_basis
