@@ -271,7 +271,8 @@ class StressConfig(StrictModel):
         "the section is cut straight across this far inside either end of its measured length, where it is "
         "held and pulled (the unscanned ends are not loaded)"))
     toe_size_mm: float = Field(default=0.1, gt=0, le=10, description=(
-        "element size at the measured toes (the IIW notch-stress rule: at most a quarter of the radius)"))
+        "element size at the measured toes; finer where a section's sharpest measured toe radius is under "
+        "four times it (a quarter of that radius, the IIW rule, 0.02 mm at the least)"))
     toe_zone_mm: float = Field(default=0.5, ge=0, le=100, description="distance from a toe kept at toe_size_mm")
     size_mm: float = Field(default=2.0, gt=0, le=100, description="largest element, away from the toes")
     growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm away from the toes")

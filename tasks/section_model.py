@@ -41,12 +41,14 @@ class PlaneSection:
     """One cross-section: ``outline_mm`` (k, 2) a closed polyline (not repeating its first point),
     x along the pull, cut straight across at its smallest and largest x; ``corners`` indices of
     outline points kept as they are (where a cut meets the surface); ``holes_mm`` closed polylines
-    inside it; ``fine_mm`` (m, 2) where the elements are finest."""
+    inside it; ``fine_mm`` (m, 2) where the elements are finest; ``fine_size_mm`` their size there
+    when this section needs its own (None: the settings')."""
 
     outline_mm: np.ndarray
     fine_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     corners: tuple[int, ...] = ()
     holes_mm: tuple[np.ndarray, ...] = ()
+    fine_size_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -83,10 +85,12 @@ class SectionSolution:
 
 def mesh_sections(sections: Sequence[PlaneSection], settings: SectionMeshSettings, *,
                   timeout_s: float) -> list[SectionMesh]:
-    """The sections' meshes (``tasks.gmsh_sections`` in one child process, one thread)."""
+    """The sections' meshes (``tasks.gmsh_sections`` in one child process, one thread); a section's
+    own ``fine_size_mm`` takes the place of the settings'."""
     payload = [{"outline": np.asarray(s.outline_mm, np.float64), "corners": list(s.corners),
                 "holes": [np.asarray(h, np.float64) for h in s.holes_mm],
-                "fine": np.asarray(s.fine_mm, np.float64).reshape(-1, 2), "fine_size_mm": settings.fine_size_mm,
+                "fine": np.asarray(s.fine_mm, np.float64).reshape(-1, 2),
+                "fine_size_mm": settings.fine_size_mm if s.fine_size_mm is None else float(s.fine_size_mm),
                 "fine_reach_mm": settings.fine_reach_mm, "size_mm": settings.size_mm, "growth": settings.growth}
                for s in sections]
     for k, s in enumerate(payload):

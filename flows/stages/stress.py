@@ -20,7 +20,7 @@ test: axial tension across the weld. A sample with no measured butt weld gets no
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,6 +43,9 @@ __all__ = ["stress", "MODEL"]
 
 MODEL = ("2-D sections across the weld, plane strain, 6-node triangles (CalculiX CPE6), steel (210 GPa, 0.3); "
          "axial tension across the weld, both ends held straight")
+
+
+_FINEST_MM = 0.02  # the smallest element the toes get (a measured radius of 0.08 mm or under)
 
 
 def _not_made(ctx, why: str) -> dict[str, Any]:
@@ -179,6 +182,10 @@ def stress(ctx) -> dict[str, Any]:
             plane = profile_section(profile, cut_mm=s.cut_mm, fine_mm=np.array([c.xy for c in crossing]))
         except ValueError:
             continue
+        # elements at the toes a quarter of the sharpest measured radius or finer (IIW), not under 0.02 mm
+        radii = [c.radius_mm for c in crossing if math.isfinite(c.radius_mm)]
+        if radii and min(radii) / 4 < s.toe_size_mm:
+            plane = replace(plane, fine_size_mm=max(min(radii) / 4, _FINEST_MM))
         models.append(_Model(sec, frame, profile, plane, crossing))
         slabs.append(frame)
     if not models:
@@ -237,10 +244,10 @@ def stress(ctx) -> dict[str, Any]:
     else:
         k = next(i for i, m in enumerate(models) if m.section.position_mm == hot.position_mm)
         model = models[k]
-        finer = SectionMeshSettings(fine_size_mm=s.toe_size_mm / 2, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
-                                    growth=s.growth)
+        half = (model.plane.fine_size_mm or s.toe_size_mm) / 2
         try:
-            (solution,) = pull_sections(mesh_sections([model.plane], finer, timeout_s=s.timeout_s),
+            (solution,) = pull_sections(mesh_sections([replace(model.plane, fine_size_mm=half)], settings,
+                                                      timeout_s=s.timeout_s),
                                         timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
             j = next(i for i, c in enumerate(model.toes) if (c.line, c.side) == (hot.line, hot.side))
             (peak, _), = peaks_near(solution, model.toes[j].xy[None], s.peak_reach_mm)
@@ -251,7 +258,7 @@ def stress(ctx) -> dict[str, Any]:
                 factor=(hot_solution.max_principal_mpa / toe.nominal_mpa).astype(np.float32), toe_mm=model.toes[j].xy))
             finer_factor = peak / (solution.force_n / toe.plate_thickness_mm)
             convergence = StressConvergence(position_mm=hot.position_mm, line=hot.line, side=hot.side,
-                                            toe_size_mm=s.toe_size_mm / 2, factor=hot.factor,
+                                            toe_size_mm=round(half, 5), factor=hot.factor,
                                             finer_factor=round(finer_factor, 4),
                                             change=round(finer_factor / hot.factor - 1, 5))
         except (SectionMeshError, FESolveError) as exc:

@@ -126,3 +126,21 @@ def test_sections_solved_in_several_runs_give_what_one_run_gives(solved):
         np.testing.assert_allclose(a.stress_mpa, b.stress_mpa, rtol=1e-6, atol=1e-9)
         assert a.force_n == pytest.approx(b.force_n, rel=1e-9)
 
+
+
+def test_a_section_of_its_own_fine_size_is_meshed_finer_there():
+    """A section whose sharpest toe asks for smaller elements (``PlaneSection.fine_size_mm``, a
+    quarter of its radius) gets them at its fine points; the settings' size elsewhere."""
+    from dataclasses import replace
+
+    strip = _notched_strip(40.0, 1.0, 60.0)
+    settings = SectionMeshSettings(fine_size_mm=0.2, fine_reach_mm=0.5, size_mm=4.0, growth=0.3)
+    plain, finer = mesh_sections([strip, replace(strip, fine_size_mm=0.05)], settings, timeout_s=120)
+
+    def at_notch(mesh):
+        corners = mesh.points[mesh.triangles[:, :3]]
+        centre = corners.mean(axis=1)
+        near = np.hypot(centre[:, 0], np.abs(centre[:, 1]) - 19.0) < 1.05
+        return np.linalg.norm(corners[near, 1] - corners[near, 0], axis=1)
+
+    assert np.median(at_notch(plain)) > 0.15 and np.median(at_notch(finer)) < 0.08
