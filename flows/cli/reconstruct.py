@@ -60,6 +60,14 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
         if stop_after not in STAGE_NAMES:
             raise ValueError(f"--stop-after {stop_after}: no such stage; the stages are {', '.join(STAGE_NAMES)}")
+    from flows.stages import needed_for
+
+    if stop_after is None or any(stage.name == "stress" for stage in needed_for(stop_after)):
+        import shutil
+
+        if shutil.which("ccx") is None:  # the run goes on: the stress stage says so, the rest is published
+            print("CalculiX (ccx) is not installed: the stress stage will make no model (Debian package "
+                  "calculix-ccx; `make setup` installs it)", file=sys.stderr, flush=True)
     dask = getattr(args, "dask", None) or os.environ.get("WELDRECON_DASK") or None
     if dask and not dask.startswith("local:"):
         check_dask_scheduler(dask)

@@ -145,3 +145,21 @@ def test_the_notch_stress_and_the_fatigue_estimate(ci_run, ci_sample, tmp_path):
         assert life.notch_range_mpa == pytest.approx(80.0 * hot.factor, abs=1e-3)
         assert life.cycles == pytest.approx(notch_cycles(life.notch_range_mpa, 225.0, 3.0), rel=1e-3)
     assert "FAT 225" in summary.fatigue_basis and "80 MPa" in summary.fatigue_basis
+
+
+def test_a_missing_solver_is_one_line_at_the_start_and_the_run_goes_on(ci_run, ci_sample, tmp_path):
+    """No ``ccx`` on the PATH: one line before any work says so and what installs it; the run goes
+    on (here its stages come from the session's stage cache, the stress stage's too)."""
+    from tests.flows.cli import weldrecon
+
+    empty = tmp_path / "bin"
+    empty.mkdir()
+    done = weldrecon("reconstruct", str(ci_sample), "--config", str(REPO / "deploy" / "configs" / "ci.yaml"),
+                     "--out", str(tmp_path / "run"), "--stop-after", "stress", env={"PATH": str(empty)})
+    assert done.returncode == 0, done.stderr
+    first = done.stderr.splitlines()[0]
+    assert first.startswith("CalculiX (ccx) is not installed") and "calculix-ccx" in first
+    # a run that stops before the stress stage does not need the solver: not a word of it
+    done = weldrecon("reconstruct", str(ci_sample), "--config", str(REPO / "deploy" / "configs" / "ci.yaml"),
+                     "--out", str(tmp_path / "run2"), "--stop-after", "weld", env={"PATH": str(empty)})
+    assert done.returncode == 0 and "CalculiX" not in done.stderr
