@@ -6,7 +6,7 @@ process and of its largest child (gmsh, CalculiX).
 
 ``RUN``: a run folder made by the code in ``--repo`` (default: this checkout), whose stages
 ``STAGE`` needs are there (``stages/<stage>/<key>/``; the newest folder of each); the stage's
-outputs go to a temporary folder. One JSON line per stage: seconds, peak RSS (MB) of this
+outputs go to a temporary folder (``--keep DIR``: to ``DIR/<stage>``). One JSON line per stage: seconds, peak RSS (MB) of this
 process and of its largest child. The issue-26 comparison: the FE model stage of cdd4c41 (a
 worktree of it, with its own run of the sample) against this checkout's ``volume`` and ``stress``,
 one after the other on the same machine (bench/README.md, "The FE stages against cdd4c41")."""
@@ -23,7 +23,7 @@ from pathlib import Path
 _DRIVER = r'''
 import json, resource, sys, tempfile, time
 from pathlib import Path
-run, name, config_path = Path(sys.argv[1]), sys.argv[2], sys.argv[3] or None
+run, name, config_path, keep = Path(sys.argv[1]), sys.argv[2], sys.argv[3] or None, sys.argv[5]
 from data_catalog.manifests import load_manifest
 from flows.preflight import load_config
 from flows.stages import STAGES
@@ -42,8 +42,10 @@ def ref(needed):
 manifest = load_manifest(sample)
 config = load_config(config_path)
 settings = getattr(config, stage.settings) if isinstance(stage.settings, str) and stage.settings != "*" else config
-with tempfile.TemporaryDirectory() as out:
-    ctx = StageContext(out=Path(out), sample_dir=sample, manifest=manifest, config=config, settings=settings,
+with tempfile.TemporaryDirectory() as scratch:
+    out = Path(keep) / name if keep else Path(scratch)
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = StageContext(out=out, sample_dir=sample, manifest=manifest, config=config, settings=settings,
                        entry=None, inputs={n: ref(n) for n in stage.needs})
     start = time.perf_counter()
     metrics = stage.body(ctx)
@@ -61,12 +63,13 @@ def main() -> None:
     parser.add_argument("stages", nargs="+")
     parser.add_argument("--repo", type=Path, default=Path(__file__).resolve().parents[1])
     parser.add_argument("--config", default="")
+    parser.add_argument("--keep", type=Path, help="write each stage's outputs to DIR/<stage> (default: thrown away)")
     parser.add_argument("--sample", required=True, type=Path, help="the sample folder the run reconstructed")
     args = parser.parse_args()
     env = {**os.environ, "PYTHONPATH": str(args.repo.resolve())}
     for name in args.stages:
         done = subprocess.run([sys.executable, "-c", _DRIVER, str(args.run.resolve()), name, args.config,
-                               str(args.sample.resolve())],
+                               str(args.sample.resolve()), str(args.keep.resolve()) if args.keep else ""],
                               cwd=args.repo, env=env, capture_output=True, text=True)
         if done.returncode != 0:
             sys.exit(f"{name}: {done.stderr.strip().splitlines()[-1] if done.stderr.strip() else 'failed'}")
