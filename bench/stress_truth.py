@@ -2,7 +2,7 @@
 and the same sections of the simulator's true surface through the same code (outline, meshing,
 solver, peaks), toe by toe.
 
-    .venv/bin/python bench/stress_truth.py RUN_FOLDER SAMPLE_FOLDER
+    .venv/bin/python bench/stress_truth.py RUN_FOLDER SAMPLE_FOLDER [--notch] [--stress DIR]
 
 The truth is the surface the simulator drew (``simulator.evaluate.true_specimen``: exact heights,
 not ``truth/specimen.ply``'s vertices, which hold a toe of 0.46 mm radius on ~5 points on the ci
@@ -21,22 +21,25 @@ from pathlib import Path
 import numpy as np
 
 import tasks  # noqa: F401  (pymeshlab first: tasks/__init__.py)
-from accuracy import stage_folder
+from accuracy import StageFolder, stage_folder
 from data_catalog.manifests import load_manifest
 from flows.stages.outputs import REFINED, STRESS_SUMMARY
 from flows.stages.placement import weld_frame
 from schemas.reconstruction import ReconstructionConfig
 from simulator.evaluate import fit_gauge, true_specimen
 from tasks.frames import apply, invert, rotate
-from tasks.plate_section import SectionFrame, plate_profile, profile_section
+from tasks.plate_section import SectionFrame, plate_profile, profile_section, rounded_notches
 from tasks.section_model import SectionMeshSettings, mesh_sections, peaks_near, pull_sections
 
 __all__ = ["true_factors", "compare"]
 
 
-def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], list[list[float | None]]]:
-    """(the run's factors, the truth's) per section and toe, in stress.json's order."""
-    summary = STRESS_SUMMARY.read(stage_folder(run, "stress"))
+def true_factors(run: Path, sample: Path, *, notch: bool = False,
+                 stress: Path | None = None) -> tuple[list[list[float | None]], list[list[float | None]]]:
+    """(the run's factors, the truth's) per section and toe, in stress.json's order; ``notch``: the
+    notch factors (the run's stress stage made with ``stress.notch_stress``; the true outline
+    rounded the same way). ``stress``: the stress stage's folder (default: the run's)."""
+    summary = STRESS_SUMMARY.read(StageFolder(stress) if stress else stage_folder(run, "stress"))
     config = ReconstructionConfig.model_validate(json.loads((Path(run) / "results" / "config.json").read_text()))
     s = config.stress
     manifest = load_manifest(Path(sample) / "manifest.json")
@@ -65,23 +68,31 @@ def true_factors(run: Path, sample: Path) -> tuple[list[list[float | None]], lis
         profile = plate_profile(points, normals, frame, half_width_mm=0.05, bin_mm=0.02, smooth_mm=0.0)
         toes = np.array([[(np.asarray(t.toe_specimen_mm) - frame.origin) @ across,
                           (np.asarray(t.toe_specimen_mm) - frame.origin) @ up] for t in section.toes])
+        if notch:
+            profile = rounded_notches(profile, summary.notch_radius_mm)
         planes.append((profile, profile_section(profile, cut_mm=s.cut_mm, fine_mm=toes)))
         fine.append(toes)
     settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                    growth=s.growth)
+    reach = s.peak_reach_mm
+    if notch:  # as the stage meshes and reads its rounded sections (flows.stages.stress._notch_peaks)
+        settings = SectionMeshSettings(fine_size_mm=min(s.toe_size_mm, summary.notch_radius_mm / 4),
+                                       fine_reach_mm=max(s.toe_zone_mm, summary.notch_radius_mm), size_mm=s.size_mm,
+                                       growth=s.growth)
+        reach = max(s.peak_reach_mm, 1.5 * summary.notch_radius_mm)
     solutions = pull_sections(mesh_sections([p for _, p in planes], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
                               max_nodes_per_run=s.max_nodes_per_solve)
     ours, truth = [], []
     near, far = s.plate_window_mm
     for section, (profile, _), toes, solution in zip(summary.sections, planes, fine, solutions):
-        peaks = peaks_near(solution, toes, s.peak_reach_mm)
+        peaks = peaks_near(solution, toes, reach)
         row = []
         for toe, (peak, _) in zip(section.toes, peaks):
             sign = -1.0 if toe.side == "minus" else 1.0
             thickness = profile.thickness_mm(sign * near, sign * far)
             row.append(peak / (solution.force_n / thickness) if math.isfinite(peak) else None)
         truth.append(row)
-        ours.append([t.factor for t in section.toes])
+        ours.append([t.notch_factor if notch else t.factor for t in section.toes])
     return ours, truth
 
 
@@ -91,11 +102,12 @@ def load_geometry_lines(run: Path):
     return WELD_GEOMETRY.read(stage_folder(run, "weld")).lines
 
 
-def compare(run: Path, sample: Path) -> dict:
+def compare(run: Path, sample: Path, *, notch: bool = False, stress: Path | None = None) -> dict:
     """Per toe line: the run's and the truth's hot spot, their difference and how far apart along
-    the weld; and over every section and toe the median and worst difference."""
-    summary = STRESS_SUMMARY.read(stage_folder(run, "stress"))
-    ours, truth = true_factors(run, sample)
+    the weld; and over every section and toe the median and worst difference (``notch``: of the
+    notch factors)."""
+    summary = STRESS_SUMMARY.read(StageFolder(stress) if stress else stage_folder(run, "stress"))
+    ours, truth = true_factors(run, sample, notch=notch, stress=stress)
     by_toe: dict[tuple[str, str], list[tuple[float, float, float]]] = {}
     differences = []
     for section, o_row, t_row in zip(summary.sections, ours, truth):
@@ -120,8 +132,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("run", type=Path)
     parser.add_argument("sample", type=Path)
+    parser.add_argument("--notch", action="store_true", help="the notch factors (a run made with stress.notch_stress)")
+    parser.add_argument("--stress", type=Path, help="the stress stage's folder, when not the run's (bench_fe_stages --keep)")
     args = parser.parse_args()
-    print(json.dumps(compare(args.run, args.sample), indent=1))
+    print(json.dumps(compare(args.run, args.sample, notch=args.notch, stress=args.stress), indent=1))
 
 
 if __name__ == "__main__":
