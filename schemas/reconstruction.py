@@ -246,6 +246,9 @@ class VolumeConfig(StrictModel):
     optimize: bool = Field(default=False, description=(
         "Netgen's optimizer after gmsh's HXT and its own optimizer: better elements (the ci sample's worst "
         "smallest dihedral 13.8 -> 20.0 deg) at about 2.4 times the meshing time"))
+    element_order: Literal[1, 2] = Field(default=2, description=(
+        "2: quadratic tetrahedra (C3D10, the edge nodes at the edges' midpoints), the element FE programs "
+        "advise for stress; 1: linear (C3D4), too stiff for stress but a sixth of the nodes"))
     max_volume_difference: float = Field(default=0.005, gt=0, le=1, description=(
         "the solid's volume against the surface mesh's, relative: beyond it the stage fails"))
     timeout_s: float = Field(default=3600.0, gt=0, le=86_400, description=(

@@ -6,8 +6,9 @@ Poisson triangles into patches it can remesh, then meshes the surface and the vo
 element size on the surface that is ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines and
 grows by ``growth`` per mm beyond, up to ``size_mm`` (gmsh's Distance and Threshold fields,
 restricted to the surface; inside, the sizes grow from the surface's), the volume by gmsh's HXT
-and its optimizer (Netgen's after it on request). One thread and a fixed seed: the same surface
-gives the same tetrahedra, in every process.
+and its optimizer (Netgen's after it on request); the slivers left on the surface, out of the
+optimisers' reach, repaired by local operations (``tasks.sliver_repair``). One thread and a fixed
+seed: the same surface gives the same tetrahedra, in every process.
 
 The files for FE programs (Abaqus ``.inp``, VTU) are written by ``data_catalog.volume_meshes``.
 """
@@ -29,17 +30,22 @@ from scipy.sparse.csgraph import connected_components
 
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
 from tasks.gmsh_volume import RESULT
+from tasks.sliver_repair import repair_boundary_slivers
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent", "face_nodes",
-           "ONE_THREAD_ENV"]
+           "quadratic_tetrahedra", "element_face_nodes", "ONE_THREAD_ENV"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
 # S3 (2,4,3) node 1, S4 (3,4,1) node 2 (0-based below), each face's nodes here wound outward
 # (counter-clockwise seen from outside a positively oriented element)
 _FACES = ((0, 2, 1), (0, 1, 3), (1, 2, 3), (0, 3, 2))
 _FACE_NUMBER = (1, 2, 3, 4)
+# C3D10's edge nodes 5-10 (0-based 4-9) on the edges (1,2), (2,3), (3,1), (1,4), (2,4), (3,4): the
+# same order as VTK's quadratic tetrahedron; and each face's three edge nodes, the face's corners' order
+_EDGES = ((0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3))
+_FACE_EDGES = ((6, 5, 4), (4, 8, 7), (5, 9, 8), (7, 9, 6))
 
 
 class VolumeMeshError(ValueError):
@@ -58,6 +64,8 @@ class VolumeMesh:
     boundary_face: np.ndarray  # (f,) int64: which of its faces, Abaqus numbering 1-4
     weld_zone_face: np.ndarray  # (f,) bool: the face's centroid within the weld zone (tasks.weld_zone)
     surface_remeshed: bool = True  # False: gmsh could not reparametrise; the surface's own triangles kept
+    slivers_peeled: int = 0  # flat elements on the surface removed (tasks.sliver_repair)
+    short_edges_collapsed: int = 0  # the surface's short edges collapsed (tasks.sliver_repair)
 
     def boundary_triangles(self) -> np.ndarray:
         """(f, 3) int64, the boundary faces' nodes, counter-clockwise seen from outside."""
@@ -90,13 +98,18 @@ def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
 def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm: list[np.ndarray],
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
                    feature_angle_deg: float, optimize: bool, toe_size_mm: float, toe_zone_mm: float,
-                   timeout_s: float, toe_lines_mm: list[np.ndarray] = (), seed: int = 1) -> VolumeMesh:
+                   timeout_s: float, toe_lines_mm: list[np.ndarray] = (), seed: int = 1,
+                   min_dihedral_deg: float = 10.0, max_aspect_ratio: float = 10.0) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
     triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
     ``toe_size_mm`` within ``toe_zone_mm`` of the ``toe_lines_mm`` (polylines (k, 3), mm, where the
     toes were measured), growing by ``growth`` per mm to the weld zone's size. Where gmsh cannot reparametrise the
     surface's patches (a patch of a topology it cannot flatten), the surface's own triangles are
     kept as the boundary and only the inside is meshed (``VolumeMesh.surface_remeshed`` False).
+    Elements of smallest dihedral angle under ``min_dihedral_deg`` or aspect ratio over
+    ``max_aspect_ratio`` that gmsh's optimiser leaves on the surface are repaired by
+    ``tasks.sliver_repair`` (the surface moves by at most the sliver's thickness or the short
+    edge's length).
     Raises VolumeMeshError when gmsh cannot mesh it either way (an open or self-intersecting
     surface) or made no tetrahedra; VolumeMeshTimeout when gmsh takes longer than ``timeout_s``
     (each try: a surface gmsh takes pathologically long over is not tried again)."""
@@ -141,11 +154,15 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     renumber[used] = np.arange(len(used))
     points, tets = coords[keep], renumber[tets_by_tag]
     tets = orient_tetrahedra(points, tets)
+    # the slivers on the surface gmsh's optimiser cannot reach (tasks.sliver_repair)
+    repair = repair_boundary_slivers(points, tets, min_dihedral_deg=min_dihedral_deg, max_aspect_ratio=max_aspect_ratio)
+    points, tets = repair.points, repair.tetrahedra
     element, face = boundary_faces(tets)
     faces = face_nodes(tets, element, face)
     in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
-                      weld_zone_face=in_zone, surface_remeshed=remeshed)
+                      weld_zone_face=in_zone, surface_remeshed=remeshed, slivers_peeled=repair.peeled,
+                      short_edges_collapsed=repair.collapsed)
 
 
 def _surface_pieces(triangles: np.ndarray) -> int:
@@ -249,6 +266,36 @@ def face_nodes(tets: np.ndarray, element: np.ndarray, face: np.ndarray) -> np.nd
     """(f, 3) int64: the nodes of face ``face`` (Abaqus numbers 1-4) of each ``element``, wound
     counter-clockwise seen from outside a positively oriented tetrahedron."""
     return np.take_along_axis(np.asarray(tets)[element], np.asarray(_FACES)[np.asarray(face) - 1], axis=1)
+
+
+def element_face_nodes(elements: np.ndarray, element: np.ndarray, face: np.ndarray) -> np.ndarray:
+    """The nodes of face ``face`` (Abaqus numbers 1-4) of each ``element``: (f, 3) of C3D4 elements
+    (e, 4), (f, 6) of C3D10 elements (e, 10): the corners as ``face_nodes``, then the edge nodes."""
+    elements = np.asarray(elements)
+    if elements.ndim != 2 or elements.shape[1] not in (4, 10):
+        raise ValueError(f"elements must be (e, 4) or (e, 10) node numbers, got shape {elements.shape}")
+    columns = np.asarray(_FACES) if elements.shape[1] == 4 else np.c_[np.asarray(_FACES), np.asarray(_FACE_EDGES)]
+    return np.take_along_axis(elements[element], columns[np.asarray(face) - 1], axis=1)
+
+
+def quadratic_tetrahedra(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """C3D10 elements of the C3D4 ``tets`` (e, 4), positively oriented, on ``points`` (p, 3) mm:
+    (points (p + m, 3) mm, elements (e, 10)). The corners keep their numbers; the m edge nodes,
+    one at the midpoint of each edge (straight-sided: the elements' shape is the linear ones'), follow
+    in the order of their edges' sorted node pairs, so the same tetrahedra give the same model."""
+    points = np.asarray(points, np.float64)
+    tets = np.asarray(tets, np.int64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (p, 3) mm, got shape {points.shape}")
+    if tets.ndim != 2 or tets.shape[1] != 4:
+        raise ValueError(f"tets must be (e, 4) node numbers (C3D4), got shape {tets.shape}")
+    if len(tets) and (tets.min() < 0 or tets.max() >= len(points)):
+        raise ValueError(f"tets name nodes outside 0..{len(points) - 1}")
+    pairs = np.sort(tets[:, np.asarray(_EDGES)].reshape(-1, 2), axis=1)
+    keys, edge_of = np.unique(pairs[:, 0] * len(points) + pairs[:, 1], return_inverse=True)  # sorted pairs
+    first, second = np.divmod(keys, len(points))
+    middle = (points[first] + points[second]) / 2
+    return np.vstack([points, middle]), np.c_[tets, len(points) + edge_of.reshape(-1, 6)]
 
 
 def boundary_faces(tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -125,7 +125,7 @@ PLY = MeshFile("mesh.ply")  # binary PLY, mm
 
 # --- stage volume ---
 # the model files are left out when the surface mesh is open (volume.json says so: "made": false)
-VOLUME_INP = MeshFile("model.inp", optional=True)  # Abaqus, C3D4, mm: ALL, WELD_ZONE_NODES, WELD_ZONE_SURFACE
+VOLUME_INP = MeshFile("model.inp", optional=True)  # Abaqus, C3D10 (or C3D4), mm: ALL, WELD_ZONE_NODES, WELD_ZONE_SURFACE
 VOLUME_VTU = MeshFile("model.vtu", optional=True)  # VTU (zlib): min_dihedral_deg, aspect_ratio, weld_zone_boundary
 VOLUME_SUMMARY = JsonFile("volume.json", FEModelSummary)  # whether it was made, the solid checks, the quality figures
 

@@ -2,7 +2,8 @@
 weld lines (where the setups' nominal placements and the refined poses put them) and, finer, toward
 the weld toes the weld stage measured, from the
 surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse), checked to be
-one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU with
+one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU (quadratic
+tetrahedra, C3D10, by default: ``volume.element_order``) with
 the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
 unclosed), one gmsh cannot fill, or a fill that is not one solid of the surface's volume makes no
 model: ``volume.json`` says why, the report flags it, the model files are left out and the run
@@ -20,7 +21,8 @@ from flows.stages.outputs import (ELEMENT_QUALITY, MESH, REFINED, VOLUME_INP, VO
 from flows.stages.placement import model_weld_zone
 from schemas.stage_documents import FEModelSummary, SolidChecks, VolumeSets
 from tasks.mesh import mesh_report, simplify_surface
-from tasks.volume_mesh import VolumeMeshError, element_quality, quality_summary, solid_checks, tetrahedralize
+from tasks.volume_mesh import (VolumeMeshError, element_face_nodes, element_quality, quadratic_tetrahedra,
+                               quality_summary, solid_checks, tetrahedralize)
 
 __all__ = ["volume"]
 
@@ -58,13 +60,17 @@ def volume(ctx) -> dict[str, Any]:
     ) if bad]
     if problems:
         return _not_made(ctx, "the volume mesh is not one valid solid: " + "; ".join(problems))
-    min_dihedral, aspect = element_quality(solid.points, solid.tetrahedra)
+    min_dihedral, aspect = element_quality(solid.points, solid.tetrahedra)  # of the corners, either order
     zone_faces = solid.weld_zone_faces()
-    write_abaqus(ctx.out / VOLUME_INP.name, solid.points, solid.tetrahedra, zone_faces=zone_faces,
-                 zone_nodes=solid.weld_zone_nodes())
+    points, elements = solid.points, solid.tetrahedra
+    if s.element_order == 2:  # C3D10: the same elements with a node at each edge's midpoint
+        points, elements = quadratic_tetrahedra(solid.points, solid.tetrahedra)
+    zone = solid.weld_zone_face
+    zone_nodes = np.unique(element_face_nodes(elements, solid.boundary_element[zone], solid.boundary_face[zone]))
+    write_abaqus(ctx.out / VOLUME_INP.name, points, elements, zone_faces=zone_faces, zone_nodes=zone_nodes)
     in_zone = np.zeros(len(solid.tetrahedra), np.uint8)
     in_zone[np.concatenate(list(zone_faces.values()) or [np.zeros(0, np.int64)])] = 1
-    write_vtu(ctx.out / VOLUME_VTU.name, solid.points, solid.tetrahedra,
+    write_vtu(ctx.out / VOLUME_VTU.name, points, elements,
               {"min_dihedral_deg": min_dihedral.astype(np.float32), "aspect_ratio": aspect.astype(np.float32),
                "weld_zone_boundary": in_zone})
     ELEMENT_QUALITY.write(ctx.out, ElementQualityArrays(min_dihedral_deg=min_dihedral.astype(np.float32),
@@ -72,7 +78,9 @@ def volume(ctx) -> dict[str, Any]:
     solid_figures = SolidChecks(**{k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.model_dump().items()})
     summary = FEModelSummary(
         made=True, surface_triangles=int(len(surface.triangles)), meshed_triangles=int(len(triangles)),
-        surface_remeshed=solid.surface_remeshed, solid=solid_figures,
+        surface_remeshed=solid.surface_remeshed, element_type="C3D10" if s.element_order == 2 else "C3D4",
+        model_nodes=int(len(points)), slivers_peeled=solid.slivers_peeled,
+        short_edges_collapsed=solid.short_edges_collapsed, solid=solid_figures,
         quality=quality_summary(min_dihedral, aspect), weld_lines=len(lines), toe_lines=len(toes),
         toe_points=int(sum(len(t) for t in toes)),
         sets=VolumeSets(elements="ALL", weld_zone_nodes=WELD_ZONE_NODES, weld_zone_surface=WELD_ZONE_SURFACE))

@@ -8,6 +8,7 @@ import json
 import re
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
 
@@ -75,6 +76,12 @@ def test_a_closed_surface_becomes_the_model_files(ci_inputs, ci_sample, tmp_path
     assert summary.made and summary.solid.components == 1
     assert abs(summary.solid.volume_difference) < 1e-6
     assert summary.weld_lines == len(manifest.weld_lines())  # where the first placed setup puts them
+    # quadratic by default: C3D10 in the .inp, tetra10 in the VTU, the quality of the corners within the limits
+    assert summary.element_type == "C3D10" and summary.model_nodes > summary.solid.nodes
+    assert summary.quality.below_10_deg == 0 and summary.quality.aspect_ratio.worst <= 10
+    for name, cells in ((VOLUME_INP.name, "tetra10"), (VOLUME_VTU.name, "tetra10")):
+        model = meshio.read(ref.file(name))
+        assert model.cells_dict[cells].shape == (summary.solid.tetrahedra, 10) and len(model.points) == summary.model_nodes
 
 
 def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci_sample, tmp_path):

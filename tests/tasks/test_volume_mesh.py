@@ -13,8 +13,9 @@ import pytest
 
 from tasks.mesh import mesh_report
 from data_catalog.volume_meshes import write_abaqus, write_vtu
-from tasks.volume_mesh import (VolumeMesh, VolumeMeshError, element_quality, polyline_samples, quality_summary,
-                               signed_volumes, solid_checks, tetrahedralize)
+from tasks.volume_mesh import (VolumeMesh, VolumeMeshError, element_face_nodes, element_quality, orient_tetrahedra,
+                               polyline_samples, quadratic_tetrahedra, quality_summary, signed_volumes, solid_checks,
+                               tetrahedralize)
 
 # a plate 40 x 20 x 6 mm with a weld line across its top face at x = 0
 BOX = (40.0, 20.0, 6.0)
@@ -250,8 +251,11 @@ def test_a_surface_gmsh_cannot_reparametrise_keeps_its_own_triangles(monkeypatch
     assert not solid.surface_remeshed
     checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
     assert checks.components == 1 and checks.negative_or_flat == 0 and abs(checks.volume_difference) < 1e-9
-    # the boundary is the input surface itself
-    assert checks.boundary_faces == len(triangles)
+    # the boundary is the input surface's triangles, less those the sliver repair merged (short
+    # edges collapsed along the box's faces): every boundary node on the box's faces
+    assert checks.boundary_faces <= len(triangles)
+    on_face = np.isclose(np.abs(solid.points[np.unique(solid.boundary_triangles())]), np.asarray(BOX) / 2).any(axis=1)
+    assert on_face.all()
 
 
 @pytest.mark.parametrize("high", [50, 2 ** 40], ids=["one-key-a-row", "rows-as-they-are"])
@@ -266,3 +270,55 @@ def test_faces_and_edges_are_grouped_as_numpy_groups_equal_rows(high):
     pairs = set(zip(inverse.tolist(), expected_inverse.ravel().tolist()))
     assert len(pairs) == len(counts) == len(expected_counts) < 2000  # the same partition of the rows
     assert np.array_equal(counts[inverse], expected_counts[expected_inverse.ravel()])
+
+
+def test_quadratic_tetrahedra_put_one_shared_node_at_each_edge_midpoint(plate):
+    _, _, solid = plate
+    points, elements = quadratic_tetrahedra(solid.points, solid.tetrahedra)
+    assert elements.shape == (len(solid.tetrahedra), 10)
+    assert np.array_equal(elements[:, :4], solid.tetrahedra) and np.array_equal(points[:len(solid.points)], solid.points)
+    # Abaqus C3D10 (= VTK tetra10): nodes 5-10 on the edges 1-2, 2-3, 3-1, 1-4, 2-4, 3-4
+    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0), (0, 3), (1, 3), (2, 3))):
+        assert np.allclose(points[elements[:, 4 + k]], (points[elements[:, i]] + points[elements[:, j]]) / 2, rtol=0, atol=1e-12)
+    # one node an edge, shared by the elements around it: nodes = corners + edges (Euler: V - E + F - T = 1)
+    edges = len(points) - len(solid.points)
+    faces = (4 * len(solid.tetrahedra) + len(solid.boundary_element)) // 2
+    assert len(solid.points) - edges + faces - len(solid.tetrahedra) == 1
+    # orientation kept (the edge nodes follow the corners when an element is renumbered)
+    assert np.array_equal(orient_tetrahedra(points, elements), elements)
+    # each boundary face's six nodes: its corners and the midpoints of its three edges, in order
+    six = element_face_nodes(elements, solid.boundary_element, solid.boundary_face)
+    assert np.array_equal(six[:, :3], solid.boundary_triangles())
+    for k in range(3):
+        assert np.allclose(points[six[:, 3 + k]], (points[six[:, k]] + points[six[:, (k + 1) % 3]]) / 2, atol=1e-12)
+
+
+def test_quadratic_tetrahedra_refuse_bad_input():
+    with pytest.raises(ValueError, match=r"tets must be \(e, 4\)"):
+        quadratic_tetrahedra(np.zeros((10, 3)), np.zeros((1, 10), np.int64))
+    with pytest.raises(ValueError, match=r"points must be \(p, 3\)"):
+        quadratic_tetrahedra(np.zeros((4, 2)), np.array([[0, 1, 2, 3]]))
+    with pytest.raises(ValueError, match="outside 0..3"):
+        quadratic_tetrahedra(np.zeros((4, 3)), np.array([[0, 1, 2, 4]]))
+    with pytest.raises(ValueError, match=r"\(e, 4\) or \(e, 10\)"):
+        element_face_nodes(np.zeros((1, 8), np.int64), np.array([0]), np.array([1]))
+
+
+def test_a_c3d10_model_reads_back_as_c3d10_with_its_edge_nodes(plate, tmp_path):
+    _, _, solid = plate
+    points, elements = quadratic_tetrahedra(solid.points, solid.tetrahedra)
+    zone = solid.weld_zone_face
+    zone_nodes = np.unique(element_face_nodes(elements, solid.boundary_element[zone], solid.boundary_face[zone]))
+    write_abaqus(tmp_path / "model.inp", points, elements, zone_faces=solid.weld_zone_faces(), zone_nodes=zone_nodes)
+    write_vtu(tmp_path / "model.vtu", points, elements, {"n": np.arange(len(elements), dtype=np.int32)})
+    text = (tmp_path / "model.inp").read_text()
+    assert text.count("*ELEMENT, TYPE=C3D10\n") == 1 and "C3D10MH" not in text  # meshio's own name is the hybrid
+    inp = meshio.read(tmp_path / "model.inp")
+    assert np.array_equal(inp.cells_dict["tetra10"], elements)
+    assert np.allclose(inp.points, points, rtol=0, atol=1e-6)
+    assert np.array_equal(np.sort(inp.point_sets["WELD_ZONE_NODES"]), zone_nodes)
+    assert len(zone_nodes) > len(solid.weld_zone_nodes())  # the zone faces' edge nodes too
+    vtu = meshio.read(tmp_path / "model.vtu")
+    assert np.array_equal(vtu.cells_dict["tetra10"], elements)
+    with pytest.raises(ValueError, match=r"\(e, 4\) C3D4 or \(e, 10\) C3D10"):
+        write_vtu(tmp_path / "bad.vtu", points, elements[:, :8], {})
