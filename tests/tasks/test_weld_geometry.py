@@ -151,6 +151,32 @@ def test_a_weld_line_in_3d_refined_on_the_data():
                           reach_mm=32.0, end_margin_mm=2.0, min_normal_cos=0.2, settings=SETTINGS, treated=False)
 
 
+@pytest.mark.parametrize("face", [1.0, -1.0])
+def test_a_plate_thinner_than_the_reach_keeps_its_face_normal(face):
+    """Both faces of a 20 mm plate lie within a 32 mm reach of a line on one of them, their normals
+    as many one way as the other (the paper preset: their mean, ~0.005 long, was read as a face
+    tilted 26 deg): the face is still the one the line is on, its normal straight out of it."""
+    cap = _cap(flank=35.0, radius=1.0)
+    rng = np.random.default_rng(6)
+    n = 240_000
+    near_face = np.arange(n) < n // 2  # half the points on the line's face, half on the far one
+    # (the far face where it is within reach of the line: |x| < 24 mm, 20 mm below it)
+    x, y = np.where(near_face, rng.uniform(-32, 32, n), rng.uniform(-24, 24, n)), rng.uniform(-20, 20, n)
+    bump = cap.height_mm(x, y)[0]
+    z = np.where(near_face, face * (10.0 + bump), -face * 10.0)
+    sign = np.where(near_face, face, -face)
+    # the cap's normals tilt across the weld; the plate's are straight; a little noise on all
+    normals = np.stack([np.zeros(n), np.zeros(n), sign], 1) + rng.normal(0.0, 0.05, (n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    line = np.array([[0.0, -20.0, face * 10.0], [0.0, 20.0, face * 10.0]])
+    found = measure_weld_line(np.stack([x, y, z], 1), normals, line, name="top", step_mm=2.0, section_half_width_mm=0.5,
+                              reach_mm=32.0, end_margin_mm=2.0, min_normal_cos=0.2, settings=SETTINGS, treated=False)
+    assert np.degrees(np.arccos(np.clip(found.normal[2] * face, -1, 1))) < 0.5, found.normal
+    assert len(found.sections) >= 15
+    heights = np.array([s.height.value for s in found.sections])
+    assert np.all(np.abs(heights - 2.0) < 0.05)
+
+
 def test_bad_weld_settings_are_refused_with_the_field_named(tmp_path):
     with pytest.raises(ValidationError, match="plate_window_mm"):
         WeldGeometryConfig(plate_window_mm=(20.0, 10.0))
