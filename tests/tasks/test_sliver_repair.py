@@ -4,6 +4,9 @@ out again, the solid staying closed and its volume kept, in milliseconds."""
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -94,6 +97,19 @@ def test_nodes_are_moved_to_mend_flat_elements_the_surface_ones_within_their_fac
     assert np.array_equal(np.isin(repaired.points, [0.0, 2.0]), np.isin(points, [0.0, 2.0]))
     assert repaired.points[node, 2] == 2.0 and not np.array_equal(repaired.points[node], points[node])
     assert signed_volumes(repaired.points, tets).sum() == pytest.approx(8.0, abs=1e-12)
+
+
+def test_the_same_mesh_gives_the_same_bytes_with_any_number_of_threads():
+    code = ("import hashlib, numpy as np; from tests.tasks.test_sliver_repair import kuhn_block;"
+            "from tasks.sliver_repair import repair_boundary_slivers; p, t = kuhn_block(2);"
+            "p[13] += [0.3, -0.2, 0.1]; p[14] += [0.85, 0.6, 0.0]; r = repair_boundary_slivers(p, t);"
+            "print(r.slid, hashlib.sha256(r.points.tobytes() + r.tetrahedra.tobytes()).hexdigest())")
+    answers = set()
+    for threads in ("1", "4"):
+        env = {**os.environ, "OMP_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads}
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+        answers.add(done.stdout.strip())
+    assert len(answers) == 1 and int(answers.pop().split()[0]) >= 1
 
 
 def test_a_mesh_within_the_limits_is_left_as_it_is():
