@@ -129,7 +129,13 @@ def main() -> None:
     import open3d as o3d
 
     model = meshio.read(stage_folder(args.run, "volume").file("model.vtu"))
-    rec = apply(S, model.points.astype(np.float64)), model.cells_dict["tetra"].astype(np.int64)
+    # the linear elements: the corners of the stage's C3D10 (volume.element_order 2), its edge nodes left out
+    cells = model.cells_dict
+    corners = (cells["tetra10"][:, :4] if "tetra10" in cells else cells["tetra"]).astype(np.int64)
+    used = np.unique(corners)
+    renumber = np.full(len(model.points), -1, np.int64)
+    renumber[used] = np.arange(len(used))
+    rec = apply(S, model.points[used].astype(np.float64)), renumber[corners]
     truth = o3d.io.read_triangle_mesh(str(args.sample / "truth" / "specimen.ply"))
     v, f = simplify_surface(np.asarray(truth.vertices, np.float64), np.asarray(truth.triangles, np.int64),
                             max_triangles=config.volume.max_surface_triangles)

@@ -125,6 +125,7 @@ class FEModelSummary(StrictModel):
     model_nodes: int | None = None  # the .inp's nodes: the corners (solid.nodes) and C3D10's edge nodes
     slivers_peeled: int | None = None  # flat elements on the surface removed (tasks.sliver_repair)
     short_edges_collapsed: int | None = None  # the surface's short edges collapsed (tasks.sliver_repair)
+    nodes_moved: int | None = None  # nodes moved to mend poor elements (tasks.sliver_repair)
     solid: SolidChecks | None = None
     quality: ElementQuality | None = None
     weld_lines: int | None = None

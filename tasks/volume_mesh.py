@@ -66,6 +66,7 @@ class VolumeMesh:
     surface_remeshed: bool = True  # False: gmsh could not reparametrise; the surface's own triangles kept
     slivers_peeled: int = 0  # flat elements on the surface removed (tasks.sliver_repair)
     short_edges_collapsed: int = 0  # the surface's short edges collapsed (tasks.sliver_repair)
+    nodes_moved: int = 0  # nodes moved to mend poor elements: inside, or within a flat surface (tasks.sliver_repair)
 
     def boundary_triangles(self) -> np.ndarray:
         """(f, 3) int64, the boundary faces' nodes, counter-clockwise seen from outside."""
@@ -162,7 +163,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
                       weld_zone_face=in_zone, surface_remeshed=remeshed, slivers_peeled=repair.peeled,
-                      short_edges_collapsed=repair.collapsed)
+                      short_edges_collapsed=repair.collapsed, nodes_moved=repair.slid)
 
 
 def _surface_pieces(triangles: np.ndarray) -> int:

@@ -80,7 +80,7 @@ def volume(ctx) -> dict[str, Any]:
         made=True, surface_triangles=int(len(surface.triangles)), meshed_triangles=int(len(triangles)),
         surface_remeshed=solid.surface_remeshed, element_type="C3D10" if s.element_order == 2 else "C3D4",
         model_nodes=int(len(points)), slivers_peeled=solid.slivers_peeled,
-        short_edges_collapsed=solid.short_edges_collapsed, solid=solid_figures,
+        short_edges_collapsed=solid.short_edges_collapsed, nodes_moved=solid.nodes_moved, solid=solid_figures,
         quality=quality_summary(min_dihedral, aspect), weld_lines=len(lines), toe_lines=len(toes),
         toe_points=int(sum(len(t) for t in toes)),
         sets=VolumeSets(elements="ALL", weld_zone_nodes=WELD_ZONE_NODES, weld_zone_surface=WELD_ZONE_SURFACE))

@@ -4,6 +4,9 @@ out again, the solid staying closed and its volume kept, in milliseconds."""
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -55,7 +58,7 @@ def test_a_flat_element_over_two_surface_triangles_is_peeled_off():
     assert dihedral.min() < 3 and aspect.max() > 20 and one_solid(points, capped)
 
     repaired = repair_boundary_slivers(points, capped)
-    assert (repaired.peeled, repaired.collapsed, repaired.left) == (1, 0, 0)
+    assert (repaired.peeled, repaired.collapsed, repaired.slid, repaired.left) == (1, 0, 0, 0)
     assert np.array_equal(np.sort(np.sort(repaired.tetrahedra, axis=1), axis=0), np.sort(np.sort(tets, axis=1), axis=0))
     assert np.array_equal(repaired.points, points)
 
@@ -78,10 +81,41 @@ def test_a_short_surface_edge_is_collapsed_keeping_the_solid_and_its_volume():
     assert np.array_equal(again.tetrahedra, repaired.tetrahedra) and np.array_equal(again.points, repaired.points)
 
 
+def test_nodes_are_moved_to_mend_flat_elements_the_surface_ones_within_their_faces():
+    points, tets = kuhn_block(2)
+    node = int(np.flatnonzero(np.all(points == [1, 1, 2], axis=1))[0])
+    points[node] += [0.85, 0.6, 0.0]  # along the top face, toward the far corner of its cell: flat elements, no short edge
+    dihedral, aspect = element_quality(points, tets)
+    assert dihedral.min() < 5 and aspect.max() > 40 and one_solid(points, tets)
+
+    repaired = repair_boundary_slivers(points, tets)
+    assert (repaired.peeled, repaired.collapsed, repaired.left) == (0, 0, 0) and repaired.slid >= 1
+    assert np.array_equal(repaired.tetrahedra, tets)
+    dihedral, aspect = element_quality(repaired.points, repaired.tetrahedra)
+    assert dihedral.min() >= 10 and aspect.max() <= 10
+    # the surface where it was: its nodes moved only within their faces (the box's), the one moved too
+    assert np.array_equal(np.isin(repaired.points, [0.0, 2.0]), np.isin(points, [0.0, 2.0]))
+    assert repaired.points[node, 2] == 2.0 and not np.array_equal(repaired.points[node], points[node])
+    assert signed_volumes(repaired.points, tets).sum() == pytest.approx(8.0, abs=1e-12)
+
+
+def test_the_same_mesh_gives_the_same_bytes_with_any_number_of_threads():
+    code = ("import hashlib, numpy as np; from tests.tasks.test_sliver_repair import kuhn_block;"
+            "from tasks.sliver_repair import repair_boundary_slivers; p, t = kuhn_block(2);"
+            "p[13] += [0.3, -0.2, 0.1]; p[14] += [0.85, 0.6, 0.0]; r = repair_boundary_slivers(p, t);"
+            "print(r.slid, hashlib.sha256(r.points.tobytes() + r.tetrahedra.tobytes()).hexdigest())")
+    answers = set()
+    for threads in ("1", "4"):
+        env = {**os.environ, "OMP_NUM_THREADS": threads, "OPENBLAS_NUM_THREADS": threads, "MKL_NUM_THREADS": threads}
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+        answers.add(done.stdout.strip())
+    assert len(answers) == 1 and int(answers.pop().split()[0]) >= 1
+
+
 def test_a_mesh_within_the_limits_is_left_as_it_is():
     points, tets = kuhn_block(2)
     repaired = repair_boundary_slivers(points, tets)
-    assert (repaired.peeled, repaired.collapsed, repaired.left) == (0, 0, 0)
+    assert (repaired.peeled, repaired.collapsed, repaired.slid, repaired.left) == (0, 0, 0, 0)
     assert np.array_equal(repaired.tetrahedra, tets) and np.array_equal(repaired.points, points)
 
 

@@ -138,6 +138,7 @@ def test_abaqus_and_vtu_read_back_with_meshio(plate, tmp_path):
     expected = {n: np.unique(solid.boundary_element[solid.weld_zone_face & (solid.boundary_face == n)]) for n in range(1, 5)}
     assert faces and all(np.array_equal(np.sort(faces[n]), expected[n]) for n in faces)
     text = (tmp_path / "model.inp").read_text()
+    assert text.count("*ELEMENT, TYPE=C3D4\n") == 1  # volume.element_order 1
     assert "*SURFACE, TYPE=ELEMENT, NAME=WELD_ZONE_SURFACE" in text
     assert all(f"WELD_ZONE_S{n}, S{n}" in text for n in faces)
     vtu = meshio.read(tmp_path / "model.vtu")
