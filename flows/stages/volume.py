@@ -1,7 +1,8 @@
 """Stage ``volume``: the FE model. gmsh fills the Poisson surface with tetrahedra graded toward the
 weld lines (where the setups' nominal placements and the refined poses put them) and, finer, toward
 the weld toes the weld stage measured, from the
-surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse), checked to be
+surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse; a part with no weld
+lines to as many triangles of edge ``volume.size_mm`` as cover it: its elements are no finer), checked to be
 one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU (quadratic
 tetrahedra, C3D10, by default: ``volume.element_order``) with
 the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
@@ -34,12 +35,15 @@ def volume(ctx) -> dict[str, Any]:
     if not (closed.watertight and closed.consistently_oriented):
         return _not_made(ctx, f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
                               f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
-    vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=s.max_surface_triangles)
     # the weld zone (placement.model_weld_zone, the weld frame's lines; the QA page colours the same):
     # elements graded toward its lines, its boundary faces the named set
     zone = model_weld_zone(ctx.manifest, REFINED.open(ctx.inputs["refine"]).T_common_pass, ctx.config)
     lines = [np.asarray(z.points_mm, np.float64) for z in zone.zones]
     toes = WELD_TOES.read(ctx.inputs["weld"]).polylines()  # where the weld stage measured the toes
+    budget = s.max_surface_triangles
+    if not lines and not toes:  # no weld: elements of size_mm everywhere, the surface no finer
+        budget = max(1000, min(budget, _triangles_of_size(surface.vertices, surface.triangles, s.size_mm)))
+    vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=budget)
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
@@ -89,6 +93,13 @@ def volume(ctx) -> dict[str, Any]:
             "volume_difference": solid_figures.volume_difference, "weld_zone_faces": solid_figures.weld_zone_faces,
             "min_dihedral_deg": summary.quality.min_dihedral_deg.worst,
             "aspect_ratio_worst": summary.quality.aspect_ratio.worst}
+
+
+def _triangles_of_size(vertices: np.ndarray, triangles: np.ndarray, size_mm: float) -> int:
+    """How many equilateral triangles of edge ``size_mm`` cover the surface's area."""
+    p = np.asarray(vertices, np.float64)[np.asarray(triangles)]
+    area = 0.5 * float(np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
+    return int(np.ceil(area / (np.sqrt(3) / 4 * size_mm ** 2)))
 
 
 def _not_made(ctx, why: str) -> dict[str, Any]:

@@ -102,3 +102,34 @@ def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci
                      r"volume.max_volume_difference 0.50 %", summary.why), summary.why
     check = fe_model_check(VOLUME_SUMMARY.read(ref))
     assert check.result == "flagged" and check.what.startswith("not made: the volume mesh is not one valid solid")
+
+
+def test_a_part_without_a_weld_is_meshed_at_its_size_not_the_scans(ci_inputs, ci_sample, tmp_path):
+    """An imported part with no weld (no weld lines, no toes): the surface is simplified to as many
+    triangles of edge ``volume.size_mm`` as cover it, not to ``max_surface_triangles``: its
+    elements are no finer than asked for (the bunny's ten scans: 150,000 kept triangles gave 3.0 M
+    tetrahedra in 171 s, gmsh unable to reparametrise them; 15,098 give 197,946 in 16 s, remeshed)."""
+    import open3d as o3d
+
+    from flows.stages.outputs import WELD_TOES, WeldToes
+
+    manifest, refine, _ = ci_inputs
+    sphere = o3d.geometry.TriangleMesh.create_sphere(radius=40.0, resolution=120)  # ~29,000 triangles of ~2 mm
+    vertices, triangles = np.asarray(sphere.vertices), np.asarray(sphere.triangles)
+    mesh = _mesh_ref(tmp_path / "mesh" / "sphere", vertices, triangles)
+    weld_dir = tmp_path / "weld"
+    weld_dir.mkdir()
+    WELD_TOES.write(weld_dir, WeldToes(points_mm=np.zeros((0, 3)), polyline=np.zeros(0, np.int64),
+                                       position_mm=np.zeros(0)))
+    weld = StageRef(stage="weld", item=None, key="none", path=str(weld_dir),
+                    outputs={WELD_TOES.name: sha256_tree(weld_dir / WELD_TOES.name)}, cached=False)
+    unwelded = manifest.model_copy(update={"weld": None})
+    config = ReconstructionConfig.model_validate({"volume": {"size_mm": 3.0, "element_order": 1}})
+    ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=unwelded,
+                    config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
+    summary = VOLUME_SUMMARY.read(ref)
+    area = 4 * np.pi * 40.0 ** 2
+    budget = int(np.ceil(area / (np.sqrt(3) / 4 * 3.0 ** 2)))  # 5,160 (the sphere's own: ~29,000)
+    assert summary.made and summary.weld_lines == 0 and summary.toe_lines == 0
+    assert summary.surface_triangles == len(triangles) and budget * 0.9 <= summary.meshed_triangles <= budget
+    assert summary.solid.tetrahedra < 100_000 and abs(summary.solid.volume_difference) < 0.005
