@@ -94,15 +94,26 @@ def weld_summary(geometry: WeldGeometry) -> WeldReport:
                       uncertain_sections=geometry.uncertain, lines=geometry.lines, statistics=geometry.statistics)
 
 
+ELEMENT_LIMITS = {"min_dihedral_deg": 10.0, "aspect_ratio": 10.0}
+
+
 def fe_model_check(summary: FEModelSummary) -> Check:
-    """The FE model's check: made as one solid of the mesh's volume, or why not."""
+    """The FE model's check: made as one solid of the mesh's volume, every element within
+    ``ELEMENT_LIMITS``; or why not."""
     if not summary.made:
         return Check(check="FE model", pass_="all", result="flagged", what=f"not made: {summary.why}", measured={})
-    solid = summary.solid
-    return Check(check="FE model", pass_="all", result="ok",
-                 what=(f"one solid of {solid.tetrahedra} tetrahedra, volume {100 * solid.volume_difference:+.2f} % "
-                       f"of the mesh's" + ("" if summary.surface_remeshed else
-                                           "; the surface's own triangles kept (gmsh could not reparametrise it)")),
+    solid, quality = summary.solid, summary.quality
+    # the limits FE programs accept without warnings (issue 26): no element under 10 deg, none over 10
+    outside = [what for what, bad in (
+        (f"{quality.below_10_deg} element(s) with a smallest dihedral angle under {ELEMENT_LIMITS['min_dihedral_deg']:g} "
+         f"deg (worst {quality.min_dihedral_deg.worst:g})", quality.below_10_deg > 0),
+        (f"an aspect ratio of {quality.aspect_ratio.worst:g}, over {ELEMENT_LIMITS['aspect_ratio']:g}",
+         quality.aspect_ratio.worst > ELEMENT_LIMITS["aspect_ratio"])) if bad]
+    return Check(check="FE model", pass_="all", result="flagged" if outside else "ok",
+                 what="; ".join([f"one solid of {solid.tetrahedra} tetrahedra, volume {100 * solid.volume_difference:+.2f} % "
+                                 f"of the mesh's" + ("" if summary.surface_remeshed else
+                                                     "; the surface's own triangles kept (gmsh could not reparametrise it)"),
+                                 *outside]),
                  measured={"volume_difference": solid.volume_difference,
                            "min_dihedral_deg": summary.quality.min_dihedral_deg.worst})
 

@@ -114,6 +114,14 @@ def test_the_fe_model_check_reads_the_fe_summary():
     assert made.result == "ok" and "tetrahedra" in made.what and made.measured["min_dihedral_deg"] > 0
     refused = fe_model_check(FEModelSummary(made=False, why="the surface mesh is not closed"))
     assert refused.result == "flagged" and refused.what == "not made: the surface mesh is not closed"
+    # an element outside the limits FE programs accept is flagged, naming it (the demo's last one)
+    summary = VOLUME_SUMMARY.read_path(DOCUMENTS / VOLUME_SUMMARY.name)
+    quality = summary.quality.model_copy(update={
+        "below_10_deg": 1, "min_dihedral_deg": summary.quality.min_dihedral_deg.model_copy(update={"worst": 9.0}),
+        "aspect_ratio": summary.quality.aspect_ratio.model_copy(update={"worst": 13.2})})
+    poor = fe_model_check(summary.model_copy(update={"quality": quality}))
+    assert poor.result == "flagged" and "1 element(s) with a smallest dihedral angle under 10 deg (worst 9)" in poor.what
+    assert "an aspect ratio of 13.2, over 10" in poor.what
 
 
 def test_the_published_report_holds_the_stage_documents_unchanged():
