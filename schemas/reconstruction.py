@@ -277,7 +277,9 @@ class StressConfig(StrictModel):
         "element size at the measured toes; finer where a section's sharpest measured toe radius is under "
         "four times it (a quarter of that radius, the IIW rule, 0.02 mm at the least)"))
     toe_zone_mm: float = Field(default=0.5, ge=0, le=100, description="distance from a toe kept at toe_size_mm")
-    size_mm: float = Field(default=2.0, gt=0, le=100, description="largest element, away from the toes")
+    size_mm: float = Field(default=3.0, gt=0, le=100, description=(
+        "largest element, away from the toes (the demo's 33 sections: 3 mm against 2 mm, 427,359 nodes "
+        "against 667,644, 54 s against 81 s, hot spots within 1.4 %)"))
     growth: float = Field(default=0.3, gt=0, le=10, description="element size growth per mm away from the toes")
     peak_reach_mm: float = Field(default=1.5, gt=0, le=20, description=(
         "a toe's peak stress is the highest on the outline within this distance of the measured toe"))
