@@ -25,6 +25,7 @@ from accuracy import StageFolder, stage_folder
 from data_catalog.manifests import load_manifest
 from flows.stages.outputs import REFINED, STRESS_SUMMARY
 from flows.stages.placement import weld_frame
+from flows.stages.stress import notch_mesh
 from schemas.reconstruction import ReconstructionConfig
 from simulator.evaluate import fit_gauge, true_specimen
 from tasks.frames import apply, invert, rotate
@@ -75,11 +76,8 @@ def true_factors(run: Path, sample: Path, *, notch: bool = False,
     settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                    growth=s.growth)
     reach = s.peak_reach_mm
-    if notch:  # as the stage meshes and reads its rounded sections (flows.stages.stress._notch_peaks)
-        settings = SectionMeshSettings(fine_size_mm=min(s.toe_size_mm, summary.notch_radius_mm / 4),
-                                       fine_reach_mm=max(s.toe_zone_mm, summary.notch_radius_mm), size_mm=s.size_mm,
-                                       growth=s.growth)
-        reach = max(s.peak_reach_mm, 1.5 * summary.notch_radius_mm)
+    if notch:  # as the stage meshes and reads its rounded sections, at the radius it used
+        settings, reach = notch_mesh(s.model_copy(update={"notch_radius_mm": summary.notch_radius_mm}))
     solutions = pull_sections(mesh_sections([p for _, p in planes], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
                               max_nodes_per_run=s.max_nodes_per_solve)
     ours, truth = [], []

@@ -226,15 +226,13 @@ class FatigueEstimate(StrictModel):
     cycles: float
 
 
-class StressSummary(StrictModel):
-    """``stress.json``: the stress concentration along every measured toe, or why not computed."""
+class StressFigures(StrictModel):
+    """What ``stress.json`` and the report's ``stress`` both hold: whether made (or why not), the hot
+    spots, the checks, the notch stress, fatigue, drawn weld and resolution."""
 
-    schema_version: Literal["1"] = "1"
     made: bool
     why: str | None = None
     model: str | None = None  # in words: element, plane, load, ends
-    driving_line: str | None = None
-    sections: list[StressSection] = []
     hot_spots: list[ToeHotSpot] = []
     hot_spot: ToeHotSpot | None = None  # the highest of all
     convergence: StressConvergence | None = None
@@ -249,26 +247,19 @@ class StressSummary(StrictModel):
     toes_finer_than_points: int | None = None  # toes whose measured radius is under the point spacing
 
 
-class StressReport(StrictModel):
+class StressSummary(StressFigures):
+    """``stress.json``: the stress concentration along every measured toe, or why not computed."""
+
+    schema_version: Literal["1"] = "1"
+    driving_line: str | None = None
+    sections: list[StressSection] = []
+
+
+class StressReport(StressFigures):
     """The stress's part of the report: the hot spots and the checks (each section's figures stay
     in the stress stage's stress.json)."""
 
-    made: bool
-    why: str | None = None
-    model: str | None = None
     sections: int = 0
-    hot_spot: ToeHotSpot | None = None
-    hot_spots: list[ToeHotSpot] = []
-    convergence: StressConvergence | None = None
-    max_imbalance: float | None = None
-    max_membrane_error: float | None = None
-    notch_radius_mm: float | None = None
-    notch_hot_spots: list[ToeHotSpot] = []
-    fatigue: list[FatigueEstimate] = []
-    fatigue_basis: str | None = None
-    drawn: DrawnStress | None = None
-    point_spacing_mm: float | None = None
-    toes_finer_than_points: int | None = None
 
 
 # --- report.json ---

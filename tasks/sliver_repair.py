@@ -29,7 +29,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SliverRepair", "repair_boundary_slivers"]
+__all__ = ["SliverRepair", "repair_boundary_slivers", "MIN_DIHEDRAL_DEG", "MAX_ASPECT_RATIO"]
+
+# the limits FE programs accept without warnings (issue 26): the repair's aim, the stage's defaults,
+# the quality summary's count and the report's check
+MIN_DIHEDRAL_DEG = 10.0
+MAX_ASPECT_RATIO = 10.0
 
 _FACES = ((0, 2, 1), (0, 1, 3), (1, 2, 3), (0, 3, 2))  # as tasks.volume_mesh: the face leaving out node 3, 2, 0, 1
 _APEX = (3, 2, 0, 1)  # the node each face leaves out
@@ -270,8 +275,8 @@ def _try_peel(mesh: _Mesh, element: int) -> bool:
     return True
 
 
-def repair_boundary_slivers(points: np.ndarray, tetrahedra: np.ndarray, *, min_dihedral_deg: float = 10.0,
-                            max_aspect_ratio: float = 10.0, short_edge: float = 0.2,
+def repair_boundary_slivers(points: np.ndarray, tetrahedra: np.ndarray, *, min_dihedral_deg: float = MIN_DIHEDRAL_DEG,
+                            max_aspect_ratio: float = MAX_ASPECT_RATIO, short_edge: float = 0.2,
                             rounds: int = 4) -> SliverRepair:
     """The elements of smallest dihedral angle under ``min_dihedral_deg`` or aspect ratio over
     ``max_aspect_ratio`` repaired, worst first, by collapsing their shortest edge where it is shorter

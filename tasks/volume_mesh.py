@@ -30,7 +30,7 @@ from scipy.sparse.csgraph import connected_components
 
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
 from tasks.gmsh_volume import RESULT
-from tasks.sliver_repair import repair_boundary_slivers
+from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG, repair_boundary_slivers
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
@@ -100,7 +100,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
                    feature_angle_deg: float, optimize: bool, toe_size_mm: float, toe_zone_mm: float,
                    timeout_s: float, toe_lines_mm: list[np.ndarray] = (), seed: int = 1,
-                   min_dihedral_deg: float = 10.0, max_aspect_ratio: float = 10.0) -> VolumeMesh:
+                   min_dihedral_deg: float = MIN_DIHEDRAL_DEG, max_aspect_ratio: float = MAX_ASPECT_RATIO) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
     triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
     ``toe_size_mm`` within ``toe_zone_mm`` of the ``toe_lines_mm`` (polylines (k, 3), mm, where the
@@ -360,4 +360,4 @@ def quality_summary(min_dihedral_deg: np.ndarray, aspect_ratio: np.ndarray) -> E
                                  median=round(float(q[1]), 4), p99=round(float(q[2]), 4))
 
     return ElementQuality(min_dihedral_deg=stats(min_dihedral_deg, "min"), aspect_ratio=stats(aspect_ratio, "max"),
-                          below_10_deg=int(np.count_nonzero(min_dihedral_deg < 10.0)))
+                          below_10_deg=int(np.count_nonzero(min_dihedral_deg < MIN_DIHEDRAL_DEG)))

@@ -215,32 +215,29 @@ def _quality_picture(ctx) -> list[dict[str, str]]:
                      "dashed: 10 deg")]
 
 
+def _along_toes(rows) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """(label, position mm, value) rows -> per label, sorted by label: (label, positions, values) in
+    the rows' order; None values left out."""
+    found: dict[str, list[tuple[float, float]]] = {}
+    for label, position, value in rows:
+        if value is not None:
+            found.setdefault(label, []).append((position, value))
+    return [(label, np.array([p for p, _ in r]), np.array([v for _, v in r])) for label, r in sorted(found.items())]
+
+
 def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
     """The stress concentration along every toe beside the measured toe radius, and the stress map
     of the hot spot's section (the stress stage's stress.json and hot_section.zarr)."""
     stress = STRESS_SUMMARY.read(ctx.inputs["stress"])
     if not stress.made or stress.hot_spot is None:
         return []
-    rows: dict[str, list[tuple[float, float]]] = {}
-    for sec in stress.sections:
-        for toe in sec.toes:
-            if toe.factor is not None:
-                rows.setdefault(f"{toe.line} {toe.side}", []).append((sec.position_mm, toe.factor))
-    factors = [(label, np.array([p for p, _ in r]), np.array([f for _, f in r])) for label, r in sorted(rows.items())]
-    notch_rows: dict[str, list[tuple[float, float]]] = {}
-    for sec in stress.sections:
-        for toe in sec.toes:
-            if toe.notch_factor is not None:
-                notch_rows.setdefault(f"{toe.line} {toe.side}", []).append((sec.position_mm, toe.notch_factor))
-    notch = [(label, np.array([p for p, _ in r]), np.array([f for _, f in r])) for label, r in sorted(notch_rows.items())]
+    factors = _along_toes((f"{t.line} {t.side}", sec.position_mm, t.factor) for sec in stress.sections for t in sec.toes)
+    notch = _along_toes((f"{t.line} {t.side}", sec.position_mm, t.notch_factor)
+                        for sec in stress.sections for t in sec.toes)
     drawn = {f"{t.line} {t.side}": t.factor for t in stress.drawn.toes if t.factor is not None} \
         if stress.drawn is not None and stress.drawn.made else {}
-    radii_rows: dict[str, list[tuple[float, float]]] = {}
-    for sec in geometry.sections:
-        for side, toe in sec.toes.sides():
-            if toe is not None and toe.toe_radius_mm.value is not None:
-                radii_rows.setdefault(f"{sec.line} {side}", []).append((sec.position_mm, toe.toe_radius_mm.value))
-    radii = [(label, np.array([p for p, _ in r]), np.array([v for _, v in r])) for label, r in sorted(radii_rows.items())]
+    radii = _along_toes((f"{sec.line} {side}", sec.position_mm, toe.toe_radius_mm.value)
+                        for sec in geometry.sections for side, toe in sec.toes.sides() if toe is not None)
     hot = stress.hot_spot
     pictures = [_picture(stress_along_toes(factors, radii, hot=(hot.position_mm, hot.factor), notch=notch, drawn=drawn),
                          "stress concentration along the toes",

@@ -18,8 +18,10 @@ from flows.stages.outputs import (PLY, QA_REPORT, REFINE_SUMMARY, REGISTRATION_S
                                   STRESS_VTU, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_GEOMETRY)
 from data_catalog.hashing import sha256_file
 from flows.stages.qa_audit import UNVERIFIED, fill_audit
-from schemas.stage_documents import Check, FEModelSummary, Report, StressReport, StressSummary, WeldReport
+from schemas.stage_documents import (Check, FEModelSummary, Report, StressFigures, StressReport, StressSummary,
+                                     WeldReport)
 from schemas.weld_document import WeldGeometry
+from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG
 
 __all__ = ["report", "publish", "checks", "fe_model_check", "stress_check", "stress_summary", "weld_summary", "RESULTS",
            "CONFIG_NAME"]
@@ -94,7 +96,7 @@ def weld_summary(geometry: WeldGeometry) -> WeldReport:
                       uncertain_sections=geometry.uncertain, lines=geometry.lines, statistics=geometry.statistics)
 
 
-ELEMENT_LIMITS = {"min_dihedral_deg": 10.0, "aspect_ratio": 10.0}
+ELEMENT_LIMITS = {"min_dihedral_deg": MIN_DIHEDRAL_DEG, "aspect_ratio": MAX_ASPECT_RATIO}
 
 
 def fe_model_check(summary: FEModelSummary) -> Check:
@@ -120,12 +122,8 @@ def fe_model_check(summary: FEModelSummary) -> Check:
 
 def stress_summary(summary: StressSummary) -> StressReport:
     """The stress's part of the report (the per-section figures stay in stress.json)."""
-    return StressReport(made=summary.made, why=summary.why, model=summary.model, sections=len(summary.sections),
-                        hot_spot=summary.hot_spot, hot_spots=summary.hot_spots, convergence=summary.convergence,
-                        max_imbalance=summary.max_imbalance, max_membrane_error=summary.max_membrane_error,
-                        notch_radius_mm=summary.notch_radius_mm, notch_hot_spots=summary.notch_hot_spots,
-                        fatigue=summary.fatigue, fatigue_basis=summary.fatigue_basis, drawn=summary.drawn,
-                        point_spacing_mm=summary.point_spacing_mm, toes_finer_than_points=summary.toes_finer_than_points)
+    return StressReport(**{name: getattr(summary, name) for name in StressFigures.model_fields},
+                        sections=len(summary.sections))
 
 
 # what the stress's checks allow: the ends' reactions 0.1 % apart, the plate's membrane stress 1 %

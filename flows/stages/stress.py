@@ -32,14 +32,16 @@ from flows.stages.outputs import (HOT_SECTION, REFINED, SPECIMEN, STRESS_SUMMARY
 from flows.stages.placement import weld_frame
 from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, StressConvergence, StressSection,
                                      StressSummary, ToeHotSpot, ToeStress)
-from schemas.weld_document import WeldGeometry
+from schemas.weld_document import WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
-from tasks.plate_section import SectionFrame, drawn_profile, plate_profile, profile_section, rounded_notches
-from tasks.section_model import SectionMeshError, SectionMeshSettings, mesh_sections, peaks_near, pull_sections
+from tasks.plate_section import (PlateProfile, SectionFrame, drawn_profile, plate_profile, profile_section,
+                                 rounded_notches)
+from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, mesh_sections, peaks_near,
+                                 pull_sections)
 from tasks.fatigue import notch_cycles
 from tasks.fe_solve import CalculixNotFound, FESolveError
 
-__all__ = ["stress", "MODEL"]
+__all__ = ["stress", "MODEL", "notch_mesh"]
 
 MODEL = ("2-D sections across the weld, plane strain, 6-node triangles (CalculiX CPE6), steel (210 GPa, 0.3); "
          "axial tension across the weld, both ends held straight")
@@ -95,10 +97,10 @@ class _Model:
     """One section to solve: the weld stage's section, its plane, the measured profile, the outline
     and the toes it crosses."""
 
-    section: Any
+    section: WeldSection
     frame: SectionFrame
-    profile: Any
-    plane: Any
+    profile: PlateProfile
+    plane: PlaneSection
     toes: list[_Toe]
 
 
@@ -162,7 +164,6 @@ def stress(ctx) -> dict[str, Any]:
     settings = SectionMeshSettings(fine_size_mm=s.toe_size_mm, fine_reach_mm=s.toe_zone_mm, size_mm=s.size_mm,
                                    growth=s.growth)
     models: list[_Model] = []
-    slabs = []
     for sec in chosen:
         frame = SectionFrame(np.asarray(sec.centre_specimen_mm, np.float64), across, up, along)
         profile = plate_profile(points, normals, frame, half_width_mm=s.half_width_mm, bin_mm=s.bin_mm,
@@ -187,7 +188,6 @@ def stress(ctx) -> dict[str, Any]:
         if radii and min(radii) / 4 < s.toe_size_mm:
             plane = replace(plane, fine_size_mm=max(min(radii) / 4, _FINEST_MM))
         models.append(_Model(sec, frame, profile, plane, crossing))
-        slabs.append(frame)
     if not models:
         return _not_made(ctx, "no section of the weld has both faces measured across it")
     try:
@@ -196,7 +196,7 @@ def stress(ctx) -> dict[str, Any]:
         notch_peaks = _notch_peaks(models, s) if s.notch_stress else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
-    spacing = _point_spacing(points, slabs, s.half_width_mm)
+    spacing = _point_spacing(points, [m.frame for m in models], s.half_width_mm)
     sections, factors, notch_factors = [], {}, {}
     near, far = s.plate_window_mm
     for index, (model, solution) in enumerate(zip(models, solutions)):
@@ -212,7 +212,8 @@ def stress(ctx) -> dict[str, Any]:
             factor = peak / nominal if math.isfinite(peak) and math.isfinite(nominal) else None
             notch = None
             if notch_peaks is not None:
-                (notch_peak, notch_at), notch_force = notch_peaks[index][j], notch_peaks[index][-1]
+                peaks_rounded, notch_force = notch_peaks[index]
+                notch_peak, notch_at = peaks_rounded[j]
                 notch_nominal = notch_force / thickness if thickness > 0 else math.nan
                 if math.isfinite(notch_peak) and math.isfinite(notch_nominal):
                     notch = notch_peak / notch_nominal
@@ -294,20 +295,27 @@ def _hot_spots(factors: dict[tuple[str, str], list[tuple[float, float, tuple]]])
     return out
 
 
-def _notch_peaks(models: list["_Model"], s) -> list[list]:
+def notch_mesh(s) -> tuple[SectionMeshSettings, float]:
+    """How a section rounded to ``s.notch_radius_mm`` is meshed and read (the stage's notch
+    sections, its drawn weld, bench/stress_truth.py's true ones): elements at the toes a quarter of
+    the radius or finer (IIW) over a radius at least, and how far from the measured toe its peak
+    is looked for (the rounded toe's arc may start up to a radius from it)."""
+    settings = SectionMeshSettings(fine_size_mm=min(s.toe_size_mm, s.notch_radius_mm / 4),
+                                   fine_reach_mm=max(s.toe_zone_mm, s.notch_radius_mm), size_mm=s.size_mm,
+                                   growth=s.growth)
+    return settings, max(s.peak_reach_mm, 1.5 * s.notch_radius_mm)
+
+
+def _notch_peaks(models: list[_Model], s) -> list[tuple[list[tuple[float, np.ndarray]], float]]:
     """Per model: each toe's (peak, where) with the section's notches rounded to
-    ``s.notch_radius_mm`` (``tasks.plate_section.rounded_notches``), elements at the toes a quarter
-    of the radius or finer (IIW), and, last, the force through it."""
+    ``s.notch_radius_mm`` (``tasks.plate_section.rounded_notches``, meshed as ``notch_mesh``), and
+    the force through it."""
     planes = [profile_section(rounded_notches(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
                               fine_mm=np.array([c.xy for c in m.toes])) for m in models]
-    size = min(s.toe_size_mm, s.notch_radius_mm / 4)
-    settings = SectionMeshSettings(fine_size_mm=size, fine_reach_mm=max(s.toe_zone_mm, s.notch_radius_mm),
-                                   size_mm=s.size_mm, growth=s.growth)
+    settings, reach = notch_mesh(s)
     solutions = pull_sections(mesh_sections(planes, settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
                               max_nodes_per_run=s.max_nodes_per_solve)
-    # the rounded toe's arc may start up to a radius from the measured toe
-    reach = max(s.peak_reach_mm, s.notch_radius_mm * 1.5)
-    return [peaks_near(sol, np.array([c.xy for c in m.toes]), reach) + [sol.force_n] for m, sol in zip(models, solutions)]
+    return [(peaks_near(sol, np.array([c.xy for c in m.toes]), reach), sol.force_n) for m, sol in zip(models, solutions)]
 
 
 def _point_spacing(points: np.ndarray, frames: list[SectionFrame], half_width_mm: float) -> float | None:
@@ -352,15 +360,13 @@ def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray,
     profile = rounded_notches(drawn_profile(thickness_mm=thickness, caps=caps, half_length_mm=half, bin_mm=s.bin_mm / 2),
                               s.notch_radius_mm)
     plane = profile_section(profile, cut_mm=0.0, fine_mm=np.array([t[2] for t in toes]))
-    settings = SectionMeshSettings(fine_size_mm=min(s.toe_size_mm, s.notch_radius_mm / 4),
-                                   fine_reach_mm=max(s.toe_zone_mm, s.notch_radius_mm), size_mm=s.size_mm, growth=s.growth)
+    settings, reach = notch_mesh(s)
     try:
         (solution,) = pull_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
                                     max_nodes_per_run=s.max_nodes_per_solve)
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return DrawnStress(made=False, why=f"the drawn weld's section did not solve: {exc}")
     nominal = solution.force_n / thickness
-    reach = max(s.peak_reach_mm, s.notch_radius_mm * 1.5)
     peaks = peaks_near(solution, np.array([t[2] for t in toes]), reach)
     return DrawnStress(made=True, thickness_mm=float(thickness), notch_radius_mm=s.notch_radius_mm, caps=caps, toes=[
         DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,

@@ -42,7 +42,8 @@ def volume(ctx) -> dict[str, Any]:
     toes = WELD_TOES.read(ctx.inputs["weld"]).polylines()  # where the weld stage measured the toes
     budget = s.max_surface_triangles
     if not lines and not toes:  # no weld: elements of size_mm everywhere, the surface no finer
-        budget = max(1000, min(budget, _triangles_of_size(surface.vertices, surface.triangles, s.size_mm)))
+        # as many equilateral triangles of edge size_mm as cover the surface's area
+        budget = max(1000, min(budget, int(np.ceil(closed.surface_area_mm2 / (np.sqrt(3) / 4 * s.size_mm ** 2)))))
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=budget)
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
@@ -93,13 +94,6 @@ def volume(ctx) -> dict[str, Any]:
             "volume_difference": solid_figures.volume_difference, "weld_zone_faces": solid_figures.weld_zone_faces,
             "min_dihedral_deg": summary.quality.min_dihedral_deg.worst,
             "aspect_ratio_worst": summary.quality.aspect_ratio.worst}
-
-
-def _triangles_of_size(vertices: np.ndarray, triangles: np.ndarray, size_mm: float) -> int:
-    """How many equilateral triangles of edge ``size_mm`` cover the surface's area."""
-    p = np.asarray(vertices, np.float64)[np.asarray(triangles)]
-    area = 0.5 * float(np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum())
-    return int(np.ceil(area / (np.sqrt(3) / 4 * size_mm ** 2)))
 
 
 def _not_made(ctx, why: str) -> dict[str, Any]:
