@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from tasks import sliver_repair
 from tasks.sliver_repair import repair_boundary_slivers
 from tasks.volume_mesh import (VolumeMesh, boundary_faces, element_quality, face_nodes, orient_tetrahedra,
                                signed_volumes, solid_checks)
@@ -97,6 +98,25 @@ def test_nodes_are_moved_to_mend_flat_elements_the_surface_ones_within_their_fac
     assert np.array_equal(np.isin(repaired.points, [0.0, 2.0]), np.isin(points, [0.0, 2.0]))
     assert repaired.points[node, 2] == 2.0 and not np.array_equal(repaired.points[node], points[node])
     assert signed_volumes(repaired.points, tets).sum() == pytest.approx(8.0, abs=1e-12)
+
+
+def test_a_node_on_a_sharp_edge_slides_along_it_and_a_corner_stays():
+    # (the paper preset's slivers at a plate's rounded edge, where no inner node's place mends them)
+    points, tets = kuhn_block(2)
+    node = int(np.flatnonzero(np.all(points == [2, 1, 2], axis=1))[0])
+    points[node, 1] += 0.9  # along the block's edge x = z = 2, 0.1 mm from the corner (2, 2, 2)
+    before = points.copy()
+    dihedral, _ = element_quality(points, tets)
+    worst = int(np.argmin(dihedral))
+    assert dihedral[worst] < 5 and node in tets[worst]
+    mesh, surface = sliver_repair._Mesh(points, tets.copy(), (10.0, 10.0)), sliver_repair._Surface(points, tets)
+
+    assert sliver_repair._try_slide(mesh, worst, surface)
+    moved = np.flatnonzero(np.any(points != before, axis=1))
+    assert moved.tolist() == [node]  # the corner, a node of the same element, stays where it is
+    assert points[node, [0, 2]].tolist() == [2.0, 2.0] and abs(points[node, 1] - 1.0) < 0.05  # on the edge
+    dihedral, aspect = element_quality(points, tets)
+    assert dihedral.min() > 40 and aspect.max() < 1.5 and one_solid(points, tets)
 
 
 def test_the_same_mesh_gives_the_same_bytes_with_any_number_of_threads():
