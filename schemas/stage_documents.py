@@ -121,6 +121,7 @@ class FEModelSummary(StrictModel):
     surface_triangles: int | None = None
     meshed_triangles: int | None = None
     surface_remeshed: bool | None = None
+    surface_kept_because: str | None = None  # gmsh's message where it could not remesh the surface
     element_type: Literal["C3D4", "C3D10"] | None = None  # the .inp's (C3D10: the VTU's tetra10)
     model_nodes: int | None = None  # the .inp's nodes: the corners (solid.nodes) and C3D10's edge nodes
     slivers_peeled: int | None = None  # flat elements on the surface removed (tasks.sliver_repair)

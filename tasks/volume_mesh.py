@@ -64,6 +64,7 @@ class VolumeMesh:
     boundary_face: np.ndarray  # (f,) int64: which of its faces, Abaqus numbering 1-4
     weld_zone_face: np.ndarray  # (f,) bool: the face's centroid within the weld zone (tasks.weld_zone)
     surface_remeshed: bool = True  # False: gmsh could not reparametrise; the surface's own triangles kept
+    surface_kept_because: str | None = None  # gmsh's message then
     slivers_peeled: int = 0  # flat elements on the surface removed (tasks.sliver_repair)
     short_edges_collapsed: int = 0  # the surface's short edges collapsed (tasks.sliver_repair)
     nodes_moved: int = 0  # nodes moved to mend poor elements: inside, or within a flat surface (tasks.sliver_repair)
@@ -129,14 +130,14 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     sizes = dict(size_mm=size_mm, weld_size_mm=weld_size_mm, weld_zone_mm=weld_zone_mm, growth=growth,
                  feature_angle_deg=feature_angle_deg, optimize=optimize, seed=seed, toes=toes,
                  toe_size_mm=toe_size_mm, toe_zone_mm=toe_zone_mm)
-    remeshed = True
+    remeshed, kept_because = True, None
     try:
         node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, timeout_s=timeout_s,
                                                         **sizes)
     except VolumeMeshTimeout:
         raise
     except VolumeMeshError as first:
-        remeshed = False
+        remeshed, kept_because = False, str(first)
         try:
             node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False,
                                                             timeout_s=timeout_s, **sizes)
@@ -162,7 +163,8 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     faces = face_nodes(tets, element, face)
     in_zone = weld_zone(list(weld_lines_mm), weld_zone_mm).faces_in(points, faces)  # the one weld zone (tasks.weld_zone)
     return VolumeMesh(points=points, tetrahedra=tets, boundary_element=element, boundary_face=face,
-                      weld_zone_face=in_zone, surface_remeshed=remeshed, slivers_peeled=repair.peeled,
+                      weld_zone_face=in_zone, surface_remeshed=remeshed, surface_kept_because=kept_because,
+                      slivers_peeled=repair.peeled,
                       short_edges_collapsed=repair.collapsed, nodes_moved=repair.slid)
 
 

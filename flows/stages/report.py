@@ -114,7 +114,7 @@ def fe_model_check(summary: FEModelSummary) -> Check:
     return Check(check="FE model", pass_="all", result="flagged" if outside else "ok",
                  what="; ".join([f"one solid of {solid.tetrahedra} tetrahedra, volume {100 * solid.volume_difference:+.2f} % "
                                  f"of the mesh's" + ("" if summary.surface_remeshed else
-                                                     "; the surface's own triangles kept (gmsh could not reparametrise it)"),
+                                                     f"; the surface's own triangles kept ({summary.surface_kept_because or 'gmsh could not reparametrise it'})"),
                                  *outside]),
                  measured={"volume_difference": solid.volume_difference,
                            "min_dihedral_deg": summary.quality.min_dihedral_deg.worst})

@@ -83,7 +83,8 @@ def volume(ctx) -> dict[str, Any]:
     solid_figures = SolidChecks(**{k: (round(v, 6) if isinstance(v, float) else v) for k, v in checks.model_dump().items()})
     summary = FEModelSummary(
         made=True, surface_triangles=int(len(surface.triangles)), meshed_triangles=int(len(triangles)),
-        surface_remeshed=solid.surface_remeshed, element_type="C3D10" if s.element_order == 2 else "C3D4",
+        surface_remeshed=solid.surface_remeshed,
+        surface_kept_because=solid.surface_kept_because, element_type="C3D10" if s.element_order == 2 else "C3D4",
         model_nodes=int(len(points)), slivers_peeled=solid.slivers_peeled,
         short_edges_collapsed=solid.short_edges_collapsed, nodes_moved=solid.nodes_moved, solid=solid_figures,
         quality=quality_summary(min_dihedral, aspect), weld_lines=len(lines), toe_lines=len(toes),

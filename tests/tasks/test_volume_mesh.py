@@ -249,7 +249,7 @@ def test_a_surface_gmsh_cannot_reparametrise_keeps_its_own_triangles(monkeypatch
     monkeypatch.setattr(vm, "_gmsh_volume", no_remesh)
     vertices, triangles = box_surface()
     solid = tetrahedralize(vertices, triangles, weld_lines_mm=WELD, **SIZES)
-    assert not solid.surface_remeshed
+    assert not solid.surface_remeshed and "Wrong topology of boundary mesh" in solid.surface_kept_because
     checks = solid_checks(solid, mesh_report(vertices, triangles).volume_mm3)
     assert checks.components == 1 and checks.negative_or_flat == 0 and abs(checks.volume_difference) < 1e-9
     # the boundary is the input surface's triangles, less those the sliver repair merged (short
