@@ -169,7 +169,8 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
         log = _run(ccx, folder, timeout_s)
         displacement, stress = _read_frd(folder / "job.frd", len(points))
         reactions = _read_totals(folder / "job.dat", list(case.prescribed))
-        per_node = _read_node_forces(folder / "job.dat", {name: case.node_sets[name] for name in case.reactions_per_node})
+        per_node = _read_node_forces(folder / "job.dat",
+                                     {name: case.node_sets[name] for name in case.reactions_per_node})
     return FESolution(displacement_mm=displacement, stress_mpa=stress, reaction_n=reactions, node_reaction_n=per_node,
                       log=log)
 
