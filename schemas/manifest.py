@@ -430,17 +430,23 @@ class Setup(StrictModel):
 
 
 class LoadCase(StrictModel):
-    """The load the part is tested or designed for (schema 1.1, optional). ``axial``: tension across
-    the weld, the part pulled along its length by its ends (a butt weld's fatigue test; for a
-    T-joint or a cruciform, its base plate pulled along its length, across the stems: the
-    non-load-carrying fillet weld's test). ``nominal_stress_range_mpa``: the range of the nominal
-    stress (force over the plate's section) in each load cycle, for the fatigue estimate
-    (``stress.notch_stress``); ``stress_ratio`` the cycle's smallest over its largest stress,
-    recorded with it (the IIW notch stress classes hold for any ratio as welded)."""
+    """The load the part is tested or designed for (schema 1.1, optional). ``axial`` (the default):
+    tension across the weld, the part pulled along its length by its ends (a butt weld's fatigue
+    test; for a T-joint or a cruciform, its base plate pulled along its length, across the stems:
+    the non-load-carrying fillet weld's test); the nominal stress is the force over the plate's
+    section at the toe. ``bending``: the part bent about the axis along the weld, the weld zone in
+    pure bending as between the inner rollers of a 4-point (or under a 3-point) bending fatigue
+    test, the top face (the first measured weld line's face, the sections' +y) stretched; the nominal
+    stress is the bending moment per unit width over the section modulus at the toe, 6 M / t^2 with
+    t the toe's plate thickness, with the top face's sign. ``nominal_stress_range_mpa``: the range
+    of that nominal stress in each load cycle, for the fatigue estimate (``stress.notch_stress``);
+    ``stress_ratio`` the cycle's smallest over its largest stress, recorded with it (the IIW notch
+    stress classes hold for any ratio as welded)."""
 
-    kind: Literal["axial"] = "axial"
+    kind: Literal["axial", "bending"] = "axial"
     nominal_stress_range_mpa: float | None = Field(default=None, gt=0, le=2000, description=(
-        "nominal stress range of a load cycle, MPa (force over the plate's section)"))
+        "nominal stress range of a load cycle, MPa (axial: force over the plate's section; bending: 6 M / t^2 at "
+        "the top face)"))
     stress_ratio: float | None = Field(default=None, ge=-1, lt=1, description="smallest over largest stress of a cycle")
 
 
@@ -464,7 +470,8 @@ class SampleManifest(StrictModel):
     sticker_diameter_mm: float | None = Field(default=None, gt=0, le=100)
     scanner: ScannerSettings | None = None
     load: LoadCase | None = Field(default=None, description=(
-        "the load the part is tested or designed for; none: axial tension across the weld, no fatigue estimate"))
+        "the load the part is tested or designed for (axial or bending); none: axial tension across the weld, no "
+        "fatigue estimate"))
     setups: list[Setup] = Field(min_length=1)
 
     @field_validator("weld", mode="wrap")

@@ -159,9 +159,11 @@ class StressSection(StrictModel):
     origin_specimen_mm: tuple[float, float, float]
     nodes: int
     elements: int
-    force_n_per_mm: float  # the force through it, per mm of the weld's length
-    imbalance: float  # |held + pulled| / pulled reaction
-    membrane_error: float | None  # the membrane stress in the plate windows against force / thickness, relative (the larger)
+    force_n_per_mm: float  # the force through it, per mm of the weld's length (bent: the net force, ~0)
+    imbalance: float  # |held + pulled| / pulled reaction (bent: the ends' moments about one point)
+    # the membrane stress in the plate windows against force / thickness, relative (the larger); bent: the
+    # bending stress at the surface against 6 M / t^2, or the membrane part over it, whichever is larger
+    membrane_error: float | None
     toes: list[ToeStress]
 
 

@@ -1,12 +1,12 @@
 """A linear static solve of a tetrahedral FE model by CalculiX (``ccx``, Debian's ``calculix-ccx``).
 
 The model goes in as arrays (nodes in mm, C3D4 or C3D10 tetrahedra in Abaqus node order, named
-node sets), the load case as prescribed displacements on node sets, one isotropic linear elastic
-material (N, mm, MPa); CalculiX runs in a child process of its own in a scratch folder, one
+node sets), the load case as prescribed displacements on node sets (one value for a set, or one
+per node of it), one isotropic linear elastic material (N, mm, MPa); CalculiX runs in a child process of its own in a scratch folder, one
 thread (the same model, the same numbers), killed past ``timeout_s`` and when this process dies.
 Out come the displacements, the stresses extrapolated to the nodes and averaged (CalculiX's
 ``*NODE FILE`` S, the ``.frd`` file) and the reaction force summed over each constrained set
-(``*NODE PRINT`` RF totals, the ``.dat`` file).
+(``*NODE PRINT`` RF totals, the ``.dat`` file), node by node as well for the sets asked for.
 
 A missing ``ccx`` raises CalculixNotFound; a model CalculiX refuses, or a run that ends without
 results, raises FESolveError with CalculiX's own last words.
@@ -55,20 +55,27 @@ class Material:
 
 @dataclass(frozen=True)
 class DisplacementCase:
-    """Node sets held or moved: ``fixed`` set name -> {dof (1 x, 2 y, 3 z): displacement mm}."""
+    """Node sets held or moved: ``prescribed`` set name -> {dof (1 x, 2 y, 3 z): displacement mm},
+    one value for the whole set or an array of one per node of it (in the set's order: a
+    ``*BOUNDARY`` line per node); ``reactions_per_node``: sets whose reactions are read node by
+    node as well as summed."""
 
     node_sets: dict[str, np.ndarray]
-    prescribed: dict[str, dict[int, float]]
+    prescribed: dict[str, dict[int, float | np.ndarray]]
+    reactions_per_node: tuple[str, ...] = ()
 
 
 @dataclass
 class FESolution:
     """Per node (in the model's node order): ``displacement_mm`` (n, 3), ``stress_mpa`` (n, 6: xx, yy,
-    zz, xy, yz, zx; nodes no element uses are NaN); ``reaction_n`` set name -> (3,) summed force."""
+    zz, xy, yz, zx; nodes no element uses are NaN); ``reaction_n`` set name -> (3,) summed force;
+    ``node_reaction_n`` set name -> (k, 3) each node's force in the set's order (the case's
+    ``reactions_per_node``)."""
 
     displacement_mm: np.ndarray
     stress_mpa: np.ndarray
     reaction_n: dict[str, np.ndarray] = field(default_factory=dict)
+    node_reaction_n: dict[str, np.ndarray] = field(default_factory=dict)
     log: str = ""
 
 
@@ -105,10 +112,15 @@ def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: Disp
                 "*SOLID SECTION, ELSET=EALL, MATERIAL=STEEL\n" + (f"{thickness_mm:.12e}\n" if plane else "")
                 + "*STEP\n*STATIC\n*BOUNDARY\n")
         for name, dofs in case.prescribed.items():
-            f.writelines(f"{name},{dof},{dof},{value:.12e}\n" for dof, value in sorted(dofs.items()))
+            for dof, value in sorted(dofs.items()):
+                if np.ndim(value) == 0:
+                    f.write(f"{name},{dof},{dof},{value:.12e}\n")
+                else:
+                    ids = np.asarray(case.node_sets[name], np.int64) + 1
+                    f.writelines(f"{i},{dof},{dof},{v:.12e}\n" for i, v in zip(ids, np.asarray(value, np.float64)))
         f.write("*NODE FILE\nU,S\n")
         for name in case.prescribed:
-            f.write(f"*NODE PRINT, NSET={name}, TOTALS=ONLY\nRF\n")
+            f.write(f"*NODE PRINT, NSET={name}, TOTALS={'YES' if name in case.reactions_per_node else 'ONLY'}\nRF\n")
         f.write("*END STEP\n")
 
 
@@ -140,6 +152,14 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
     missing = sorted(set(case.prescribed) - set(case.node_sets))
     if missing:
         raise ValueError(f"prescribed displacements on node sets not given: {missing}")
+    for name, dofs in case.prescribed.items():
+        for dof, value in dofs.items():
+            if np.ndim(value) != 0 and np.shape(value) != (len(case.node_sets[name]),):
+                raise ValueError(f"set {name}, dof {dof}: expected one displacement or one per node "
+                                 f"({len(case.node_sets[name])}), got shape {np.shape(value)}")
+    unread = sorted(set(case.reactions_per_node) - set(case.prescribed))
+    if unread:
+        raise ValueError(f"reactions per node asked of sets with no prescribed displacement: {unread}")
     place = (contextlib.nullcontext(workdir) if workdir is not None
              else tempfile.TemporaryDirectory(prefix="weldrecon-ccx-"))
     with place as where:
@@ -149,7 +169,10 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
         log = _run(ccx, folder, timeout_s)
         displacement, stress = _read_frd(folder / "job.frd", len(points))
         reactions = _read_totals(folder / "job.dat", list(case.prescribed))
-    return FESolution(displacement_mm=displacement, stress_mpa=stress, reaction_n=reactions, log=log)
+        per_node = _read_node_forces(folder / "job.dat",
+                                     {name: case.node_sets[name] for name in case.reactions_per_node})
+    return FESolution(displacement_mm=displacement, stress_mpa=stress, reaction_n=reactions, node_reaction_n=per_node,
+                      log=log)
 
 
 def _run(ccx: str, folder: Path, timeout_s: float) -> str:
@@ -202,6 +225,34 @@ def _read_totals(path: Path, names: list[str]) -> dict[str, np.ndarray]:
             values = next(v for v in text[i + 1:] if v.strip())
             totals[match.group(1).upper()] = np.array([float(v) for v in values.split()[:3]])
     return {name: totals[name.upper()] for name in names if name.upper() in totals}
+
+
+def _read_node_forces(path: Path, sets: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Each node's reaction force per node set (k, 3; in the set's order) from a CalculiX ``.dat``
+    (``*NODE PRINT, TOTALS=YES``: a line per node, node number first, after the set's heading)."""
+    if not sets:
+        return {}
+    text = path.read_text(encoding="ascii", errors="replace").splitlines()
+    forces: dict[str, dict[int, list[float]]] = {}
+    current = None
+    for line in text:
+        match = re.match(r"\s*forces \(fx,fy,fz\) for set (\S+)", line)
+        if match:
+            current = forces.setdefault(match.group(1).upper(), {})
+        elif current is not None and line.strip():
+            cells = line.split()
+            if len(cells) == 4 and cells[0].isdigit():
+                current[int(cells[0])] = [float(v) for v in cells[1:]]
+            else:
+                current = None
+    out = {}
+    for name, nodes in sets.items():
+        found = forces.get(name.upper(), {})
+        ids = np.asarray(nodes, np.int64) + 1
+        if any(int(i) not in found for i in ids):
+            raise FESolveError(f"{path.name}: no reaction for every node of set {name} in CalculiX's results")
+        out[name] = np.array([found[int(i)] for i in ids], np.float64).reshape(-1, 3)
+    return out
 
 
 def max_principal(stress: np.ndarray) -> np.ndarray:

@@ -1,20 +1,24 @@
 """Stage ``stress``: the stress concentration along every measured weld toe, from 2-D models of
-the part's cross-sections pulled as the fatigue test pulls it (``tasks.section_model``).
+the part's cross-sections pulled or bent as the fatigue test loads it (``tasks.section_model``).
 
 Every ``stress.section_step_mm`` along the first measured weld line, the part's section across
 the weld is read from the measured points (``tasks.plate_section``: both faces, smoothed, cut
 straight across ``stress.cut_mm`` inside the measured length), meshed with 6-node triangles
-finest at the toes the weld stage measured, and pulled along its length in plane strain, its
-ends held straight (as many sections in one CalculiX run as ``stress.max_nodes_per_solve`` nodes hold). Each toe's factor is the highest maximum
-principal stress on the outline within ``peak_reach_mm`` of it over the nominal stress, the force
-over the measured thickness of the toe's plate; each toe line's hot spot is its highest section,
-and the highest of all is checked again with elements half the size at the toes.
+finest at the toes the weld stage measured, and loaded in plane strain, its ends held straight
+(as many sections in one CalculiX run as ``stress.max_nodes_per_solve`` nodes hold): pulled along
+its length (the manifest's load ``axial``, or no load given: the butt weld's fatigue test) or bent,
+each end turned about its mid-thickness, the top face stretched (``bending``: a 4-point bending
+test's zone between its inner rollers). Each toe's factor is the highest maximum principal stress
+on the outline within ``peak_reach_mm`` of it over the nominal stress at the toe's plate (its
+measured thickness t): the force over t, or the moment over the section modulus, 6 M / t^2; each
+toe line's hot spot is its highest section, and the highest of all is checked again with elements
+half the size at the toes.
 
-Checks that cannot pass by accident, in ``stress.json``: the two ends' reactions equal (within
-0.1 %), and the membrane stress in each plate window (a line fitted through the thickness, read
-at mid-plane) the force over the thickness within 1 %. The load case is the butt weld's fatigue
-test: axial tension across the weld. A sample with no measured butt weld gets no model (said in
-``stress.json``, not an error).
+Checks that cannot pass by accident, in ``stress.json``: the two ends' reactions (forces;
+moments) equal within 0.1 %, and the stress through each plate window (a line fitted through the
+thickness) the nominal one within 1 %: pulled, its mid-plane value the force over the thickness;
+bent, its surface value 6 M / t^2 and its mid-plane value ~0. A sample with no measured butt weld
+gets no model (said in ``stress.json``, not an error).
 """
 
 from __future__ import annotations
@@ -36,15 +40,17 @@ from schemas.weld_document import WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
 from tasks.plate_section import (PlateProfile, SectionFrame, drawn_profile, plate_profile, profile_section,
                                  rounded_notches)
-from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, mesh_sections, peaks_near,
-                                 pull_sections)
+from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, SectionMesh, SectionSolution,
+                                 bend_sections, mesh_sections, peaks_near, pull_sections)
 from tasks.fatigue import notch_cycles
 from tasks.fe_solve import CalculixNotFound, FESolveError
 
-__all__ = ["stress", "MODEL", "notch_mesh"]
+__all__ = ["stress", "MODEL", "MODEL_BENDING", "notch_mesh"]
 
-MODEL = ("2-D sections across the weld, plane strain, 6-node triangles (CalculiX CPE6), steel (210 GPa, 0.3); "
-         "axial tension across the weld, both ends held straight")
+_SECTIONS = "2-D sections across the weld, plane strain, 6-node triangles (CalculiX CPE6), steel (210 GPa, 0.3); "
+MODEL = _SECTIONS + "axial tension across the weld, both ends held straight"
+MODEL_BENDING = (_SECTIONS + "pure bending about the weld's axis, the top face stretched: both ends held straight and "
+                 "turned about their mid-thickness")
 
 
 _FINEST_MM = 0.02  # the smallest element the toes get (a measured radius of 0.08 mm or under)
@@ -114,10 +120,25 @@ def _crossing(polyline: np.ndarray, frame: SectionFrame) -> np.ndarray | None:
     return polyline[hit[0]] if len(hit) else None
 
 
-def _membrane_error(solution, profile, x_from: float, x_to: float) -> float:
-    """The membrane stress in the plate window (a line through the thickness fitted to the nodes'
-    sigma_xx within 1 mm of the window's middle, read at mid-plane) against the force over the
-    model's thickness there, relative."""
+def _load_sections(meshes: list[SectionMesh], s, bending: bool) -> list[SectionSolution]:
+    """The sections pulled, or bent (``tasks.section_model``), in runs of ``s.max_nodes_per_solve`` nodes."""
+    solve = bend_sections if bending else pull_sections
+    return solve(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
+
+
+def _nominal_mpa(solution: SectionSolution, thickness_mm: float, bending: bool) -> float:
+    """The nominal stress at a toe whose plate is ``thickness_mm`` thick: the force over it, or bent
+    6 M / t^2 (the top face's); NaN where no plate was measured."""
+    if not thickness_mm > 0:
+        return math.nan
+    return 6 * solution.moment_nmm / thickness_mm ** 2 if bending else solution.force_n / thickness_mm
+
+
+def _plate_error(solution: SectionSolution, profile, x_from: float, x_to: float, bending: bool) -> float:
+    """The stress through the plate window (a line through the thickness fitted to the nodes'
+    sigma_xx within 1 mm of the window's middle) against the nominal one there, relative. Pulled:
+    its mid-plane value against the force over the thickness. Bent: the larger of its surface
+    value (slope times half the thickness) against 6 M / t^2 and its mid-plane value over that."""
     x_mid = 0.5 * (x_from + x_to)
     p = solution.mesh.points
     band = (np.abs(p[:, 0] - x_mid) < 1.0) & np.isfinite(solution.stress_mpa[:, 0])
@@ -126,7 +147,10 @@ def _membrane_error(solution, profile, x_from: float, x_to: float) -> float:
         return float("nan")
     A = np.c_[np.ones(int(band.sum())), p[band, 1] - 0.5 * (top + bottom)]
     coef, *_ = np.linalg.lstsq(A, solution.stress_mpa[band, 0], rcond=None)
-    return float(coef[0] / (solution.force_n / (top - bottom)) - 1)
+    if not bending:
+        return float(coef[0] / (solution.force_n / (top - bottom)) - 1)
+    surface = 6 * solution.moment_nmm / (top - bottom) ** 2
+    return max(float(coef[1] * (top - bottom) / 2 / surface - 1), float(coef[0] / surface), key=abs)
 
 
 def _to_specimen(frame: SectionFrame, xy) -> tuple[float, float, float]:
@@ -190,10 +214,11 @@ def stress(ctx) -> dict[str, Any]:
         models.append(_Model(sec, frame, profile, plane, crossing))
     if not models:
         return _not_made(ctx, "no section of the weld has both faces measured across it")
+    bending = ctx.manifest.load is not None and ctx.manifest.load.kind == "bending"
     try:
         meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
-        solutions = pull_sections(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
-        notch_peaks = _notch_peaks(models, s) if s.notch_stress else None
+        solutions = _load_sections(meshes, s, bending)
+        notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
     spacing = _point_spacing(points, [m.frame for m in models], s.half_width_mm)
@@ -207,14 +232,14 @@ def stress(ctx) -> dict[str, Any]:
             sign = -1.0 if toe.side == "minus" else 1.0
             window = (sign * near, sign * far)
             thickness = profile.thickness_mm(*window)
-            nominal = solution.force_n / thickness if thickness > 0 else math.nan  # NaN: no plate measured there
-            errors.append(_membrane_error(solution, profile, *window))
+            nominal = _nominal_mpa(solution, thickness, bending)
+            errors.append(_plate_error(solution, profile, *window, bending))
             factor = peak / nominal if math.isfinite(peak) and math.isfinite(nominal) else None
             notch = None
             if notch_peaks is not None:
-                peaks_rounded, notch_force = notch_peaks[index]
+                peaks_rounded, notch_solution = notch_peaks[index]
                 notch_peak, notch_at = peaks_rounded[j]
-                notch_nominal = notch_force / thickness if thickness > 0 else math.nan
+                notch_nominal = _nominal_mpa(notch_solution, thickness, bending)
                 if math.isfinite(notch_peak) and math.isfinite(notch_nominal):
                     notch = notch_peak / notch_nominal
                     notch_factors.setdefault((toe.line, toe.side), []).append(
@@ -247,9 +272,8 @@ def stress(ctx) -> dict[str, Any]:
         model = models[k]
         half = (model.plane.fine_size_mm or s.toe_size_mm) / 2
         try:
-            (solution,) = pull_sections(mesh_sections([replace(model.plane, fine_size_mm=half)], settings,
-                                                      timeout_s=s.timeout_s),
-                                        timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
+            (solution,) = _load_sections(mesh_sections([replace(model.plane, fine_size_mm=half)], settings,
+                                                       timeout_s=s.timeout_s), s, bending)
             j = next(i for i, c in enumerate(model.toes) if (c.line, c.side) == (hot.line, hot.side))
             (peak, _), = peaks_near(solution, model.toes[j].xy[None], s.peak_reach_mm)
             toe = sections[k].toes[j]
@@ -257,14 +281,14 @@ def stress(ctx) -> dict[str, Any]:
             HOT_SECTION.write(ctx.out, HotSection(
                 points_mm=hot_solution.mesh.points, triangles=hot_solution.mesh.triangles[:, :3].astype(np.int64),
                 factor=(hot_solution.max_principal_mpa / toe.nominal_mpa).astype(np.float32), toe_mm=model.toes[j].xy))
-            finer_factor = peak / (solution.force_n / toe.plate_thickness_mm)
+            finer_factor = peak / _nominal_mpa(solution, toe.plate_thickness_mm, bending)
             convergence = StressConvergence(position_mm=hot.position_mm, line=hot.line, side=hot.side,
                                             toe_size_mm=round(half, 5), factor=hot.factor,
                                             finer_factor=round(finer_factor, 4),
                                             change=round(finer_factor / hot.factor - 1, 5))
         except (SectionMeshError, FESolveError) as exc:
             return _not_made(ctx, f"the hot spot's section did not solve with finer elements: {exc}")
-    drawn = _drawn(ctx.manifest, geometry, up, across, s)
+    drawn = _drawn(ctx.manifest, geometry, up, across, s, bending)
     fatigue, basis = _fatigue(ctx.manifest, notch_hot_spots, s)
     write_section_vtu(ctx.out / STRESS_VTU.name, [(m.frame.origin, m.frame.across, m.frame.up) for m in models],
                       solutions)
@@ -272,7 +296,8 @@ def stress(ctx) -> dict[str, Any]:
     membrane = [x.membrane_error for x in sections if x.membrane_error is not None]
     radii = [t.toe_radius_mm for x in sections for t in x.toes if t.toe_radius_mm is not None]
     summary = StressSummary(
-        made=True, model=MODEL, driving_line=driving.name, sections=sections, hot_spots=hot_spots, hot_spot=hot,
+        made=True, model=MODEL_BENDING if bending else MODEL, driving_line=driving.name, sections=sections,
+        hot_spots=hot_spots, hot_spot=hot,
         convergence=convergence, max_imbalance=imbalance, max_membrane_error=max(membrane, key=abs) if membrane else None,
         notch_radius_mm=s.notch_radius_mm if s.notch_stress else None, notch_hot_spots=notch_hot_spots,
         fatigue=fatigue, fatigue_basis=basis, drawn=drawn,
@@ -306,16 +331,16 @@ def notch_mesh(s) -> tuple[SectionMeshSettings, float]:
     return settings, max(s.peak_reach_mm, 1.5 * s.notch_radius_mm)
 
 
-def _notch_peaks(models: list[_Model], s) -> list[tuple[list[tuple[float, np.ndarray]], float]]:
+def _notch_peaks(models: list[_Model], s,
+                 bending: bool) -> list[tuple[list[tuple[float, np.ndarray]], SectionSolution]]:
     """Per model: each toe's (peak, where) with the section's notches rounded to
     ``s.notch_radius_mm`` (``tasks.plate_section.rounded_notches``, meshed as ``notch_mesh``), and
-    the force through it."""
+    its solution (loaded as the measured sections are)."""
     planes = [profile_section(rounded_notches(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
                               fine_mm=np.array([c.xy for c in m.toes])) for m in models]
     settings, reach = notch_mesh(s)
-    solutions = pull_sections(mesh_sections(planes, settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
-                              max_nodes_per_run=s.max_nodes_per_solve)
-    return [(peaks_near(sol, np.array([c.xy for c in m.toes]), reach), sol.force_n) for m, sol in zip(models, solutions)]
+    solutions = _load_sections(mesh_sections(planes, settings, timeout_s=s.timeout_s), s, bending)
+    return [(peaks_near(sol, np.array([c.xy for c in m.toes]), reach), sol) for m, sol in zip(models, solutions)]
 
 
 def _point_spacing(points: np.ndarray, frames: list[SectionFrame], half_width_mm: float) -> float | None:
@@ -332,10 +357,10 @@ def _point_spacing(points: np.ndarray, frames: list[SectionFrame], half_width_mm
     return float(np.median(distance[:, 1]))
 
 
-def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray, s) -> DrawnStress:
+def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray, s, bending: bool) -> DrawnStress:
     """The drawn weld's section (``tasks.plate_section.drawn_profile``): the manifest's plate
     thickness, each weld line's cap the median width and height measured along it, its toes
-    rounded to ``s.notch_radius_mm``; pulled as the measured sections are."""
+    rounded to ``s.notch_radius_mm``; pulled or bent as the measured sections are."""
     thickness = getattr(manifest.specimen, "thickness_mm", None)
     if thickness is None:
         return DrawnStress(made=False, why=f"the manifest's {manifest.specimen.kind if manifest.specimen else 'sample'} "
@@ -362,11 +387,10 @@ def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray,
     plane = profile_section(profile, cut_mm=0.0, fine_mm=np.array([t[2] for t in toes]))
     settings, reach = notch_mesh(s)
     try:
-        (solution,) = pull_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), timeout_s=s.timeout_s,
-                                    max_nodes_per_run=s.max_nodes_per_solve)
+        (solution,) = _load_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), s, bending)
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return DrawnStress(made=False, why=f"the drawn weld's section did not solve: {exc}")
-    nominal = solution.force_n / thickness
+    nominal = _nominal_mpa(solution, thickness, bending)
     peaks = peaks_near(solution, np.array([t[2] for t in toes]), reach)
     return DrawnStress(made=True, thickness_mm=float(thickness), notch_radius_mm=s.notch_radius_mm, caps=caps, toes=[
         DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,

@@ -33,6 +33,19 @@ def test_good_manifest_loads(tmp_path, good):
     assert manifest.units == "mm" and len(manifest.passes()) == 14
 
 
+def test_the_load_reads_as_written_and_a_load_without_its_kind_is_axial(tmp_path, good):
+    """Schema 1.1's optional load: none is left out when written back, a load without ``kind`` (every
+    manifest written before bending) is axial, a bending load reads and writes back as bending."""
+    assert "load" not in json.loads(_load(tmp_path, good).model_dump_json())
+    axial = _load(tmp_path, {**good, "load": {"nominal_stress_range_mpa": 80.0}})
+    assert axial.load.kind == "axial" and axial.schema_version == "1.1"
+    bending = _load(tmp_path, {**good, "load": {"kind": "bending", "nominal_stress_range_mpa": 120.0,
+                                                "stress_ratio": 0.1}})
+    written = json.loads(bending.model_dump_json())
+    assert written["load"] == {"kind": "bending", "nominal_stress_range_mpa": 120.0, "stress_ratio": 0.1}
+    assert _load(tmp_path, written) == bending
+
+
 @pytest.mark.parametrize(
     ("edit", "where", "message"),
     [
@@ -53,6 +66,7 @@ def test_good_manifest_loads(tmp_path, good):
          "(top level)", "pass ids must be unique"),
         (lambda m: m.update(created="2026-01-05T08:00:00"), "created", "timezone"),
         (lambda m: m["scanner"].update(z_range_mm=[300, 100]), "scanner.z_range_mm", "near < far"),
+        (lambda m: m.update(load={"kind": "torsion"}), "load.kind", "'axial' or 'bending'"),
     ],
 )
 def test_bad_manifest_names_the_field(tmp_path, good, edit, where, message):

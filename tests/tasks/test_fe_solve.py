@@ -116,6 +116,12 @@ def test_bad_input_is_named():
         solve_static(points, np.array([[0, 1, 2, 3]]), case)
     with pytest.raises(ValueError, match=r"\(e, 4\) or \(e, 10\)"):
         solve_static(points, np.array([[0, 1, 2]]), DisplacementCase({}, {}))
+    tet = np.array([[0, 1, 2, 3]])
+    with pytest.raises(ValueError, match=r"set A, dof 1: expected one displacement or one per node \(2\), got shape"):
+        solve_static(points, tet, DisplacementCase({"A": np.array([0, 1])}, {"A": {1: np.zeros(3)}}))
+    with pytest.raises(ValueError, match=r"reactions per node asked of sets with no prescribed displacement: \['B'\]"):
+        solve_static(points, tet, DisplacementCase({"A": np.array([0]), "B": np.array([1])}, {"A": {1: 0.0}},
+                                                   reactions_per_node=("B",)))
 
 
 def test_a_missing_solver_is_one_clear_error(monkeypatch):
