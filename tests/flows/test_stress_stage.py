@@ -214,3 +214,16 @@ def test_a_bending_load_bends_the_sections(ci_run, ci_sample, tmp_path):
     assert summary.drawn.made
     for t in summary.drawn.toes:
         assert (1.2 < t.factor < 3.5) if t.line == "top" else t.factor < 0.1, summary.drawn.toes
+
+
+@pytest.mark.parametrize("model, says", [
+    ("2-D sections ...; axial tension across the weld", "its membrane stress off the force over its thickness"),
+    ("2-D sections ...; pure bending about the weld's axis", "its bending stress at the surface off 6 M / t^2"),
+])
+def test_a_failed_plate_check_says_what_it_checked_for_the_load(model, says):
+    from flows.stages.report import stress_check
+    from schemas.stage_documents import StressSummary
+
+    check = stress_check(StressSummary(made=True, model=model, sections=[], max_imbalance=1e-6,
+                                       max_membrane_error=0.05))
+    assert check.result == "flagged" and f"the plate's check: {says} by 0.05" in check.what
