@@ -7,7 +7,9 @@ with ``truth/weld_sections.json`` at its position: toe radius (as welded: the fi
 the groove's), flank angle, reinforcement height (the drawn profile's peak, ripple included),
 groove depth, width and undercut. A treated toe's flank angle and the treated weld's width are not
 compared: the drawn flank at the toe is cut away by the groove (the stage reports the flank just
-above it, and the width between where the grooves meet the weld). Median and worst absolute error, and the median signed error.
+above it, and the width between where the grooves meet the weld). A T-joint's fillet welds are
+compared with ``truth/fillet_weld.json``: legs, throat, convexity, each toe's radius and angle.
+Median and worst absolute error, and the median signed error.
 
     .venv/bin/python bench/bench_weld_geometry.py SAMPLE_DIR CONFIG.yaml WORK_DIR [--json OUT.json]
 
@@ -31,7 +33,8 @@ from data_catalog.stages import StageStore  # noqa: E402
 from flows.preflight import load_config  # noqa: E402
 from flows.stages import run_in_process  # noqa: E402
 from flows.stages.outputs import REFINED, WELD_GEOMETRY  # noqa: E402
-from simulator.evaluate import T_true_specimen_nominal, summarise_weld_errors, weld_errors  # noqa: E402
+from data_catalog.truth import FILLET_TRUTH_NAME, TRUTH_DIR  # noqa: E402
+from simulator.evaluate import T_true_specimen_nominal, fillet_errors, summarise_weld_errors, weld_errors  # noqa: E402
 
 
 def main() -> int:
@@ -48,10 +51,14 @@ def main() -> int:
     seconds = time.perf_counter() - t0
     geometry = WELD_GEOMETRY.read(refs["weld"])
     T_true_nominal = T_true_specimen_nominal(args.sample, manifest, REFINED.open(refs["refine"]))
-    result = {"sample": manifest.sample_id, "treatment": geometry["treatment"],
-              "sections": geometry.get("summary", {}).get("sections"), "verdict": geometry.get("summary", {}).get("verdict"),
+    fillet = (args.sample / TRUTH_DIR / FILLET_TRUTH_NAME).exists()
+    errors = (fillet_errors if fillet else weld_errors)(args.sample, geometry, T_true_nominal)
+    summary = geometry.summary
+    result = {"sample": manifest.sample_id, "treatment": geometry.treatment,
+              "sections": None if summary is None else summary.sections,
+              "verdict": None if summary is None else summary.verdict,
               "weld_stage_seconds": refs["weld"].metrics.get("seconds"), "run_seconds": round(seconds, 1),
-              "errors": summarise_weld_errors(weld_errors(args.sample, geometry, T_true_nominal))}
+              "errors": summarise_weld_errors(errors)}
     print(f"{result['sample']} ({result['treatment']}): {result['sections']} sections, weld stage "
           f"{result['weld_stage_seconds']} s, verdict {result['verdict']}")
     print(f"{'figure':42s} {'n':>5s} {'median |e|':>11s} {'p90 |e|':>9s} {'worst |e|':>10s} {'median e':>9s}")

@@ -19,13 +19,14 @@ import zarr
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.passes import check_complete, create_chunked_array
-from schemas.truth import GroundTruth, TrueToeLines, WeldTruth
+from schemas.truth import FilletWeldTruth, GroundTruth, TrueToeLines, WeldTruth
 
 __all__ = ["TRUTH_DIR", "WELD_TRUTH_NAME", "TruthPassWriter", "TruthPass", "read_truth_pass", "write_truth", "read_truth",
-           "write_weld_truth", "read_weld_truth", "read_true_toes"]
+           "write_weld_truth", "read_weld_truth", "read_true_toes", "FILLET_TRUTH_NAME", "read_fillet_truth"]
 
 TRUTH_DIR = "truth"
 WELD_TRUTH_NAME = "weld_sections.json"  # schemas.truth.WeldTruth: the drawn weld every 1 mm
+FILLET_TRUTH_NAME = "fillet_weld.json"  # schemas.truth.FilletWeldTruth: a T-joint's fillets every 1 mm
 
 
 class TruthPassWriter:
@@ -82,3 +83,8 @@ def read_weld_truth(path: Path) -> WeldTruth:
 def read_true_toes(path: Path) -> TrueToeLines:
     """``truth/toes.json``: the true toe lines of a fillet-welded part."""
     return TrueToeLines.model_validate(json.loads(Path(path).read_text()))
+
+
+def read_fillet_truth(path: Path) -> FilletWeldTruth:
+    """``truth/fillet_weld.json``: a T-joint's fillet welds as drawn."""
+    return FilletWeldTruth.model_validate_json(Path(path).read_text(encoding="utf-8"))

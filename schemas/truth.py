@@ -116,6 +116,34 @@ class WeldTruth(StrictModel):
     sections: list[WeldSectionDetail]
 
 
+class FilletSectionTruth(StrictModel):
+    """A T-joint's fillet weld as drawn at one station ``y_mm``: its legs along the base and up
+    the stem from the root (to the corners the toes' roundings replace), the toe angles (the
+    face's tangent at each corner against its plate), the toe radii, the face's largest rise
+    above the legs' chord (convexity) and the throat (the root's height over that chord)."""
+
+    weld: str = Field(description="the manifest's weld line (the root)")
+    y_mm: float
+    leg_base_mm: float
+    leg_stem_mm: float
+    toe_angle_deg: tuple[float, float] = Field(description="base toe, stem toe")
+    face_angle_deg: tuple[float, float] = Field(description=(
+        "base toe, stem toe: the face's direction against its plate where it starts after the toe's "
+        "rounding (the rounding is tangent to the corner's tangent line; a convex face has turned "
+        "away from it by then)"))
+    toe_radius_mm: tuple[float, float] = Field(description="base toe, stem toe")
+    convexity_mm: float
+    throat_mm: float
+
+
+class FilletWeldTruth(StrictModel):
+    """``truth/fillet_weld.json``: a T-joint's fillet welds as drawn every ``step_mm``."""
+
+    schema_version: Literal["1.0"] = "1.0"
+    step_mm: float
+    sections: list[FilletSectionTruth]
+
+
 class TrueToeLine(StrictModel):
     """One weld toe as it was drawn: a polyline along the weld (specimen frame, mm), where the weld's
     face meets the plate (the middle of the toe's rounding)."""

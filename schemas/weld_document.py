@@ -6,6 +6,10 @@ validation error where the file is read, not a missing key deep in a consumer.
 Frames: ``centre_specimen_mm``, ``face_normal`` and ``across`` are in the specimen frame (the
 frame of the manifest's weld lines, placed by ``flows.stages.frames.weld_frame``); positions along
 a line are from the line's first point, mm. A figure the fits could not determine is ``None``.
+
+A butt weld's sections are ``WeldSection`` (toes ``minus`` and ``plus`` across the weld); a fillet
+weld's (a T-joint's or a cruciform's, ``tasks.fillet_section``) are ``FilletWeldSection`` (toes
+``base`` and ``stem``, on the plate each stands on; legs, throat, convexity).
 """
 
 from __future__ import annotations
@@ -17,16 +21,19 @@ from pydantic import Field
 from schemas.acceptance import AcceptanceRule
 from schemas.common import StrictModel
 
-__all__ = ["Figure", "GrooveFigures", "ToeFigures", "SectionToes", "Finding", "WeldSection", "WeldLineFound",
-           "SectionWhere", "FigureStatistics", "WeldSummary", "WeldGeometry", "TOE_SIDES", "TOE_FIGURES",
-           "SECTION_FIGURES"]
+__all__ = ["Figure", "GrooveFigures", "ToeFigures", "SectionToes", "FilletToes", "Finding", "WeldSection",
+           "FilletWeldSection", "WeldLineFound", "SectionWhere", "FigureStatistics", "WeldSummary", "WeldGeometry",
+           "TOE_SIDES", "FILLET_TOE_SIDES", "TOE_FIGURES", "SECTION_FIGURES", "FILLET_SECTION_FIGURES"]
 
 TOE_SIDES = ("minus", "plus")
+FILLET_TOE_SIDES = ("base", "stem")
+ToeSide = Literal["minus", "plus", "base", "stem"]
 # the figures measured per toe and per section, as named in the document and in the acceptance rules
 TOE_FIGURES = ("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "groove_depth_mm", "groove_width_mm",
                "groove_radius_mm")
 SECTION_FIGURES = ("reinforcement_height_mm", "reinforcement_width_mm", "axial_misalignment_mm",
                    "angular_misalignment_deg")
+FILLET_SECTION_FIGURES = ("leg_base_mm", "leg_stem_mm", "throat_mm", "convexity_mm")
 
 
 class Figure(StrictModel):
@@ -48,8 +55,10 @@ class GrooveFigures(StrictModel):
 
 
 class ToeFigures(StrictModel):
-    side: Literal["minus", "plus"]
-    position_u_mm: float  # across the weld from the section's centre: where the flank meets the plate (or the groove)
+    side: ToeSide
+    # where the flank meets the plate (or the groove): a butt weld's across the weld from the
+    # section's centre, a fillet weld's along its plate from the root (the leg)
+    position_u_mm: float
     position_sigma_mm: float | None
     flank_angle_deg: Figure
     toe_radius_mm: Figure = Field(description=(
@@ -79,12 +88,25 @@ class SectionToes(StrictModel):
         return self.minus is not None and self.plus is not None
 
 
+class FilletToes(StrictModel):
+    """A fillet weld section's toes: on the base plate and on the stem."""
+
+    base: ToeFigures | None
+    stem: ToeFigures | None
+
+    def sides(self) -> list[tuple[str, ToeFigures | None]]:
+        return [("base", self.base), ("stem", self.stem)]
+
+    def both(self) -> bool:
+        return self.base is not None and self.stem is not None
+
+
 class Finding(StrictModel):
     """A figure that breaks (``failing``) or straddles (``uncertain``) an acceptance limit."""
 
     line: str
     position_mm: float
-    toe: Literal["minus", "plus"] | None  # None: a section figure
+    toe: ToeSide | None  # None: a section figure
     figure: str
     value: float | None
     limit: str  # e.g. ">= 0.2", "groove required", "not measured"
@@ -112,6 +134,43 @@ class WeldSection(StrictModel):
         return getattr(self, name)
 
 
+class FilletWeldSection(StrictModel):
+    """A fillet weld's section (``tasks.fillet_section``): ``centre_specimen_mm`` is its root (where
+    the plates' fitted faces cross), ``base_direction`` the base plate's face outward from it and
+    ``stem_direction`` the stem's face upward (unit, specimen frame), ``plates_angle_deg`` the angle
+    between them; each toe's ``position_u_mm`` is its leg."""
+
+    line: str
+    position_mm: float
+    centre_specimen_mm: tuple[float, float, float]
+    points: int
+    base_direction: tuple[float, float, float]
+    stem_direction: tuple[float, float, float]
+    plates_angle_deg: float | None
+    leg_base_mm: Figure
+    leg_stem_mm: Figure
+    throat_mm: Figure
+    convexity_mm: Figure
+    toes: FilletToes
+    passed: bool | None  # None: no acceptance rule
+    verdict: Literal["pass", "fail", "uncertain", "not measured"] | None
+    violations: list[Finding]
+    uncertain: list[Finding]
+    note: str | None = None
+
+    def figure(self, name: str) -> Figure:
+        """One of ``FILLET_SECTION_FIGURES`` by name."""
+        return getattr(self, name)
+
+    def toe_specimen_mm(self, side: str) -> tuple[float, float, float] | None:
+        """Where the toe on ``side`` ("base" or "stem") is, specimen frame."""
+        toe = getattr(self.toes, side)
+        if toe is None:
+            return None
+        direction = self.base_direction if side == "base" else self.stem_direction
+        return tuple(c + toe.position_u_mm * d for c, d in zip(self.centre_specimen_mm, direction))
+
+
 class WeldLineFound(StrictModel):
     """A weld line as the sections found it on the data (specimen frame)."""
 
@@ -127,7 +186,7 @@ class WeldLineFound(StrictModel):
 class SectionWhere(StrictModel):
     line: str
     position_mm: float
-    toe: Literal["minus", "plus"] | None = None
+    toe: ToeSide | None = None
 
 
 class FigureStatistics(StrictModel):
@@ -169,7 +228,7 @@ class WeldGeometry(StrictModel):
     statistics: dict[str, FigureStatistics] = {}
     failing: list[Finding] = []
     uncertain: list[Finding] = []
-    sections: list[WeldSection] = []
+    sections: list[WeldSection | FilletWeldSection] = []
 
     def line(self, name: str) -> WeldLineFound:
         for line in self.lines:

@@ -15,7 +15,8 @@ import numpy as np
 
 from data_catalog.manifests import load_manifest
 from data_catalog.passes import read_pass
-from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, read_truth, read_truth_pass, read_weld_truth
+from data_catalog.truth import (FILLET_TRUTH_NAME, TRUTH_DIR, WELD_TRUTH_NAME, read_fillet_truth, read_truth,
+                                read_truth_pass, read_weld_truth)
 from schemas.truth import Material, PointLabel
 from schemas.weld_document import WeldGeometry
 from tasks.ingest import profile_points, sensor_poses
@@ -164,6 +165,48 @@ def weld_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: n
                 add("groove_width_mm", groove.width_mm.value, at(lambda r: r.groove_width_mm[k]))
                 add("groove_radius_mm (toe radius, treated)", groove.radius_mm.value,
                     at(lambda r: r.groove_radius_mm[k]))
+    return errors
+
+
+def fillet_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: np.ndarray) -> dict[str, list[tuple[float, float]]]:
+    """A fillet weld's ``weld_geometry.json`` against ``truth/fillet_weld.json`` (a T-joint's):
+    figure -> [(measured - true, true)] over every measured section and toe, each section's root
+    placed in the true specimen frame and compared with the drawn fillet of its line there
+    (interpolated along y)."""
+    truth = read_fillet_truth(Path(sample) / TRUTH_DIR / FILLET_TRUTH_NAME)
+    by_line: dict[str, list] = {}
+    for s in truth.sections:
+        by_line.setdefault(s.weld, []).append(s)
+    errors: dict[str, list[tuple[float, float]]] = {}
+
+    def add(name, measured, true):
+        if measured is not None and np.isfinite(measured):
+            errors.setdefault(name, []).append((float(measured) - float(true), float(true)))
+
+    R, t = T_true_specimen_nominal[:3, :3], T_true_specimen_nominal[:3, 3]
+    for sec in geometry.sections:
+        rows = by_line.get(sec.line)
+        if not rows:
+            continue
+        y = float((R @ np.asarray(sec.centre_specimen_mm) + t)[1])
+        ys = np.array([r.y_mm for r in rows])
+
+        def at(get):
+            return float(np.interp(y, ys, [get(r) for r in rows]))
+
+        for name, true in (("leg_base_mm", at(lambda r: r.leg_base_mm)), ("leg_stem_mm", at(lambda r: r.leg_stem_mm)),
+                           ("throat_mm", at(lambda r: r.throat_mm)), ("convexity_mm", at(lambda r: r.convexity_mm))):
+            add(name, sec.figure(name).value, true)
+        for k, (side, toe) in enumerate(sec.toes.sides()):
+            if toe is None:
+                continue
+            true_r = at(lambda r: r.toe_radius_mm[k])
+            add(f"toe_radius_mm ({side})", toe.toe_radius_mm.value, true_r)
+            if true_r >= 0.5:
+                add("toe_radius_mm (r >= 0.5)", toe.toe_radius_mm.value, true_r)
+            add(f"toe_angle_deg ({side})", toe.flank_angle_deg.value, at(lambda r: r.toe_angle_deg[k]))
+            add(f"toe angle against the face past the rounding ({side})", toe.flank_angle_deg.value,
+                at(lambda r: r.face_angle_deg[k]))
     return errors
 
 

@@ -28,7 +28,7 @@ from data_catalog.atomic import atomic_directory, atomic_write_text
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
-from data_catalog.truth import TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
+from data_catalog.truth import FILLET_TRUTH_NAME, TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
 from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
                               ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
 from schemas.simulation import SimulationConfig
@@ -384,9 +384,10 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
         write_truth(tmp / TRUTH_DIR / "truth.json", truth)
         if tj is None:  # the drawn butt weld, section by section
             write_weld_truth(tmp / TRUTH_DIR / WELD_TRUTH_NAME, _weld_truth(specimen, config.weld.treatment))
-        else:  # the true toe lines
+        else:  # the true toe lines, and the fillets as drawn every 1 mm
             atomic_write_text(tmp / TRUTH_DIR / TOES_NAME, TrueToeLines(
                 sample_id=config.sample_id, toes=specimen.toes).model_dump_json(indent=1) + "\n")
+            atomic_write_text(tmp / TRUTH_DIR / FILLET_TRUTH_NAME, specimen.fillet_truth().model_dump_json(indent=1) + "\n")
         # a dog-bone's config is written as before T-joints existed (no "tjoint": null)
         atomic_write_text(tmp / TRUTH_DIR / "simulation.json",
                           config.model_dump_json(indent=2, exclude={"tjoint"} if tj is None else None) + "\n")

@@ -23,14 +23,15 @@ import numpy as np
 
 from schemas.manifest import TJointSpecimen, WeldLine
 from schemas.simulation import TrueMeshConfig, SimulationConfig, TJointConfig, WeldConfig
-from schemas.truth import TrueToeLine
+from schemas.truth import FilletSectionTruth, FilletWeldTruth, TrueToeLine
 from simulator.robot import PlannedPass, _sensor_frame
 from simulator.scene import StickerSet
 from simulator.specimen import Face, SurfaceMesh
 from simulator.stickers import Candidates, fixture_stickers_beside
 from simulator.weld import _smooth
 
-__all__ = ["TJoint", "build_tjoint", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes",
+__all__ = ["TJoint", "build_tjoint", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes", "constant_fillet",
+           "fillet_profile", "fillet_truth",
            "tjoint_sticker_candidates", "wall_sticker_picks", "place_tjoint_fixture_stickers"]
 
 _N_ARC = 8  # interior nodes of each toe's rounding
@@ -55,6 +56,16 @@ class TJoint:
     config: TJointConfig
     mesh: SurfaceMesh
     toes: list[TrueToeLine]
+    fillets: dict  # +1 / -1 (the weld on the x > 0 / x < 0 side) -> its drawn _Fillet
+
+    def fillet_truth(self, step_mm: float = 1.0) -> FilletWeldTruth:
+        """Both fillets as drawn every ``step_mm`` across the base plate's width (the x < 0 one
+        mirrored: the same figures)."""
+        half = self.config.base_width_mm / 2
+        names = {1: "fillet-pos", -1: "fillet-neg"}
+        return FilletWeldTruth(step_mm=step_mm, sections=[
+            fillet_truth(self.config, self.fillets[side], float(y), names[side])
+            for side in (-1, 1) for y in np.arange(-half, half + 1e-9, step_mm)])
 
     def weld_zone_half_mm(self) -> float:
         return float(self.config.leg_mm[1]) + 1.5
@@ -107,6 +118,104 @@ def _arc(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, r: float) -> tuple[
     return start, pts, mid
 
 
+@dataclass(frozen=True)
+class _Shape:
+    """One fillet at one station, x > 0 side, in (x, z): the legs, the corners B (on the base) and
+    S (on the stem), the toe radii, the face's points at chord fractions s and its rise above the
+    chord, its tangents at B and S (not unit: the rounding needs their length) and the chord's
+    length."""
+
+    leg_base: float
+    leg_stem: float
+    B: np.ndarray
+    S: np.ndarray
+    r_base: float
+    r_stem: float
+    face: object
+    rise: object
+    tangent_b: np.ndarray
+    tangent_s: np.ndarray
+    length: float
+
+
+def _shape(tj: TJointConfig, f: _Fillet, y: float) -> _Shape:
+    x0, z0 = tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
+    ya = np.array([y])
+    a, b = float(f.leg_base(ya)[0]), float(f.leg_stem(ya)[0])
+    h, p = float(f.convexity(ya)[0]), tj.shape_exponent
+    B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
+    chord = S - B
+    length = float(np.linalg.norm(chord))
+    n = np.array([b, a]) / length
+
+    def rise(s: np.ndarray) -> np.ndarray:
+        w = np.abs(2 * s - 1)
+        u = (s - 0.5) * length
+        phase = 2 * np.pi * (y + 0.15 * u**2) / f.ripple_wavelength_mm + f.ripple_phase
+        return h * (1 - w**p) + f.ripple_amplitude_mm * (1 - w**2) * np.cos(phase)
+
+    def face(s: np.ndarray) -> np.ndarray:
+        return B + s[:, None] * chord + rise(s)[:, None] * n
+
+    return _Shape(a, b, B, S, float(f.toe_radius_base(ya)[0]), float(f.toe_radius_stem(ya)[0]), face, rise,
+                  chord + 2 * h * p * n, chord - 2 * h * p * n, length)
+
+
+def fillet_truth(tj: TJointConfig, f: _Fillet, y: float, weld: str) -> FilletSectionTruth:
+    """The fillet as drawn at station y (``schemas.truth.FilletSectionTruth``)."""
+    sh = _shape(tj, f, y)
+    e_b = sh.tangent_b / np.linalg.norm(sh.tangent_b)
+    e_s = sh.tangent_s / np.linalg.norm(sh.tangent_s)
+    # the face leaves B toward the stem at e_b over the base (heading -x), S toward the base at -e_s along the stem (-z)
+    angles = (float(np.degrees(np.arctan2(e_b[1], -e_b[0]))), float(np.degrees(np.arccos(np.clip(e_s[1], -1, 1)))))
+    # where the face starts after each rounding (the roundings are tangent to the corners' tangent
+    # lines, as _half_outline draws them) and its direction there, away from the toe
+    s0, s1 = (_rounding_length(e, r) / float(np.linalg.norm(tangent)) for e, r, tangent in (
+        (e_b @ np.array([-1.0, 0.0]), sh.r_base, sh.tangent_b), (e_s @ np.array([0.0, 1.0]), sh.r_stem, sh.tangent_s)))
+    ds = 1e-6
+    away_b = sh.face(np.array([s0 + ds]))[0] - sh.face(np.array([s0]))[0]
+    away_s = sh.face(np.array([1 - s1 - ds]))[0] - sh.face(np.array([1 - s1]))[0]
+    face = (float(np.degrees(np.arctan2(away_b[1], -away_b[0]))),
+            float(np.degrees(np.arctan2(away_s[0], -away_s[1]))))
+    convexity = float(sh.rise(np.linspace(0.0, 1.0, 20001)).max())
+    throat = sh.leg_base * sh.leg_stem / sh.length + min(convexity, 0.0)
+    return FilletSectionTruth(weld=weld, y_mm=float(y), leg_base_mm=sh.leg_base, leg_stem_mm=sh.leg_stem,
+                              toe_angle_deg=angles, face_angle_deg=face, toe_radius_mm=(sh.r_base, sh.r_stem),
+                              convexity_mm=convexity, throat_mm=throat)
+
+
+def constant_fillet(*, leg_base: float, leg_stem: float, convexity: float, toe_radius_base: float,
+                    toe_radius_stem: float, ripple_amplitude_mm: float = 0.0, ripple_wavelength_mm: float = 2.0,
+                    ripple_phase: float = 0.0) -> _Fillet:
+    """A fillet of the same figures all along (for known answers)."""
+    def const(v):
+        return lambda y: np.full(np.shape(y), float(v))
+    return _Fillet(const(leg_base), const(leg_stem), const(convexity), const(toe_radius_base), const(toe_radius_stem),
+                   ripple_amplitude_mm, ripple_wavelength_mm, ripple_phase)
+
+
+def fillet_profile(tj: TJointConfig, f: _Fillet, y: float, spacing_mm: float) -> np.ndarray:
+    """The x > 0 half of the part's outline at station y as a scanner's profile would sample it:
+    (k, 2) points every ``spacing_mm`` along it (the base plate's face from its end, the weld, the
+    stem's face up to its end), in (a, b) from the nominal root: a along the base away from the
+    stem, b up the stem (mm)."""
+    leg = float(np.mean(tj.leg_mm))
+    x0, z0 = tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
+    fine = min(spacing_mm / 4, 0.01)
+    fr = {"weld": _both_ends(fine, fine, leg * np.sqrt(2)), "stem": _graded(tj.stem_height_mm - leg, fine, fine)}
+    fr["base"] = np.concatenate([[0.0], np.sort(1 - _graded(tj.base_length_mm / 2 - x0 - leg, fine, fine)[1:])])
+    nodes = _half_outline(tj, f, y, fr)[0]
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(nodes, axis=0), axis=1))])
+    t = np.arange(0.0, along[-1], spacing_mm)
+    return np.stack([np.interp(t, along, nodes[:, 0]) - x0, np.interp(t, along, nodes[:, 1]) - z0], 1)
+
+
+def _rounding_length(cos_turn: float, r: float) -> float:
+    """How far from a corner a rounding of radius r starts and ends (``_arc``), the path turning
+    by the angle whose cosine is ``cos_turn``."""
+    return float(r * np.tan(np.arccos(np.clip(cos_turn, -1, 1)) / 2))
+
+
 def _half_outline(tj: TJointConfig, f: _Fillet, y: float, fr: dict[str, np.ndarray]) -> tuple[np.ndarray, list[int],
                                                                                                  np.ndarray, np.ndarray]:
     """The x > 0 half of the outline at station y, from (L/2, z0) to the last stem node below
@@ -114,24 +223,9 @@ def _half_outline(tj: TJointConfig, f: _Fillet, y: float, fr: dict[str, np.ndarr
     points (base, stem)."""
     x0, z0 = tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
     top = z0 + tj.stem_height_mm
-    ya = np.array([y])
-    a, b = float(f.leg_base(ya)[0]), float(f.leg_stem(ya)[0])
-    h, p = float(f.convexity(ya)[0]), tj.shape_exponent
-    r_base, r_stem = float(f.toe_radius_base(ya)[0]), float(f.toe_radius_stem(ya)[0])
-    B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
-    chord = S - B
-    length = float(np.linalg.norm(chord))
-    n = np.array([b, a]) / length
-
-    def face(s: np.ndarray) -> np.ndarray:
-        w = np.abs(2 * s - 1)
-        u = (s - 0.5) * length
-        phase = 2 * np.pi * (y + 0.15 * u**2) / f.ripple_wavelength_mm + f.ripple_phase
-        rise = h * (1 - w**p) + f.ripple_amplitude_mm * (1 - w**2) * np.cos(phase)
-        return B + s[:, None] * chord + rise[:, None] * n
-
-    tangent_b = chord + 2 * h * p * n
-    tangent_s = chord - 2 * h * p * n
+    sh = _shape(tj, f, y)
+    B, S, face, r_base, r_stem = sh.B, sh.S, sh.face, sh.r_base, sh.r_stem
+    tangent_b, tangent_s = sh.tangent_b, sh.tangent_s
     e_b = tangent_b / np.linalg.norm(tangent_b)
     e_s = tangent_s / np.linalg.norm(tangent_s)
     start_b, arc_b, toe_b = _arc(B, np.array([-1.0, 0.0]), e_b, r_base)
@@ -221,7 +315,7 @@ def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: TrueMeshConfig, r
     toe_lines = [TrueToeLine(name=f"{names[s]}-{plate}-toe", weld=names[s], plate=plate,
                              points_mm=[tuple(float(v) for v in p) for p in toes[(s, plate)]])
                  for s in (-1, 1) for plate in ("base", "stem")]
-    return TJoint(config=tj, mesh=mesh, toes=toe_lines)
+    return TJoint(config=tj, mesh=mesh, toes=toe_lines, fillets=fillets)
 
 
 def tjoint_specimen(tj: TJointConfig) -> TJointSpecimen:

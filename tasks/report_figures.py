@@ -255,10 +255,12 @@ def mesh_view(vertices: np.ndarray, triangles: np.ndarray, *, azimuth_deg: float
 
 
 def weld_section(u: np.ndarray, h: np.ndarray, *, title: str, toes: Sequence[tuple[float, str]],
-                 nominal: Sequence[tuple[np.ndarray, np.ndarray, str]], failing: bool, half_span_mm: float) -> bytes:
+                 nominal: Sequence[tuple[np.ndarray, np.ndarray, str]], failing: bool, half_span_mm: float,
+                 toe_points: Sequence[tuple[float, float, str]] = ()) -> bytes:
     """One section across the weld: the measured points (``u`` across, ``h`` up from the plate at
     the weld's centre, mm, true scale, ``half_span_mm`` either side of the centre), the nominal
-    geometry (``nominal``: (u, h, label) lines), each toe where it was measured (``toes``: (u, label))."""
+    geometry (``nominal``: (u, h, label) lines), each toe where it was measured (``toes``: (u, label)
+    across; ``toe_points``: (u, h, label), a fillet weld's)."""
     fig = _figure(3.7, 2.0)
     ax = fig.add_subplot()
     shown = np.abs(u) <= half_span_mm
@@ -270,6 +272,10 @@ def weld_section(u: np.ndarray, h: np.ndarray, *, title: str, toes: Sequence[tup
         ax.axvline(position, color="tab:red" if failing else "tab:green", lw=0.7, ls=":")
         ax.text(position, 0.02, label, transform=ax.get_xaxis_transform(), fontsize=6, ha="center",
                 color="tab:red" if failing else "tab:green")
+    for tu, th, label in toe_points:
+        ax.plot([tu], [th], "o", ms=4, mfc="none", color="tab:red" if failing else "tab:green")
+        ax.annotate(label, (tu, th), xytext=(4, 4), textcoords="offset points", fontsize=6,
+                    color="tab:red" if failing else "tab:green")
     ax.set_xlim(-half_span_mm, half_span_mm)
     if len(h):
         ax.set_ylim(float(np.min(h)) - 1.0, float(np.max(h)) + 1.5)

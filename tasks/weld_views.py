@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from schemas.acceptance import AcceptanceRule
-from schemas.weld_document import TOE_SIDES, Figure, WeldGeometry, WeldLineFound, WeldSection
+from schemas.weld_document import Figure, FilletWeldSection, WeldGeometry, WeldLineFound, WeldSection
 from tasks.report_figures import AlongWeldSeries
 
-__all__ = ["TOE_SERIES", "SECTION_SERIES", "figure_value", "along_weld_series", "chosen_sections", "SectionCut",
+__all__ = ["TOE_SERIES", "SECTION_SERIES", "FILLET_SERIES", "figure_value", "along_weld_series", "chosen_sections", "SectionCut",
            "section_cut"]
 
 # the figures drawn along the weld: (name in the document, label, unit)
@@ -28,6 +28,8 @@ SECTION_SERIES = (("reinforcement_height_mm", "height", "mm"),
                   ("reinforcement_width_mm", "width", "mm"),
                   ("axial_misalignment_mm", "axial misal.", "mm"),
                   ("angular_misalignment_deg", "angular misal.", "deg"))
+FILLET_SERIES = (("leg_base_mm", "leg on the base", "mm"), ("leg_stem_mm", "leg on the stem", "mm"),
+                 ("throat_mm", "throat", "mm"), ("convexity_mm", "convexity", "mm"))
 
 
 def figure_value(m: Figure | None) -> tuple[float, float]:
@@ -50,8 +52,9 @@ def _curve(rows: list[tuple[float, float, float, bool]]):
 
 def along_weld_series(geometry: WeldGeometry) -> list[AlongWeldSeries]:
     """Each figure along each weld line: per toe (``TOE_SERIES``; the groove's on a treated weld
-    only; a toe never measured left out) and per section (``SECTION_SERIES``), in that order, with
-    the acceptance rule's limits and the failing sections marked."""
+    only; a toe never measured left out) and per section (``SECTION_SERIES``, a fillet weld's
+    ``FILLET_SERIES``), in that order, with the acceptance rule's limits and the failing sections
+    marked."""
     if not geometry.measured:
         raise ValueError(f"the weld was not measured ({geometry.why_not}): no figures along it")
     sections = geometry.sections
@@ -63,16 +66,18 @@ def along_weld_series(geometry: WeldGeometry) -> list[AlongWeldSeries]:
             continue
         curves = {}
         for line in geometry.line_names():
-            for side in TOE_SIDES:
+            on_line = [s for s in sections if s.line == line]
+            for side, _ in on_line[0].toes.sides():
                 rows = [(s.position_mm, *figure_value(getattr(s.toes, side).figure(figure)
                                                       if getattr(s.toes, side) else None),
-                         (line, s.position_mm, figure) in failing) for s in sections if s.line == line]
+                         (line, s.position_mm, figure) in failing) for s in on_line]
                 if not rows or all(math.isnan(r[1]) for r in rows):
                     continue
                 curves[f"{line} {side} toe"] = _curve(rows)
         if curves:
             series.append(AlongWeldSeries(label, unit, curves, *_limits(geometry.acceptance, figure)))
-    for figure, label, unit in SECTION_SERIES:
+    fillet = any(isinstance(s, FilletWeldSection) for s in sections)
+    for figure, label, unit in FILLET_SERIES if fillet else SECTION_SERIES:
         curves = {line: _curve([(s.position_mm, *figure_value(s.figure(figure)),
                                  (line, s.position_mm, figure) in failing) for s in sections if s.line == line])
                   for line in geometry.line_names()}
@@ -106,16 +111,19 @@ class SectionCut:
     """A section's picture in its plane: the measured points ``u_mm`` across the weld and ``h_mm``
     along the face normal from the section's centre, (n,) float64; ``toes`` (u, label) from the
     toes' midpoint (none unless both toes were found); ``plate`` the drawing's plate face as
-    (u (2,), h (2,), label) lines; ``half_span_mm`` how far across to draw."""
+    (u (2,), h (2,), label) lines; ``half_span_mm`` how far across to draw. A fillet weld's: from
+    its root, ``u`` along the base plate away from the stem, its toes as points ``toe_points``
+    (u, h, label)."""
 
     u_mm: np.ndarray
     h_mm: np.ndarray
     toes: list[tuple[float, str]]
     plate: list[tuple[np.ndarray, np.ndarray, str]]
     half_span_mm: float
+    toe_points: list[tuple[float, float, str]] = ()
 
 
-def section_cut(points_mm: np.ndarray, section: WeldSection, line: WeldLineFound, *, half_width_mm: float,
+def section_cut(points_mm: np.ndarray, section: WeldSection | FilletWeldSection, line: WeldLineFound, *, half_width_mm: float,
                 reach_mm: float, bounds_mm: tuple[Sequence[float], Sequence[float]] | None = None,
                 margin_mm: float = 6.0) -> SectionCut:
     """The points of ``points_mm`` ((n, 3), specimen frame, mm: the frame the weld was measured in)
@@ -136,6 +144,16 @@ def section_cut(points_mm: np.ndarray, section: WeldSection, line: WeldLineFound
     d = points - c
     sel = (np.abs(d @ t) <= half_width_mm) & (np.abs(d @ a) <= reach_mm) & (np.abs(d @ n) <= reach_mm / 2)
     u, h = d[sel] @ a, d[sel] @ n
+    if isinstance(section, FilletWeldSection):
+        toe_points = []
+        for side, _ in section.toes.sides():
+            at = section.toe_specimen_mm(side)
+            if at is not None:
+                rel = np.asarray(at) - c
+                toe_points.append((float(rel @ a), float(rel @ n), f"{side} toe"))
+        legs = [v for v in (section.leg_base_mm.value, section.leg_stem_mm.value) if v is not None]
+        span = (max(legs) if legs else reach_mm / 2) + margin_mm
+        return SectionCut(u, h, [], [], min(span, reach_mm), toe_points)
     toes = []
     if section.toes.both():
         centre = (section.toes.minus.position_u_mm + section.toes.plus.position_u_mm) / 2

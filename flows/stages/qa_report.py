@@ -41,7 +41,7 @@ from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, QA_
                                   VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
-from schemas.weld_document import Figure, Finding, WeldGeometry
+from schemas.weld_document import Figure, FilletWeldSection, Finding, WeldGeometry
 from tasks.coverage import CoverageFigures, FaceAccumulator, coverage_figures
 from tasks.mesh import simplify_surface
 from tasks.qa_views import (PassRow, SurfaceView, coverage_maps, mesh_in_view, overlap_edges, pass_in_view, pass_rows,
@@ -181,7 +181,12 @@ def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
     for sec in chosen_sections(geometry, ctx.settings.sections_per_line):
         cut = section_cut(points_specimen, sec, geometry.line(sec.line), half_width_mm=weld.section_half_width_mm,
                           reach_mm=weld.reach_mm, bounds_mm=bounds)
-        notes = [f"height {_fmt(sec.reinforcement_height_mm, 'mm')}", f"width {_fmt(sec.reinforcement_width_mm, 'mm')}"]
+        if isinstance(sec, FilletWeldSection):
+            notes = [f"legs {_fmt(sec.leg_base_mm, 'mm')} on the base, {_fmt(sec.leg_stem_mm, 'mm')} on the stem",
+                     f"throat {_fmt(sec.throat_mm, 'mm')}", f"convexity {_fmt(sec.convexity_mm, 'mm')}"]
+        else:
+            notes = [f"height {_fmt(sec.reinforcement_height_mm, 'mm')}",
+                     f"width {_fmt(sec.reinforcement_width_mm, 'mm')}"]
         for side, toe in sec.toes.sides():
             if toe is None:
                 notes.append(f"{side}: no toe fitted")
@@ -200,7 +205,7 @@ def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
         else:
             verdict = "within the limits" if sec.passed else (sec.note or "not judged")
         out.append(_picture(weld_section(cut.u_mm, cut.h_mm, title=title, toes=cut.toes, nominal=cut.plate,
-                                         failing=failing, half_span_mm=cut.half_span_mm),
+                                         failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points),
                             f"weld section {sec.line} {sec.position_mm:g} mm", f"{verdict}. " + "; ".join(notes)))
     return out
 

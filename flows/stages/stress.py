@@ -36,7 +36,7 @@ from flows.stages.outputs import (HOT_SECTION, REFINED, SPECIMEN, STRESS_SUMMARY
 from flows.stages.placement import weld_frame
 from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, StressConvergence, StressSection,
                                      StressSummary, ToeHotSpot, ToeStress)
-from schemas.weld_document import WeldGeometry, WeldSection
+from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
 from tasks.plate_section import (PlateProfile, SectionFrame, drawn_profile, plate_profile, profile_section,
                                  rounded_notches)
@@ -163,6 +163,9 @@ def stress(ctx) -> dict[str, Any]:
     geometry = WELD_GEOMETRY.read(ctx.inputs["weld"])
     if not geometry.measured:
         return _not_made(ctx, f"the weld was not measured ({geometry.why_not}): no toes to load")
+    if any(isinstance(sec, FilletWeldSection) for sec in geometry.sections):
+        return _not_made(ctx, "fillet welds (a T-joint's, a cruciform's): their sections' models are not built yet; "
+                              "the fillets' figures are in weld_geometry.json")
     toes = _toe_lines(geometry)
     driving = next((line for line in geometry.lines if any(key[0] == line.name for key in toes)), None)
     if driving is None:

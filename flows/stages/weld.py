@@ -6,8 +6,12 @@ The points are in the common frame; the specimen frame (where the manifest's wel
 from the first setup that states its nominal placement (``T_world_specimen_nominal``) through its
 first pass's refined pose; the lines are then refined on the data (``tasks.weld_geometry``). The
 figures are fitted on the measured points (cell means of the merged passes), not on the Poisson
-surface. A sample whose setups state no nominal placement, or whose joint is not a butt weld
-between two plates, is not measured (said in the file, not an error).
+surface. A fillet weld (a T-joint's or a cruciform's) is measured in sections across its root
+line (``tasks.fillet_section``: toes on the base plate and on the stem, legs, throat, convexity),
+the plates' sides known from the specimen (the root on the stem's ``out`` side, the stem ``up``
+from the base's face); it is not judged (no acceptance rule for fillet welds yet). A sample whose
+setups state no nominal placement, or whose joint is neither, is not measured (said in the file,
+not an error).
 
 Each section's ``verdict`` is "pass", "fail", "uncertain" (a figure within its 1-sigma of a limit,
 or a limited figure not measured: listed in its ``uncertain``, and all of them in the file's
@@ -24,16 +28,19 @@ import numpy as np
 from data_catalog.acceptance import load_acceptance_limits
 from flows.stages.outputs import REFINED, SPECIMEN, WELD_GEOMETRY, WELD_TOES, WeldToes
 from flows.stages.placement import weld_frame
-from schemas.weld_document import (TOE_FIGURES, Figure, FigureStatistics, Finding, GrooveFigures, SectionToes,
-                                   ToeFigures, WeldGeometry, WeldLineFound, WeldSection, WeldSummary)
+from schemas.weld_document import (FILLET_SECTION_FIGURES, TOE_FIGURES, FilletToes, FilletWeldSection, Figure,
+                                   FigureStatistics, Finding, GrooveFigures, SectionToes, ToeFigures, WeldGeometry,
+                                   WeldLineFound, WeldSection, WeldSummary)
+from tasks.fillet_section import FilletLine, measure_fillet_line
 from tasks.frames import apply, invert, rotate
 from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
-__all__ = ["weld", "MEASURABLE_JOINTS"]
+__all__ = ["weld", "MEASURABLE_JOINTS", "FILLET_JOINTS"]
 
 MEASURABLE_JOINTS = ("double-sided butt", "single-V butt", "double-V butt")  # a cap between two plates
+FILLET_JOINTS = ("fillet", "double fillet", "cruciform fillet")  # between a base plate and a stem on it
 
 
 def _figure(m: Measured, digits: int = 4) -> Figure:
@@ -74,21 +81,26 @@ def _section(sec: SectionMeasurement, verdict) -> WeldSection:
 
 
 def _statistics(sections: list[SectionMeasurement]) -> dict[str, FigureStatistics]:
-    where = [{"line": s.line, "position_mm": round(s.position_mm, 3)} for s in sections]
+    return _along(sections, {"reinforcement_height_mm": lambda s: s.height.value,
+                             "reinforcement_width_mm": lambda s: s.width.value,
+                             "axial_misalignment_mm": lambda s: s.axial_misalignment.value,
+                             "angular_misalignment_deg": lambda s: s.angular_misalignment_deg.value},
+                  lambda s: (s.line, s.position_mm, s.toes))
+
+
+def _along(sections: list, per_section: dict, where_and_toes) -> dict[str, FigureStatistics]:
+    """The statistics along the weld of each section figure (``per_section``: name -> getter) and
+    of each toe figure (``where_and_toes(section)``: its line, position and toe fits)."""
+    rows_where = [where_and_toes(s) for s in sections]
+    where = [{"line": line, "position_mm": round(position, 3)} for line, position, _ in rows_where]
     figures: dict[str, FigureStatistics] = {}
-
-    def per_section(name, get):
+    for name, get in per_section.items():
         figures[name] = FigureStatistics(**along_weld_statistics(np.array([get(s) for s in sections], float), where))
-
-    per_section("reinforcement_height_mm", lambda s: s.height.value)
-    per_section("reinforcement_width_mm", lambda s: s.width.value)
-    per_section("axial_misalignment_mm", lambda s: s.axial_misalignment.value)
-    per_section("angular_misalignment_deg", lambda s: s.angular_misalignment_deg.value)
     toe_where, rows = [], []
-    for s in sections:
-        for t in s.toes:
+    for line, position, toes in rows_where:
+        for t in toes:
             if t is not None:
-                toe_where.append({"line": s.line, "position_mm": round(s.position_mm, 3), "toe": t.side})
+                toe_where.append({"line": line, "position_mm": round(position, 3), "toe": t.side})
                 g = t.groove
                 rows.append([t.notch_radius.value, t.flank_angle_deg.value, t.undercut_depth.value,
                              g.depth.value if g else math.nan, g.width.value if g else math.nan,
@@ -110,6 +122,93 @@ def _not_measured(ctx, document: WeldGeometry) -> dict[str, Any]:
     return {"measured": False, "why_not": document.why_not}
 
 
+def _section_settings(s) -> SectionSettings:
+    return SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
+                           toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
+                           groove_plate_gap_mm=s.groove_plate_gap_mm, undercut_min_depth_mm=s.undercut_min_depth_mm,
+                           height_half_width_mm=s.height_half_width_mm, min_points=s.min_points)
+
+
+def _fillet_sides(manifest, line) -> tuple[np.ndarray, np.ndarray] | str:
+    """A fillet root line's ``out`` (along the base plate, away from the stem) and ``up`` (along
+    the stem, away from the base), specimen frame, from the specimen's stem; or why not."""
+    specimen = manifest.specimen
+    if getattr(specimen, "kind", None) not in ("t-joint", "cruciform"):
+        return (f"the specimen ({getattr(specimen, 'kind', None)}) does not say where the stem stands: the "
+                "fillet's plates cannot be told apart")
+    mid = np.mean(np.asarray(line.points_mm, np.float64), axis=0)
+    side, face = mid[0] - specimen.stem_x_mm, mid[2]
+    if abs(side) < 1e-6 or abs(face) < 1e-6:
+        return (f"weld line {line.name!r} runs in the stem's mid-plane or the base plate's: its root must lie "
+                "on a stem face where it meets a base plate face")
+    return np.array([math.copysign(1.0, side), 0.0, 0.0]), np.array([0.0, 0.0, math.copysign(1.0, face)])
+
+
+def _fillet_section(line: FilletLine, position: float, sec) -> FilletWeldSection:
+    ok = math.isfinite(sec.root_ab_mm[0])
+    root = line.to_frame(position, sec.root_ab_mm) if ok else line.to_frame(position, (0.0, 0.0))
+    return FilletWeldSection(
+        line=line.name, position_mm=round(position, 3), centre_specimen_mm=tuple(round(float(v), 4) for v in root),
+        points=sec.n_points, base_direction=tuple(round(float(v), 6) for v in line.direction(sec.base_direction)),
+        stem_direction=tuple(round(float(v), 6) for v in line.direction(sec.stem_direction)),
+        plates_angle_deg=round(sec.plates_angle_deg, 4) if ok else None,
+        leg_base_mm=_figure(sec.leg_base), leg_stem_mm=_figure(sec.leg_stem), throat_mm=_figure(sec.throat),
+        convexity_mm=_figure(sec.convexity),
+        toes=FilletToes(base=_toe_figures(sec.base_toe), stem=_toe_figures(sec.stem_toe)),
+        passed=None, verdict=None, violations=[], uncertain=[], note=sec.note or None)
+
+
+def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str, Any]:
+    """A fillet weld's sections along each root line (module description), its document and toes."""
+    s, manifest = ctx.settings, ctx.manifest
+    sides = {line.name: _fillet_sides(manifest, line) for line in manifest.weld_lines()}
+    why = next((v for v in sides.values() if isinstance(v, str)), None)
+    if why:
+        return _not_measured(ctx, WeldGeometry(measured=False, why_not=why, **head))
+    treated = manifest.weld.treatment != "as-welded"
+    found = [measure_fillet_line(points, np.asarray(line.points_mm, np.float64), *sides[line.name], name=line.name,
+                                 step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
+                                 reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=_section_settings(s),
+                                 treated=treated)
+             for line in manifest.weld_lines()]
+    sections = [_fillet_section(line, position, sec) for line in found for position, sec in line.sections]
+    lines = []
+    for line in found:
+        roots = [sec.root_ab_mm for _, sec in line.sections if math.isfinite(sec.root_ab_mm[0])]
+        lines.append(WeldLineFound(
+            name=line.name, sections=len(line.sections),
+            offset_mm=round(float(np.median([r[0] for r in roots])), 4) if roots else 0.0, turn_deg=0.0,
+            face_normal=tuple(float(v) for v in line.up), across=tuple(float(v) for v in line.out),
+            measured_extent_mm=tuple(round(v, 3) for v in line.extent_mm)))
+    measured = sum(sec.toes.both() for sec in sections)
+    summary = WeldSummary(sections=len(sections), sections_measured=None, sections_not_measured=None, failing=None,
+                          sections_uncertain=None, passed=None,
+                          verdict=f"fillet welds are measured, not judged (no acceptance rule for them yet): "
+                                  f"{measured} of {len(sections)} sections with both toes")
+    rows = [(line.name, position, sec) for line in found for position, sec in line.sections]
+    statistics = _along(rows, dict(zip(FILLET_SECTION_FIGURES, (
+        lambda r: r[2].leg_base.value, lambda r: r[2].leg_stem.value, lambda r: r[2].throat.value,
+        lambda r: r[2].convexity.value))), lambda r: (r[0], r[1], (r[2].base_toe, r[2].stem_toe)))
+    WELD_GEOMETRY.write(ctx.out, WeldGeometry(measured=True, lines=lines, summary=summary, statistics=statistics,
+                                              sections=sections, **head))
+    # the toes as polylines in the common frame (the FE model grades its elements toward them)
+    polylines = []
+    for line in found:
+        for side in ("base", "stem"):
+            rows = [(position, sec) for position, sec in line.sections if sec.toe_ab_mm(side) is not None]
+            if len(rows) >= 2:
+                polylines.append((np.array([p for p, _ in rows]),
+                                  np.array([line.to_frame(p, sec.toe_ab_mm(side)) for p, sec in rows])))
+    WELD_TOES.write(ctx.out, WeldToes(
+        points_mm=np.vstack([apply(T, q) for _, q in polylines] or [np.zeros((0, 3))]),
+        polyline=np.concatenate([np.full(len(q), k, np.int64) for k, (_, q) in enumerate(polylines)]
+                                or [np.zeros(0, np.int64)]),
+        position_mm=np.concatenate([p for p, _ in polylines] or [np.zeros(0)])))
+    return {**summary.model_dump(), "toe_radius_min_mm": statistics["toe_radius_mm"].min,
+            "flank_angle_max_deg": statistics["flank_angle_deg"].max, "leg_min_mm": min(
+                (v for v in (statistics["leg_base_mm"].min, statistics["leg_stem_mm"].min) if v is not None), default=None)}
+
+
 def weld(ctx) -> dict[str, Any]:
     s = ctx.settings
     manifest = ctx.manifest
@@ -120,14 +219,15 @@ def weld(ctx) -> dict[str, Any]:
     joint = getattr(manifest.weld, "joint", "double-sided butt")
     treatment = manifest.weld.treatment
     limits = s.acceptance if s.acceptance is not None else load_acceptance_limits(None)
-    rule = limits.rule_for(joint, treatment)
+    rule = None if joint in FILLET_JOINTS else limits.rule_for(joint, treatment)
     head = dict(joint=joint, treatment=treatment, frame="specimen (nominal placement, lines refined on the data)",
                 acceptance=rule, acceptance_source="settings (weld.acceptance)" if s.acceptance is not None
                 else "data_catalog/weld_acceptance.yaml")
     T = weld_frame(manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
     why = None
-    if joint not in MEASURABLE_JOINTS:
-        why = f"joint {joint!r}: the sections measure a butt weld between two plates (one of {list(MEASURABLE_JOINTS)})"
+    if joint not in MEASURABLE_JOINTS + FILLET_JOINTS:
+        why = (f"joint {joint!r}: the sections measure a butt weld between two plates (one of {list(MEASURABLE_JOINTS)}) "
+               f"or a fillet weld between a base plate and a stem (one of {list(FILLET_JOINTS)})")
     elif T is None:
         why = "no setup states the specimen's nominal placement (T_world_specimen_nominal): the weld lines cannot be found"
     if why:
@@ -137,6 +237,8 @@ def weld(ctx) -> dict[str, Any]:
     T_specimen_common = invert(T)
     points = apply(T_specimen_common, cloud.points[keep])
     normals = rotate(T_specimen_common, cloud.normals[keep].astype(np.float64))
+    if joint in FILLET_JOINTS:
+        return _fillet_weld(ctx, points, T, head)
     settings = SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
                                toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
                                groove_plate_gap_mm=s.groove_plate_gap_mm,
