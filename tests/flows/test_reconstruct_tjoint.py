@@ -2,7 +2,8 @@
 as the ci sample is (tests/flows/test_reconstruct_ci.py): worst pass misalignment, mesh to the true
 surface, and within 5 mm of the true toe lines; with two setups whose only shared surfaces are the
 base plate's 12 mm walls, and with the top setup alone. Without the wall stickers the between-setup
-match is refused, naming its evidence, never accepted wrong."""
+match is refused, naming its evidence, never accepted wrong. The fillet welds measured against
+the drawn ones (``truth/fillet_weld.json``)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import pytest
 
 from data_catalog.manifests import load_manifest
 from data_catalog.truth import read_true_toes, read_truth
-from flows.stages.outputs import MESH, REFINED, REGISTRATION, REGISTRATION_SUMMARY
-from simulator.evaluate import fit_gauge, pass_misalignment
+from flows.stages.outputs import MESH, REFINED, REGISTRATION, REGISTRATION_SUMMARY, WELD_GEOMETRY
+from simulator.evaluate import T_true_specimen_nominal, fillet_errors, fit_gauge, pass_misalignment
 from tasks.weld_zone import PolylineZone
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
@@ -66,6 +67,40 @@ def test_two_setups_mesh_lies_on_the_true_surface_and_toes(tjoint_run, tjoint_sa
         (np.median(dist[near]), np.quantile(dist[near], 0.95))
     assert dist[near].max() < 0.8
     assert v[:, 2].min() < -5 and v[:, 2].max() > 65  # the base's underside and the stem's end: one body
+
+
+@pytest.fixture(scope="module")
+def tjoint_weld(tjoint_run, tjoint_sample):
+    """Stage weld on the T-joint's run (the run stopped after the mesh, which does not read it):
+    the run folder's stages up to segment reused, weld made in this process. Its refs."""
+    from data_catalog.stages import StageStore
+    from flows.preflight import load_config
+    from flows.stages import run_in_process
+
+    from tests.conftest import CI_CONFIG
+
+    out, _ = tjoint_run
+    return run_in_process(store=StageStore(out), sample_dir=tjoint_sample, manifest=load_manifest(tjoint_sample),
+                          config=load_config(CI_CONFIG), upto="weld")
+
+
+def test_the_fillet_welds_are_measured_against_the_drawn_ones(tjoint_weld, tjoint_sample):
+    geometry = WELD_GEOMETRY.read(tjoint_weld["weld"])
+    assert geometry.measured and [line.name for line in geometry.lines] == ["fillet-neg", "fillet-pos"]
+    assert len(geometry.sections) > 200 and all(sec.toes.both() for sec in geometry.sections)
+    assert geometry.summary.passed is None and "not judged" in geometry.summary.verdict
+    T = T_true_specimen_nominal(tjoint_sample, load_manifest(tjoint_sample), REFINED.open(tjoint_weld["refine"]))
+    errors = {name: np.abs([e for e, _ in pairs]) for name, pairs in fillet_errors(tjoint_sample, geometry, T).items()}
+    # the preset's points are 0.32 mm apart, merged in 0.3 mm cells (ci settings); measured on 232
+    # sections (median / p90): legs 0.06 / 0.28 mm (the corner under a rounding of up to 2 mm:
+    # tests/tasks/test_fillet_section.py), toe radius 0.04 / 0.15, convexity 0.03 / 0.10, throat
+    # 0.04 / 0.14, the toe angle against the face past the rounding 2.5 / 6.6 deg
+    for name, median, p90 in (("leg_base_mm", 0.12, 0.45), ("leg_stem_mm", 0.12, 0.45), ("toe_radius_mm (base)", 0.1, 0.3),
+                              ("toe_radius_mm (stem)", 0.1, 0.3), ("convexity_mm", 0.06, 0.2), ("throat_mm", 0.08, 0.25),
+                              ("toe angle against the face past the rounding (base)", 4.0, 10.0),
+                              ("toe angle against the face past the rounding (stem)", 4.0, 10.0)):
+        e = errors[name]
+        assert len(e) > 200 and np.median(e) < median and np.percentile(e, 90) < p90, (name, np.median(e), np.percentile(e, 90))
 
 
 def test_a_single_setup_reconstructs_the_part_stem_up(tjoint_single_run, tjoint_single_sample):
