@@ -26,7 +26,7 @@ class MeasureWeldConfig(StrictModel):
         "sections every this far along the weld; None: each profile of a profile scan (1 mm in a cloud)"))
     section_half_width_mm: float | None = Field(default=None, gt=0, le=50, description=(
         "a slab section reads the points this close to it; None: half the step"))
-    toe_window_mm: tuple[float, float] = Field(default=(3.0, 2.0), description=(
+    toe_window_mm: tuple[float, float] = Field(default=(1.5, 2.5), description=(
         "the toe fit: this much flank, this much plate around the first guess (a 3 mm fillet at 60 deg "
         "reaches 1.7 mm onto the plate and 0.9 mm up the flank from the corner)"))
     toe_threshold_mm: float = Field(default=0.1, gt=0, le=5, description=(

@@ -13,12 +13,13 @@ any order. Per profile:
   ``toe_threshold_mm`` above it for ``rise_run_mm`` on end (the toe's first guess), refitted up to
   ``plate_gap_mm`` short of it (``tasks.weld_fits.fit_plate_line``);
 - each toe: ``tasks.weld_fits.fit_toe`` (flank, toe fillet, undercut) on the height over its
-  plate; every 1-sigma is scaled by the residuals' serial correlation (a scanner's noise is
+  plate, fitted again around the toe it found (the window's flank is then the flank's first
+  ``toe_window_mm[0]``: a parabola holds a curved cap's flank that far, not across its top); every 1-sigma is scaled by the residuals' serial correlation (a scanner's noise is
   correlated from point to point: lag-one rho gives the factor sqrt((1 + rho) / (1 - rho)));
-- the toe radius is resolved when the points exclude a sharp corner: the profile likelihood
-  (``tasks.weld_fits.toe_radius_range``) at ``bound_sigmas`` puts the smallest radius they allow
-  above the fit's floor and the fitted radius is at least the point spacing; otherwise the radius
-  is reported as "below X" with X the largest radius the points allow, never as a number;
+- the toe radius is resolved when the radii the points allow (the profile likelihood,
+  ``tasks.weld_fits.toe_radius_range``, at ``bound_sigmas``) exclude both a sharp corner and the
+  fit's 10 mm ceiling, and the fitted radius is at least the point spacing and above its 1-sigma;
+  otherwise it is reported as "below X", X the largest radius the points allow, never as a number;
 - reinforcement height over the line between the toes on their plates
   (``tasks.weld_geometry.peak_rise``), width between the toes, misalignment of the plates at the
   weld's centre.
@@ -39,6 +40,7 @@ from tasks.weld_geometry import SectionMeasurement, peak_rise
 __all__ = ["ProfileSettings", "ToeResult", "ProfileResult", "drop_spikes", "measure_profile"]
 
 _NAN = float("nan")
+_R_FLOOR_MM, _R_CEILING_MM = 0.02, 10.0  # tasks.weld_fits fits the toe radius between these
 
 
 @dataclass(frozen=True)
@@ -189,17 +191,25 @@ def measure_profile(u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings, 
             results.append(ToeResult(ToeFit(**{**groove.__dict__, "position_u_mm": centre + sign * groove.position_u_mm})))
             continue
         fit = fit_toe(v, rel, settings=fitting, side=side, toe_guess_v=guess)
+        if fit is not None:  # again around the toe found: the window's flank then starts at the toe
+            guess = fit.position_u_mm
+            fit = fit_toe(v, rel, settings=fitting, side=side, toe_guess_v=guess)
         if fit is None:
             results.append(ToeResult(None, reason=f"fewer than {settings.min_points} points around the toe"))
             continue
-        on_plate = v > guess + settings.plate_gap_mm  # the noise's serial correlation, off the plate's line
+        on_plate = v > guess + max(settings.toe_window_mm[1], settings.plate_gap_mm)  # the noise's serial correlation, off the plate's line
         factor = _serial_factor(rel[on_plate][np.argsort(v[on_plate])])
         variance = fit.rms_mm ** 2 * factor ** 2
         lowest, highest = toe_radius_range(v, rel, settings=fitting, toe_guess_v=guess, fit=fit,
                                            threshold_mm2=settings.bound_sigmas ** 2 * variance)
         radius = raw = _scaled(fit.notch_radius, factor)
         below = None
-        if not (lowest > 0.02 * 1.05 and fit.notch_radius.value >= spacing):
+        # resolved: the allowed radii are closed on both sides (a sharp corner and the fit's ceiling
+        # both excluded), the radius is at least the point spacing and larger than its 1-sigma
+        # (the wider of the covariance's and the allowed interval's half width over bound_sigmas)
+        radius = raw = Measured(raw.value, max(raw.sigma, (highest - lowest) / (2 * settings.bound_sigmas)))
+        if not (lowest > _R_FLOOR_MM * 1.05 and highest < _R_CEILING_MM * 0.95 and raw.value >= spacing
+                and raw.sigma < raw.value):
             below, radius = round(float(max(highest, spacing)), 4), none
         fit = ToeFit(side=side, position_u_mm=centre + sign * fit.position_u_mm,
                      position_sigma_mm=fit.position_sigma_mm * factor,

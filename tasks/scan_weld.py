@@ -2,7 +2,8 @@
 a patch of one weld from any profile scanner, no frame, no manifest.
 
 Frame: ``n`` the plates' normal (the points' direction of least spread, turned toward the file's
-+z: a profile scanner's height), ``t`` along the weld, ``a = n x t`` across it. A section's
++z: a profile scanner's height; a patch must therefore reach further along the weld than the
+weld is high), ``t`` along the weld, ``a = n x t`` across it. A section's
 profile is ``u`` (along ``a``, mm from the weld line) and ``h`` (along ``n``, mm from it).
 
 - The weld line, when none is given: the direction in the plates' plane along which the surface
@@ -31,6 +32,7 @@ __all__ = ["WeldLine", "ScanMeasurement", "check_scan_scale", "find_weld_line", 
 _EDGE_MM = 2.0  # the scan's edges across the weld: the plates' first heights
 _BIN_MM = 0.5  # strips along the weld for its direction and height profile
 MIN_SCAN_EXTENT_MM = 2.0  # a scanned weld spans more than this (a smaller scan: its unit is wrong)
+_TYPICAL_EXTENT_MM = 30.0  # what a weld scan spans, for how far off a too small one is
 
 
 @dataclass(frozen=True)
@@ -57,9 +59,10 @@ def check_scan_scale(points: np.ndarray) -> None:
     points = _checked(points)
     extent = float(np.ptp(points, axis=0).max())
     if extent < MIN_SCAN_EXTENT_MM:
-        raise ValueError(f"the scan spans only {extent:.4g} mm (a weld scan spans tens of mm): a part "
-                         f"{1000 if extent < MIN_SCAN_EXTENT_MM / 100 else 'many'} times too small; are its "
-                         "coordinates metres read as millimetres? (give its unit: --units m)")
+        factor = 10 ** round(math.log10(_TYPICAL_EXTENT_MM / max(extent, 1e-12)))
+        raise ValueError(f"the scan spans only {extent:.4g} mm (a weld scan spans tens of mm): a part about "
+                         f"{factor:,} times too small; are its coordinates metres read as millimetres? "
+                         "(give its unit: --units m)")
 
 
 def _checked(points: np.ndarray) -> np.ndarray:
