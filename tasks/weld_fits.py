@@ -29,9 +29,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 __all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
-           "fit_groove", "propagate"]
+           "fit_groove", "propagate", "toe_radius_range"]
 
 _NAN = float("nan")
+_R_MIN_MM, _R_MAX_MM = 0.02, 10.0  # the toe fillet's radius is fitted between these
 
 
 @dataclass(frozen=True)
@@ -260,32 +261,47 @@ def _toe_model(p: np.ndarray, w: np.ndarray, undercut: bool) -> np.ndarray:
     return z
 
 
-def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
-    """The as-welded toe in a profile: ``v`` (n,) outward from the weld's centre (mm), ``h`` (n,)
-    height over this side's plate line (mm); ``toe_guess_v`` where the weld starts. Fits the
-    flank, toe fillet and undercut model over ``settings.toe_window_mm`` around the guess."""
+def _toe_window(v: np.ndarray, h: np.ndarray, settings: SectionSettings, toe_guess_v: float):
+    """The points a toe is fitted on (w, z) and whether an undercut is fitted; None: too few."""
     flank_mm, plate_mm = settings.toe_window_mm
     sel = (v > toe_guess_v - flank_mm) & (v < toe_guess_v + plate_mm)
     w, z = v[sel], h[sel]
     if len(w) < settings.min_points:
         return None
+    plate_side = w > toe_guess_v + 0.2
+    return w, z, bool(plate_side.any() and z[plate_side].min() < -settings.undercut_min_depth_mm)
+
+
+def _toe_start(w, z, undercut: bool, settings: SectionSettings, toe_guess_v: float, theta0: float, r0: float):
+    """A toe fit's start and bounds (v0, theta, r, k[, undercut depth, centre, width])."""
+    flank_mm, plate_mm = settings.toe_window_mm
+    p0 = [toe_guess_v, theta0, r0, 0.0]
+    lo = [toe_guess_v - flank_mm, math.radians(2), _R_MIN_MM, 0.0]
+    hi = [toe_guess_v + plate_mm, math.radians(85), _R_MAX_MM, 5.0]
+    if undercut:
+        plate_side = w > toe_guess_v + 0.2
+        p0 += [max(-float(z[plate_side].min()), 0.01), 0.3, 0.3]
+        lo += [0.0, -0.5, 0.05]
+        hi += [2.0, 2.0, 1.5]
+    return np.clip(p0, np.add(lo, 1e-9), np.subtract(hi, 1e-9)), lo, hi
+
+
+def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, toe_guess_v: float) -> ToeFit | None:
+    """The as-welded toe in a profile: ``v`` (n,) outward from the weld's centre (mm), ``h`` (n,)
+    height over this side's plate line (mm); ``toe_guess_v`` where the weld starts. Fits the
+    flank, toe fillet and undercut model over ``settings.toe_window_mm`` around the guess."""
+    found = _toe_window(v, h, settings, toe_guess_v)
+    if found is None:
+        return None
+    w, z, undercut = found
     on_flank = (z > 0.2 * z.max()) & (w < toe_guess_v)
     theta0 = math.radians(30.0)
     if on_flank.sum() >= 2:
         slope = np.polyfit(w[on_flank], z[on_flank], 1)[0]
         theta0 = float(np.clip(math.atan(max(-slope, 0.05)), math.radians(3), math.radians(80)))
-    plate_side = w > toe_guess_v + 0.2
-    undercut = bool(plate_side.any() and z[plate_side].min() < -settings.undercut_min_depth_mm)
     best = None
     for r0 in (0.3, 1.0, 2.5):
-        p0 = [toe_guess_v, theta0, r0, 0.0]
-        lo = [toe_guess_v - flank_mm, math.radians(2), 0.02, 0.0]
-        hi = [toe_guess_v + plate_mm, math.radians(85), 10.0, 5.0]
-        if undercut:
-            p0 += [max(-float(z[plate_side].min()), 0.01), 0.3, 0.3]
-            lo += [0.0, -0.5, 0.05]
-            hi += [2.0, 2.0, 1.5]
-        p0 = np.clip(p0, np.add(lo, 1e-9), np.subtract(hi, 1e-9))
+        p0, lo, hi = _toe_start(w, z, undercut, settings, toe_guess_v, theta0, r0)
         res = least_squares(lambda p: _toe_model(p, w, undercut) - z, p0, bounds=(lo, hi), x_scale="jac")
         if best is None or res.cost < best.cost:
             best = res
@@ -297,6 +313,55 @@ def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: st
                   notch_radius=Measured(float(p[2]), float(sd[2])),
                   undercut_depth=Measured(float(p[4]), float(sd[4])) if undercut else Measured(0.0, 0.0),
                   groove=None, rms_mm=rms, n_points=len(w))
+
+
+def toe_radius_range(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, toe_guess_v: float, fit: ToeFit,
+                     threshold_mm2: float) -> tuple[float, float]:
+    """The toe radii the points allow (mm): those whose best fit, the other parameters refitted,
+    has a sum of squared residuals at most ``threshold_mm2`` over the best fit's (a profile
+    likelihood; ``threshold_mm2`` = sigmas^2 x the residuals' variance). ``v``, ``h``,
+    ``settings``, ``toe_guess_v`` as given to ``fit_toe``, ``fit`` its result. A lowest radius of
+    0.02 mm (the fit's bound): the points cannot tell the toe from a sharp corner; the highest is
+    then the radius they cannot exclude."""
+    found = _toe_window(v, h, settings, toe_guess_v)
+    if found is None:
+        return _NAN, _NAN
+    w, z, undercut = found
+    flank, plate_v = (w < fit.position_u_mm), w > fit.position_u_mm + 0.2
+    k0 = 0.0 if flank.sum() < 3 else max(0.0, -float(np.polyfit(w[flank], z[flank], 2)[0]))
+    start, lo, hi = _toe_start(w, z, undercut, settings, fit.position_u_mm, math.radians(fit.flank_angle_deg.value),
+                               fit.notch_radius.value)
+    start[3] = min(k0, 4.9)
+    if undercut and plate_v.any():
+        start[4] = min(max(fit.undercut_depth.value, 0.0), 1.99)
+    free = [i for i in range(len(start)) if i != 2]
+
+    def rss(r: float) -> float:
+        def resid(q):
+            p = start.copy()
+            p[free] = q
+            p[2] = r
+            return _toe_model(p, w, undercut) - z
+        q0 = np.clip(start[free], np.add(np.take(lo, free), 1e-9), np.subtract(np.take(hi, free), 1e-9))
+        res = least_squares(resid, q0, bounds=(np.take(lo, free), np.take(hi, free)), x_scale="jac")
+        return float(res.fun @ res.fun)
+
+    r_hat = float(np.clip(fit.notch_radius.value, _R_MIN_MM, _R_MAX_MM))
+    best = min(rss(r_hat), float(np.sum((_toe_model(start, w, undercut) - z) ** 2)))
+
+    def allowed(r: float) -> bool:
+        return rss(r) - best <= threshold_mm2
+
+    def edge(inside: float, outside: float) -> float:
+        """The allowed radius nearest ``outside`` (bisection in log r, 2 % steps)."""
+        if allowed(outside):
+            return outside
+        while abs(math.log(outside / inside)) > 0.02:
+            mid = math.sqrt(inside * outside)
+            inside, outside = (mid, outside) if allowed(mid) else (inside, mid)
+        return inside
+
+    return edge(r_hat, _R_MIN_MM), edge(r_hat, _R_MAX_MM)
 
 
 def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_
                              propagate)
 
 __all__ = ["SectionMeasurement", "WeldLineMeasurement", "measure_section", "measure_weld_line",
-           "along_weld_statistics", "toe_polylines", "TOE_SIDES"]
+           "along_weld_statistics", "toe_polylines", "peak_rise", "TOE_SIDES"]
 
 TOE_SIDES = ("minus", "plus")
 _NAN = float("nan")
@@ -158,7 +158,7 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         reach = max(settings.height_half_width_mm, float(middle[min(9, len(middle) - 1)]) if len(middle) else np.inf)
         between &= np.abs(s) <= reach
         rise = h[between] - (z0 + (z1 - z0) * (u[between] - u0) / max(u1 - u0, 1e-9))
-        height = _peak(u[between], rise)
+        height = peak_rise(u[between], rise)
     axis = None
     if toes[0] is not None and toes[1] is not None and toes[0].groove is not None and toes[1].groove is not None:
         mid = c + (toes[1].groove.centre_v_mm - toes[0].groove.centre_v_mm) / 2
@@ -168,7 +168,7 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
                               (toes[0], toes[1]), n, axis_mm=axis)
 
 
-def _peak(u: np.ndarray, rise: np.ndarray) -> Measured:
+def peak_rise(u: np.ndarray, rise: np.ndarray) -> Measured:
     """The highest rise: a parabola over the points within 1 mm of the highest one."""
     if len(u) < 3:
         return Measured.none()

@@ -6,6 +6,7 @@
 - ``catalog``: catalog register|list|show|index, batch
 - ``audit``: audit verify|show
 - ``imports``: import, import-scans
+- ``measure``: measure-weld (a butt weld straight from scanned points)
 - ``info``: stages, schema
 - ``render``: a run's typed summary on the terminal
 - ``errors``: one line per problem on the terminal, the traceback in a log file
@@ -19,7 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from flows.cli import audit, catalog, imports, info, reconstruct, simulate
+from flows.cli import audit, catalog, imports, info, measure, reconstruct, simulate
 from flows.cli.errors import end_log_file, say_error
 
 __all__ = ["main"]
@@ -37,6 +38,7 @@ def _parser() -> argparse.ArgumentParser:
     audit.add_audit(sub, ws)
     imports.add_import(sub)
     imports.add_import_scans(sub)
+    measure.add_measure_weld(sub)
     simulate.add_export_cell(sub)
     info.add_stages(sub)
     info.add_schema(sub)

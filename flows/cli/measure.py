@@ -1,0 +1,67 @@
+"""``weldrecon measure-weld``: a butt weld measured straight from scanned points (any file
+``data_catalog.pointclouds`` reads), no sample, no reconstruction: ``<scan>.weld.json``
+(``schemas.profile_weld.ScanWeld``) per scan in ``--out`` and a line per problem on the terminal."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+__all__ = ["add_measure_weld"]
+
+_JOINTS = {"butt": "double-sided butt"}  # the acceptance catalog's name for each
+_TREATMENTS = {"as-welded": "as-welded", "hfmi": "hfmi-treated"}
+
+
+def add_measure_weld(sub) -> None:
+    mw = sub.add_parser("measure-weld", help="a butt weld measured straight from scanned points: toe position, radius, "
+                        "angle, undercut, reinforcement, each with its 1-sigma, and the acceptance judgement")
+    mw.add_argument("scans", nargs="+", metavar="SCAN", help="point files (PLY, PCD, XYZ/CSV/TXT, E57, LAS/LAZ)")
+    where = mw.add_mutually_exclusive_group()
+    where.add_argument("--weld-line", metavar="X0,Y0,Z0:X1,Y1,Z1", help="the weld line in the scans' frame, mm")
+    where.add_argument("--auto", action="store_true", help="find the weld line on the data (the default)")
+    mw.add_argument("--joint", choices=sorted(_JOINTS), default="butt")
+    mw.add_argument("--treatment", choices=sorted(_TREATMENTS), default="as-welded")
+    mw.add_argument("--units", default="mm", metavar="mm|cm|m|in", help="the files' length unit (default mm)")
+    mw.add_argument("--step-mm", type=float, help="sections every this far (default: each profile of a profile scan, "
+                    "else 1 mm)")
+    mw.add_argument("--config", metavar="YAML", help="settings (schemas.profile_weld.MeasureWeldConfig)")
+    mw.add_argument("--out", default=".", metavar="DIR", help="folder for <scan>.weld.json (default: here)")
+    mw.set_defaults(func=_cmd_measure_weld)
+
+
+def _weld_line(text: str):
+    """``X0,Y0,Z0:X1,Y1,Z1`` as two points; ValueError naming the option."""
+    try:
+        ends = [tuple(float(v) for v in part.split(",")) for part in text.split(":")]
+    except ValueError:
+        ends = []
+    if len(ends) != 2 or any(len(e) != 3 for e in ends):
+        raise ValueError(f"--weld-line must be X0,Y0,Z0:X1,Y1,Z1 (mm), got {text!r}")
+    return ends
+
+
+def _cmd_measure_weld(args: argparse.Namespace) -> int:
+    from data_catalog.atomic import atomic_write_text
+    from data_catalog.textfiles import read_yaml_model
+    from flows.scan_weld import scan_weld_document
+    from schemas.profile_weld import MeasureWeldConfig
+
+    line = _weld_line(args.weld_line) if args.weld_line else None
+    config = read_yaml_model(args.config, MeasureWeldConfig, "measure-weld settings") if args.config else MeasureWeldConfig()
+    if args.step_mm is not None:
+        config = config.model_copy(update={"step_mm": MeasureWeldConfig(step_mm=args.step_mm).step_mm})
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for scan in args.scans:
+        document, problems = scan_weld_document(scan, units=args.units, line=line, joint=_JOINTS[args.joint],
+                                                treatment=_TREATMENTS[args.treatment], config=config)
+        path = out / f"{Path(scan).name}.weld.json"
+        atomic_write_text(path, document.model_dump_json(indent=1))
+        g, toes = document.geometry, document.toes
+        below = sum(t.toe_radius_below_mm is not None for t in toes)
+        print(f"{scan}: {g.summary.sections} sections, {sum(t.measured for t in toes)} of {len(toes)} toes measured "
+              f"({below} with a radius below resolution); verdict: {g.summary.verdict} -> {path}")
+        for problem in problems:
+            print(f"  {problem}")
+    return 0
