@@ -286,6 +286,9 @@ class StressConfig(StrictModel):
     plate_window_mm: tuple[float, float] = Field(default=(16.0, 30.0), description=(
         "a toe's plate (its thickness: the nominal stress's area; the membrane stress check) from .. to "
         "this far from the weld's centre, on the toe's side"))
+    stem_cut_mm: float = Field(default=20.0, gt=0, le=1000, description=(
+        "a T-joint's stem is cut this far above the base plate's face (the base's tests load the base "
+        "alone: the stem carries nothing beyond its fillets)"))
     max_nodes_per_solve: int = Field(default=100_000, ge=1000, le=50_000_000, description=(
         "as many sections go to one CalculiX run as this many nodes hold (its memory: ~16 kB a node, "
         "~1.6 GB at the default)"))

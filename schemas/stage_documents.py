@@ -12,7 +12,7 @@ from pydantic import ConfigDict, Field
 
 from schemas.common import StrictModel
 from schemas.provenance import StageName
-from schemas.weld_document import FigureStatistics, Finding, WeldLineFound
+from schemas.weld_document import FigureStatistics, Finding, ToeSide, WeldLineFound
 
 __all__ = ["PassPair", "SetupEvidence", "RegistrationSummary", "SurfacePair", "SurfaceMatch", "RefineSummary",
            "SolidChecks", "QualityStatistics", "ElementQuality", "VolumeSets", "FEModelSummary", "Check",
@@ -141,7 +141,7 @@ class ToeStress(StrictModel):
     of the measured toe over the nominal stress (the force over its plate's measured thickness)."""
 
     line: str  # the weld line the toe belongs to
-    side: Literal["minus", "plus"]
+    side: ToeSide
     factor: float | None  # None: no outline node within reach
     peak_mpa: float | None
     nominal_mpa: float | None  # None: no plate measured in the toe's plate window
@@ -171,7 +171,7 @@ class ToeHotSpot(StrictModel):
     """A toe line's highest section: the predicted crack start."""
 
     line: str
-    side: Literal["minus", "plus"]
+    side: ToeSide
     position_mm: float
     factor: float
     at_specimen_mm: tuple[float, float, float]
@@ -184,7 +184,7 @@ class StressConvergence(StrictModel):
 
     position_mm: float
     line: str
-    side: Literal["minus", "plus"]
+    side: ToeSide
     toe_size_mm: float
     factor: float
     finer_factor: float
@@ -195,7 +195,7 @@ class DrawnToe(StrictModel):
     """A toe of the drawn weld: its factor with the toe rounded to the notch radius."""
 
     line: str
-    side: Literal["minus", "plus"]
+    side: ToeSide
     factor: float | None  # None: no outline node within reach
     at_section_mm: tuple[float, float]  # the drawn toe in the section (x across, y up; mm)
 
@@ -219,7 +219,7 @@ class FatigueEstimate(StrictModel):
     slope is 22)."""
 
     line: str
-    side: Literal["minus", "plus"]
+    side: ToeSide
     position_mm: float
     notch_factor: float
     nominal_range_mpa: float

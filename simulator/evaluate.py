@@ -23,7 +23,8 @@ from tasks.ingest import profile_points, sensor_poses
 from tasks.matching import kabsch, match_rotation_invariant
 
 __all__ = ["STICKER_LIFT_MM", "true_sticker_centres", "Gauge", "fit_gauge", "PassMisalignment",
-           "pass_misalignment", "T_true_specimen_nominal", "weld_errors", "summarise_weld_errors"]
+           "pass_misalignment", "T_true_specimen_nominal", "weld_errors", "fillet_errors", "summarise_weld_errors",
+           "true_specimen", "true_tjoint"]
 
 STICKER_LIFT_MM = 0.1  # the paper sticker's thickness: its visible centre is this far off the surface
 _SPECIMEN = (Material.STEEL, Material.GROUND, Material.STICKER)
@@ -232,6 +233,19 @@ def true_specimen(sample_dir: Path):
 
     config = SimulationConfig.model_validate_json((Path(sample_dir) / TRUTH_DIR / "simulation.json").read_text())
     if config.tjoint is not None:
-        raise ValueError(f"{sample_dir}: a T-joint sample; true_specimen draws the dog-bone only")
+        raise ValueError(f"{sample_dir}: a T-joint sample; true_specimen draws the dog-bone only (true_tjoint: the T)")
     rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(5)[0])
     return build_specimen(config.specimen, config.weld, config.mesh, rng)
+
+
+def true_tjoint(sample_dir: Path):
+    """The simulated T-joint of a sample as the simulator drew it (``simulator.tjoint.TJoint``: its
+    fillets' figures along y), drawn again from ``truth/simulation.json`` with the same seed."""
+    from schemas.simulation import SimulationConfig
+    from simulator.tjoint import build_tjoint
+
+    config = SimulationConfig.model_validate_json((Path(sample_dir) / TRUTH_DIR / "simulation.json").read_text())
+    if config.tjoint is None:
+        raise ValueError(f"{sample_dir}: not a T-joint sample")
+    rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(5)[0])
+    return build_tjoint(config.tjoint, config.weld, config.mesh, rng)

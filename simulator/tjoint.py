@@ -58,6 +58,25 @@ class TJoint:
     toes: list[TrueToeLine]
     fillets: dict  # +1 / -1 (the weld on the x > 0 / x < 0 side) -> its drawn _Fillet
 
+    def section(self, y: float, spacing_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """The part's closed outline at station y as drawn, its points every ``spacing_mm`` (x, z)
+        (k, 2) and their outward normals (k, 2): the base's bottom, its end walls, its top with both
+        fillets (their toes rounded) and the stem to its end."""
+        tj = self.config
+        L, z0, x0 = tj.base_length_mm, tj.base_thickness_mm / 2, tj.stem_thickness_mm / 2
+        right = fillet_profile(tj, self.fillets[1], y, spacing_mm) + [x0, z0]
+        left = (fillet_profile(tj, self.fillets[-1], y, spacing_mm) + [x0, z0])[::-1] * [-1.0, 1.0]
+        top = z0 + tj.stem_height_mm
+        across = np.arange(x0, -x0, -spacing_mm)
+        bottom = np.arange(-L / 2, L / 2, spacing_mm)
+        wall = np.arange(-z0, z0, spacing_mm)
+        loop = np.concatenate([np.c_[bottom, np.full(len(bottom), -z0)], np.c_[np.full(len(wall), L / 2), wall], right,
+                               np.c_[across, np.full(len(across), top)], left,
+                               np.c_[np.full(len(wall), -L / 2), wall[::-1]]])
+        tangent = np.roll(loop, -1, axis=0) - np.roll(loop, 1, axis=0)
+        normals = np.c_[tangent[:, 1], -tangent[:, 0]]  # counter-clockwise: outward is the tangent turned right
+        return loop, normals / np.linalg.norm(normals, axis=1)[:, None]
+
     def fillet_truth(self, step_mm: float = 1.0) -> FilletWeldTruth:
         """Both fillets as drawn every ``step_mm`` across the base plate's width (the x < 0 one
         mirrored: the same figures)."""

@@ -4,9 +4,9 @@ weld's fits, ``tasks.weld_fits``), the two legs, the throat and the convexity, e
 
 A section is read in its own plane: ``a`` outward along the base plate from the stem's face, ``b``
 up the stem from the base plate's face (mm; the nominal root at the origin). Each plate's line is
-fitted over ``plate_window_mm`` from the root (the base's over ``a``, the stem's over ``b``, within
-a quarter of the window's start of the plate's nominal face); the root is where the two lines
-cross. The points on the weld's side are split by the bisector of the plates' angle: those nearer
+fitted over ``plate_window_mm`` from the nominal root (the base's over ``a``, the stem's over ``b``:
+the face nearest the weld's side there, the points within a quarter of the window's start of it);
+the root is where the two lines cross, the nominal one needs only to be within a few millimetres. The points on the weld's side are split by the bisector of the plates' angle: those nearer
 the base make the base toe's profile (``v`` along the base from the root, ``h`` above the base's
 line), those nearer the stem the stem toe's (``v`` up the stem, ``h`` out from its line). Each
 profile is read as a butt weld's toe is (outward, the weld falling onto its plate): the toe guess
@@ -117,8 +117,13 @@ def measure_fillet_section(a: np.ndarray, b: np.ndarray, *, settings: SectionSet
 
     near, far = settings.plate_window_mm
     band = near / 4
-    on_base = (a >= near) & (a <= far) & (np.abs(b) <= band)
-    on_stem = (b >= near) & (b <= far) & (np.abs(a) <= band)
+    # each plate's face in its window: the one nearest the weld's side (the base's top over its
+    # bottom, the stem's welded face over its other one), within a quarter of the window's start
+    on_base, on_stem = (a >= near) & (a <= far) & (np.abs(b) <= far), (b >= near) & (b <= far) & (np.abs(a) <= far)
+    if on_base.any():
+        on_base &= np.abs(b - np.percentile(b[on_base], 90)) <= band
+    if on_stem.any():
+        on_stem &= np.abs(a - np.percentile(a[on_stem], 90)) <= band
     base = fit_plate_line(a[on_base], b[on_base], min_points=settings.min_points)
     stem = fit_plate_line(b[on_stem], a[on_stem], min_points=settings.min_points)
     if base is None or stem is None:

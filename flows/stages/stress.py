@@ -38,20 +38,23 @@ from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, Str
                                      StressSummary, ToeHotSpot, ToeStress)
 from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
-from tasks.plate_section import (PlateProfile, SectionFrame, drawn_profile, plate_profile, profile_section,
-                                 rounded_notches)
+from tasks.plate_section import (PlateProfile, SectionFrame, TeeProfile, drawn_profile, plate_profile,
+                                 profile_section, rounded_notches, tee_profile, tee_section)
 from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, SectionMesh, SectionSolution,
                                  bend_sections, mesh_sections, peaks_near, pull_sections)
 from tasks.fatigue import notch_cycles
 from tasks.fe_solve import CalculixNotFound, FESolveError
 
-__all__ = ["stress", "MODEL", "MODEL_BENDING", "notch_mesh"]
+__all__ = ["stress", "MODEL", "MODEL_BENDING", "TEE", "notch_mesh"]
 
 _SECTIONS = "2-D sections across the weld, plane strain, 6-node triangles (CalculiX CPE6), steel (210 GPa, 0.3); "
 MODEL = _SECTIONS + "axial tension across the weld, both ends held straight"
 MODEL_BENDING = (_SECTIONS + "pure bending about the weld's axis, the top face stretched: both ends held straight and "
                  "turned about their mid-thickness")
 
+# what a T-joint's sections are (the load follows: pulled or bent, the base plate's ends held straight)
+TEE = ("; a T-joint: the base plate with the stem and its two fillets, the stem cut stress.stem_cut_mm above the "
+       "base and free (the non-load-carrying fillet weld's test)")
 
 _FINEST_MM = 0.02  # the smallest element the toes get (a measured radius of 0.08 mm or under)
 
@@ -73,9 +76,11 @@ def _toe_lines(geometry: WeldGeometry) -> dict[tuple[str, str], tuple[np.ndarray
     for sec in geometry.sections:
         if not sec.toes.both():
             continue
-        mid = 0.5 * (sec.toes.minus.position_u_mm + sec.toes.plus.position_u_mm)
+        fillet = isinstance(sec, FilletWeldSection)
+        mid = None if fillet else 0.5 * (sec.toes.minus.position_u_mm + sec.toes.plus.position_u_mm)
         for side, toe in sec.toes.sides():
-            point = np.asarray(sec.centre_specimen_mm) + (toe.position_u_mm - mid) * across[sec.line]
+            point = np.asarray(sec.toe_specimen_mm(side) if fillet else
+                               np.asarray(sec.centre_specimen_mm) + (toe.position_u_mm - mid) * across[sec.line])
             radius = toe.toe_radius_mm.value
             found.setdefault((sec.line, side), []).append((sec.position_mm, point, math.nan if radius is None else radius))
     out = {}
@@ -163,9 +168,11 @@ def stress(ctx) -> dict[str, Any]:
     geometry = WELD_GEOMETRY.read(ctx.inputs["weld"])
     if not geometry.measured:
         return _not_made(ctx, f"the weld was not measured ({geometry.why_not}): no toes to load")
-    if any(isinstance(sec, FilletWeldSection) for sec in geometry.sections):
-        return _not_made(ctx, "fillet welds (a T-joint's, a cruciform's): their sections' models are not built yet; "
-                              "the fillets' figures are in weld_geometry.json")
+    fillet = any(isinstance(sec, FilletWeldSection) for sec in geometry.sections)
+    if fillet and getattr(ctx.manifest.specimen, "kind", None) != "t-joint":
+        return _not_made(ctx, f"fillet welds of a {getattr(ctx.manifest.specimen, 'kind', None)}: only a T-joint's "
+                              "sections (a stem on one face of the base plate) are modelled; the fillets' figures are "
+                              "in weld_geometry.json")
     toes = _toe_lines(geometry)
     driving = next((line for line in geometry.lines if any(key[0] == line.name for key in toes)), None)
     if driving is None:
@@ -192,9 +199,12 @@ def stress(ctx) -> dict[str, Any]:
                                    growth=s.growth)
     models: list[_Model] = []
     for sec in chosen:
-        frame = SectionFrame(np.asarray(sec.centre_specimen_mm, np.float64), across, up, along)
-        profile = plate_profile(points, normals, frame, half_width_mm=s.half_width_mm, bin_mm=s.bin_mm,
-                                smooth_mm=s.smooth_mm)
+        if fillet:  # the T-joint's section through both fillets' roots here
+            frame, profile = _tee(sec, geometry, points, normals, across, up, along, s)
+        else:
+            frame = SectionFrame(np.asarray(sec.centre_specimen_mm, np.float64), across, up, along)
+            profile = plate_profile(points, normals, frame, half_width_mm=s.half_width_mm, bin_mm=s.bin_mm,
+                                    smooth_mm=s.smooth_mm)
         if profile is None:
             continue
         crossing = []
@@ -207,7 +217,8 @@ def stress(ctx) -> dict[str, Any]:
         if not crossing:
             continue
         try:
-            plane = profile_section(profile, cut_mm=s.cut_mm, fine_mm=np.array([c.xy for c in crossing]))
+            plane = (tee_section if fillet else profile_section)(profile, cut_mm=s.cut_mm,
+                                                                 fine_mm=np.array([c.xy for c in crossing]))
         except ValueError:
             continue
         # elements at the toes a quarter of the sharpest measured radius or finer (IIW), not under 0.02 mm
@@ -221,18 +232,19 @@ def stress(ctx) -> dict[str, Any]:
     try:
         meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
         solutions = _load_sections(meshes, s, bending)
-        notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress else None
+        notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress and not fillet else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
     spacing = _point_spacing(points, [m.frame for m in models], s.half_width_mm)
     sections, factors, notch_factors = [], {}, {}
     near, far = s.plate_window_mm
     for index, (model, solution) in enumerate(zip(models, solutions)):
-        sec, frame, profile = model.section, model.frame, model.profile
+        sec, frame = model.section, model.frame
+        profile = model.profile.plate if isinstance(model.profile, TeeProfile) else model.profile
         peaks = peaks_near(solution, np.array([c.xy for c in model.toes]), s.peak_reach_mm)
         toe_rows, errors = [], []
         for j, (toe, (peak, at)) in enumerate(zip(model.toes, peaks)):
-            sign = -1.0 if toe.side == "minus" else 1.0
+            sign = -1.0 if toe.xy[0] < 0 else 1.0  # the toe's plate: the window on its side of the weld's centre
             window = (sign * near, sign * far)
             thickness = profile.thickness_mm(*window)
             nominal = _nominal_mpa(solution, thickness, bending)
@@ -291,7 +303,8 @@ def stress(ctx) -> dict[str, Any]:
                                             change=round(finer_factor / hot.factor - 1, 5))
         except (SectionMeshError, FESolveError) as exc:
             return _not_made(ctx, f"the hot spot's section did not solve with finer elements: {exc}")
-    drawn = _drawn(ctx.manifest, geometry, up, across, s, bending)
+    drawn = (DrawnStress(made=False, why="the drawn fillet weld's section is not built yet (a T-joint)") if fillet
+             else _drawn(ctx.manifest, geometry, up, across, s, bending))
     fatigue, basis = _fatigue(ctx.manifest, notch_hot_spots, s)
     write_section_vtu(ctx.out / STRESS_VTU.name, [(m.frame.origin, m.frame.across, m.frame.up) for m in models],
                       solutions)
@@ -299,7 +312,8 @@ def stress(ctx) -> dict[str, Any]:
     membrane = [x.membrane_error for x in sections if x.membrane_error is not None]
     radii = [t.toe_radius_mm for x in sections for t in x.toes if t.toe_radius_mm is not None]
     summary = StressSummary(
-        made=True, model=MODEL_BENDING if bending else MODEL, driving_line=driving.name, sections=sections,
+        made=True, model=(MODEL_BENDING if bending else MODEL) + (TEE if fillet else ""), driving_line=driving.name,
+        sections=sections,
         hot_spots=hot_spots, hot_spot=hot,
         convergence=convergence, max_imbalance=imbalance, max_membrane_error=max(membrane, key=abs) if membrane else None,
         notch_radius_mm=s.notch_radius_mm if s.notch_stress else None, notch_hot_spots=notch_hot_spots,
@@ -311,6 +325,29 @@ def stress(ctx) -> dict[str, Any]:
             "hot_spot": None if hot is None else f"{hot.line} {hot.side} at {hot.position_mm:g} mm",
             "max_imbalance": imbalance,
             "notch_hot_spot_factor": max((h.factor for h in notch_hot_spots), default=None)}
+
+
+def _tee(sec: FilletWeldSection, geometry: WeldGeometry, points: np.ndarray, normals: np.ndarray, across: np.ndarray,
+         up: np.ndarray, along: np.ndarray, s) -> tuple[SectionFrame, TeeProfile | None]:
+    """A T-joint's section at ``sec`` (a fillet's section with both toes): its frame, centred between
+    the two fillets' roots there, and its outline (``tasks.plate_section.tee_profile``); None when
+    the other fillet has no section with both toes within half a step of it."""
+    partner = min((o for o in geometry.sections if o.line != sec.line and o.toes.both()),
+                  key=lambda o: abs(o.position_mm - sec.position_mm), default=None)
+    mine = np.asarray(sec.centre_specimen_mm, np.float64)
+    if partner is None or abs(partner.position_mm - sec.position_mm) > s.section_step_mm / 2:
+        return SectionFrame(mine, across, up, along), None
+    theirs = np.asarray(partner.centre_specimen_mm, np.float64)
+    theirs = theirs - ((theirs - mine) @ along) * along  # the other root, in this section's plane
+    frame = SectionFrame(0.5 * (mine + theirs), across, up, along)
+    roots = {}
+    for root in (mine, theirs):
+        rel = root - frame.origin
+        roots[1 if rel @ across > 0 else -1] = np.array([rel @ across, rel @ up])
+    if len(roots) != 2:
+        return frame, None
+    return frame, tee_profile(points, normals, frame, roots_mm=roots, stem_cut_mm=s.stem_cut_mm,
+                              half_width_mm=s.half_width_mm, bin_mm=s.bin_mm, smooth_mm=s.smooth_mm)
 
 
 def _hot_spots(factors: dict[tuple[str, str], list[tuple[float, float, tuple]]]) -> list[ToeHotSpot]:

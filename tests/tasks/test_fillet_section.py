@@ -90,6 +90,20 @@ def test_a_fillet_line_in_3d_gives_its_sections_and_toes_where_they_are():
         assert abs(base[1] - (position - 20.0)) < 1e-9
 
 
+@pytest.mark.parametrize("offset", [(8.0, 0.0), (-3.0, 2.0)])
+def test_the_root_is_found_when_the_line_is_given_off_it(offset):
+    # (a drawing's line at the toe on the base, 8 mm out from the root, or a placement a few mm off)
+    rng = np.random.default_rng(5)
+    fillet = _drawn(rng)
+    ab = fillet_profile(TJ, fillet, 0.0, 0.05)
+    ab = ab + rng.normal(0.0, 0.01, ab.shape)
+    at_root = measure_fillet_section(ab[:, 0], ab[:, 1], settings=SETTINGS, treated=False)
+    shifted = measure_fillet_section(ab[:, 0] - offset[0], ab[:, 1] - offset[1], settings=SETTINGS, treated=False)
+    assert np.allclose(np.add(shifted.root_ab_mm, offset), at_root.root_ab_mm, atol=0.01)  # other windows, other noise
+    assert abs(shifted.leg_base.value - at_root.leg_base.value) < 0.02
+    assert abs(shifted.leg_stem.value - at_root.leg_stem.value) < 0.02
+
+
 @pytest.mark.parametrize("cut, why", [
     (lambda a, b: b < 10.0, "the stem plate's window"),  # the stem cut off above the weld
     (lambda a, b: a < 12.0, "the base plate's window"),  # the base cut off beside the weld

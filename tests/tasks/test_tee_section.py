@@ -1,0 +1,64 @@
+"""A T-joint's section read from points (tasks.plate_section.tee_profile, tee_section): the
+simulator's drawn T (base, stem, two convex fillets with rounded toes) sampled every 0.02 mm comes
+back as the outline the stress stage meshes, within a few micrometres of it; what is missing is
+said."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from schemas.simulation import TJointConfig
+from simulator.tjoint import TJoint, constant_fillet
+from tasks.plate_section import SectionFrame, tee_profile, tee_section
+
+TJ = TJointConfig()  # base 260 x 12 mm, stem 10 x 60 mm
+FRAME = SectionFrame(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), np.array([0, 1.0, 0]))
+ROOTS = {1: np.array([5.0, 6.0]), -1: np.array([-5.0, 6.0])}
+
+
+def _drawn(spacing_mm: float = 0.02):
+    tee = TJoint(config=TJ, mesh=None, toes=[], fillets={
+        1: constant_fillet(leg_base=7.5, leg_stem=6.5, convexity=0.8, toe_radius_base=0.6, toe_radius_stem=1.2),
+        -1: constant_fillet(leg_base=6.5, leg_stem=7.0, convexity=0.5, toe_radius_base=1.5, toe_radius_stem=0.4)})
+    outline, outward = tee.section(0.0, spacing_mm)
+    points = np.concatenate([np.c_[outline[:, 0], np.full(len(outline), y), outline[:, 1]] for y in (-0.2, 0.0, 0.2)])
+    normals = np.tile(np.c_[outward[:, 0], np.zeros(len(outward)), outward[:, 1]], (3, 1))
+    return outline, points, normals
+
+
+def _distance_to_polygon(p: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    d = b - a
+    t = np.clip(np.einsum("kij,ij->ki", p[:, None] - a, d) / np.einsum("ij,ij->i", d, d), 0, 1)
+    return np.linalg.norm(p[:, None] - (a + t[..., None] * d), axis=2).min(axis=1)
+
+
+def test_the_drawn_t_comes_back_as_its_outline():
+    outline, points, normals = _drawn()
+    profile = tee_profile(points, normals, FRAME, roots_mm=ROOTS, stem_cut_mm=20.0, half_width_mm=0.5, bin_mm=0.02,
+                          smooth_mm=0.0)
+    plane = tee_section(profile, cut_mm=15.0, fine_mm=np.zeros((0, 2)))
+    polygon = plane.outline_mm
+    x, y = polygon[:, 0], polygon[:, 1]
+    assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # counter-clockwise
+    assert len(plane.corners) == 6 and np.isclose(x.min(), -115.0, atol=0.03) and np.isclose(x.max(), 115.0, atol=0.03)
+    assert np.isclose(y.max(), 26.0, atol=1e-9)  # the stem cut 20 mm above the base's face
+    # every drawn point inside the cuts and under the stem's cut on the outline, within 5 um
+    inside = (np.abs(outline[:, 0]) < 114.9) & (outline[:, 1] < 25.9)
+    assert _distance_to_polygon(outline[inside][::5], polygon).max() < 0.005
+    # the base's faces, 12 mm apart, as the nominal stress reads them
+    assert abs(profile.plate.thickness_mm(16.0, 30.0) - 12.0) < 1e-6 and abs(profile.plate.thickness_mm(-30.0, -16.0) - 12.0) < 1e-6
+
+
+def test_a_t_without_its_stem_or_its_bottom_is_not_a_section():
+    outline, points, normals = _drawn(0.05)
+    no_stem = points[:, 2] < 10.0  # the stem cut away above its fillets
+    assert tee_profile(points[no_stem], normals[no_stem], FRAME, roots_mm=ROOTS, stem_cut_mm=20.0, half_width_mm=0.5,
+                       bin_mm=0.05, smooth_mm=0.0) is None
+    no_bottom = points[:, 2] > -5.0
+    assert tee_profile(points[no_bottom], normals[no_bottom], FRAME, roots_mm=ROOTS, stem_cut_mm=20.0, half_width_mm=0.5,
+                       bin_mm=0.05, smooth_mm=0.0) is None
+    with pytest.raises(ValueError, match="roots_mm must give the stem's two faces' roots"):
+        tee_profile(points, normals, FRAME, roots_mm={1: ROOTS[1]}, stem_cut_mm=20.0, half_width_mm=0.5, bin_mm=0.05,
+                    smooth_mm=0.0)
