@@ -203,13 +203,16 @@ class DrawnToe(StrictModel):
 class DrawnStress(StrictModel):
     """The same computation on the drawn (idealised) weld: the manifest's plate, straight and
     aligned, each face's cap a circular segment of the median measured width and height, the toes
-    rounded to ``notch_radius_mm`` (a drawn toe is a sharp corner, whose stress has no finite peak)."""
+    rounded to ``notch_radius_mm`` (a drawn toe is a sharp corner, whose stress has no finite peak).
+    A T-joint's: its base and stem as the manifest gives them, each fillet's face straight between
+    its median measured legs (``legs``), the toes rounded the same way."""
 
     made: bool
     why: str | None = None
     thickness_mm: float | None = None
     notch_radius_mm: float | None = None
     caps: dict[str, tuple[float, float]] = {}  # face ("top", "bottom") -> (width, height), mm
+    legs: dict[str, tuple[float, float]] | None = None  # a T-joint's: weld line -> (leg on the base, on the stem), mm
     toes: list[DrawnToe] = []
 
 

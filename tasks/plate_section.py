@@ -24,7 +24,7 @@ from scipy.signal import savgol_filter
 from tasks.section_model import PlaneSection
 
 __all__ = ["SectionFrame", "PlateProfile", "plate_profile", "profile_section", "to_section", "rounded_notches",
-           "StemFace", "TeeProfile", "tee_profile", "tee_section",
+           "StemFace", "TeeProfile", "tee_profile", "tee_section", "drawn_tee_section",
            "drawn_profile"]
 
 
@@ -363,3 +363,48 @@ def tee_section(profile: TeeProfile, *, cut_mm: float, fine_mm: np.ndarray) -> P
     n = np.cumsum([len(p) for p in parts])
     corners = (0, n[0] - 1, n[0], n[2] - 1, n[2], n[4] - 1)
     return PlaneSection(outline, fine_mm=np.asarray(fine_mm, np.float64).reshape(-1, 2), corners=corners)
+
+
+def _rounded_corner(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, radius_mm: float, step_mm: float) -> np.ndarray:
+    """The points of an arc of ``radius_mm`` rounding the corner where a path heading ``e1`` (unit)
+    turns to ``e2``, tangent to both, about ``step_mm`` apart (its ends included)."""
+    turn = float(np.arccos(np.clip(e1 @ e2, -1.0, 1.0)))
+    d = radius_mm * np.tan(turn / 2)
+    start, end = corner - d * e1, corner + d * e2
+    normal = np.sign(e1[0] * e2[1] - e1[1] * e2[0]) * np.array([-e1[1], e1[0]])
+    centre = start + radius_mm * normal
+    a0, a1 = (np.arctan2(*(p - centre)[::-1]) for p in (start, end))
+    sweep = (a1 - a0 + np.pi) % (2 * np.pi) - np.pi
+    t = a0 + sweep * np.linspace(0.0, 1.0, max(3, int(np.ceil(abs(sweep) * radius_mm / step_mm)) + 1))
+    return centre + radius_mm * np.c_[np.cos(t), np.sin(t)]
+
+
+def drawn_tee_section(*, base_thickness_mm: float, stem_thickness_mm: float, legs: dict[int, tuple[float, float]],
+                      half_length_mm: float, stem_cut_mm: float, radius_mm: float, step_mm: float) -> PlaneSection:
+    """The drawn (idealised) section of a T-joint: a base plate of ``base_thickness_mm`` (faces at
+    +-thickness/2, ``half_length_mm`` either side of the stem's mid-plane x = 0), a stem of
+    ``stem_thickness_mm`` standing on its top face, cut ``stem_cut_mm`` above it, and on each side
+    (``legs``: +1 / -1 -> (leg on the base, leg on the stem), mm) a fillet with a straight face, each
+    toe rounded to ``radius_mm``; the outline's points about ``step_mm`` apart along the face and
+    the toes, its corners kept, the elements finest at the four toes."""
+    if not (base_thickness_mm > 0 and stem_thickness_mm > 0 and half_length_mm > 0 and stem_cut_mm > 0
+            and radius_mm > 0 and step_mm > 0):
+        raise ValueError("the T-joint's thicknesses, half length, stem cut, radius and step must be positive")
+    if set(legs) != {-1, 1} or min(min(v) for v in legs.values()) <= 0:
+        raise ValueError(f"legs must give both fillets' (base, stem) legs, positive, got {legs}")
+    x0, z0 = stem_thickness_mm / 2, base_thickness_mm / 2
+    halves = {}
+    for side in (1, -1):
+        a, b = legs[side]
+        B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
+        face = (S - B) / np.linalg.norm(S - B)
+        path = np.concatenate([_rounded_corner(B, np.array([-1.0, 0.0]), face, radius_mm, step_mm),
+                               _rounded_corner(S, face, np.array([0.0, 1.0]), radius_mm, step_mm)])
+        halves[side] = np.r_[[[half_length_mm, z0]], path, [[x0, z0 + stem_cut_mm]]] * [side, 1.0]
+    right, left = halves[1], halves[-1][::-1]
+    outline = np.r_[[[-half_length_mm, -z0], [half_length_mm, -z0]], right, left]
+    n_right = 2 + len(right)
+    corners = (0, 1, 2, n_right - 1, n_right, len(outline) - 1)
+    toes = [np.array([side * (x0 + legs[side][0]), z0]) for side in (1, -1)] + \
+        [np.array([side * x0, z0 + legs[side][1]]) for side in (1, -1)]
+    return PlaneSection(outline, fine_mm=np.array(toes), corners=corners)

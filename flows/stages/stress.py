@@ -39,7 +39,7 @@ from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, Str
 from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
 from tasks.plate_section import (PlateProfile, SectionFrame, TeeProfile, drawn_profile, plate_profile,
-                                 profile_section, rounded_notches, tee_profile, tee_section)
+                                 profile_section, rounded_notches, tee_profile, tee_section, drawn_tee_section)
 from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, SectionMesh, SectionSolution,
                                  bend_sections, mesh_sections, peaks_near, pull_sections)
 from tasks.fatigue import notch_cycles
@@ -303,8 +303,7 @@ def stress(ctx) -> dict[str, Any]:
                                             change=round(finer_factor / hot.factor - 1, 5))
         except (SectionMeshError, FESolveError) as exc:
             return _not_made(ctx, f"the hot spot's section did not solve with finer elements: {exc}")
-    drawn = (DrawnStress(made=False, why="the drawn fillet weld's section is not built yet (a T-joint)") if fillet
-             else _drawn(ctx.manifest, geometry, up, across, s, bending))
+    drawn = (_drawn_tee if fillet else _drawn)(ctx.manifest, geometry, up, across, s, bending)
     fatigue, basis = _fatigue(ctx.manifest, notch_hot_spots, s)
     write_section_vtu(ctx.out / STRESS_VTU.name, [(m.frame.origin, m.frame.across, m.frame.up) for m in models],
                       solutions)
@@ -436,6 +435,40 @@ def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray,
         DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,
                  at_section_mm=(round(float(xy[0]), 4), round(float(xy[1]), 4)))
         for (line, side, xy), (peak, _) in zip(toes, peaks)])
+
+
+def _drawn_tee(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray, s, bending: bool) -> DrawnStress:
+    """A T-joint's drawn section (``tasks.plate_section.drawn_tee_section``): the manifest's base
+    and stem, each fillet's face straight between the median legs measured along its line, the
+    toes rounded to ``s.notch_radius_mm``; pulled or bent as the measured sections are."""
+    specimen = manifest.specimen
+    legs, names = {}, {}
+    for line in geometry.lines:
+        rows = [sec for sec in geometry.sections if sec.line == line.name]
+        base = np.median([v for sec in rows if (v := sec.leg_base_mm.value) is not None] or [np.nan])
+        stem = np.median([v for sec in rows if (v := sec.leg_stem_mm.value) is not None] or [np.nan])
+        if base > 0 and stem > 0:
+            side = 1 if np.dot(line.across, across) > 0 else -1
+            legs[side], names[side] = (round(float(base), 4), round(float(stem), 4)), line.name
+    if set(legs) != {-1, 1}:
+        return DrawnStress(made=False, why="the drawn T-joint needs both fillets' legs measured")
+    half = max(s.plate_window_mm[1], specimen.stem_thickness_mm / 2 + max(v[0] for v in legs.values())) + 10.0
+    plane = drawn_tee_section(base_thickness_mm=specimen.base_thickness_mm, stem_thickness_mm=specimen.stem_thickness_mm,
+                              legs=legs, half_length_mm=half, stem_cut_mm=s.stem_cut_mm, radius_mm=s.notch_radius_mm,
+                              step_mm=s.bin_mm / 2)
+    settings, reach = notch_mesh(s)
+    try:
+        (solution,) = _load_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), s, bending)
+    except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
+        return DrawnStress(made=False, why=f"the drawn T-joint's section did not solve: {exc}")
+    nominal = _nominal_mpa(solution, specimen.base_thickness_mm, bending)
+    peaks = peaks_near(solution, plane.fine_mm, reach)
+    where = [(names[1], "base"), (names[-1], "base"), (names[1], "stem"), (names[-1], "stem")]  # drawn_tee_section's toes
+    return DrawnStress(made=True, thickness_mm=float(specimen.base_thickness_mm), notch_radius_mm=s.notch_radius_mm,
+                       legs={names[side]: legs[side] for side in (-1, 1)}, toes=[
+        DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,
+                 at_section_mm=(round(float(xy[0]), 4), round(float(xy[1]), 4)))
+        for (line, side), (peak, _), xy in zip(where, peaks, plane.fine_mm)])
 
 
 def _fatigue(manifest, notch_hot_spots: list[ToeHotSpot], s) -> tuple[list[FatigueEstimate], str]:
