@@ -34,7 +34,12 @@ def profile_halves(points: np.ndarray, y_mm: float):
     sel = np.abs(points[:, 1] - y_mm) < 1e-3
     if not sel.any():
         raise ValueError(f"no profile at y = {y_mm} mm")
-    x, z = points[sel, 0], points[sel, 2]
+    return split_profile(points[sel, 0], points[sel, 2])
+
+
+def split_profile(x: np.ndarray, z: np.ndarray):
+    """A profile (``x``, ``z`` (n,) mm, any order) as two halves ``(side, x, height over its plate's
+    line)``, each ordered from the plate inward."""
     order = np.argsort(x)
     x, z = x[order], z[order]
     top = int(np.argmax(median_filter(z, size=7, mode="nearest")))
