@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["ScanNoise", "REAL_SCAN_NOISE", "draw_butt_profile"]
+__all__ = ["ScanNoise", "REAL_SCAN_NOISE", "add_scan_noise", "draw_butt_profile"]
 
 
 @dataclass(frozen=True)
@@ -59,12 +59,19 @@ def draw_butt_profile(*, toe_radius_mm: float, toe_angle_deg: float, spacing_mm:
     h = np.where(a < arc_end, cap, np.where(a < half - d * math.cos(theta), flank,
                                              np.where(a < half + d, fillet, 0.0)))
     if noise is not None:
-        rho = math.exp(-spacing_mm / noise.correlation_mm)
-        w = rng.normal(0.0, noise.rms_mm * math.sqrt(1 - rho * rho), len(u))
-        w[0] = rng.normal(0.0, noise.rms_mm)
-        h = h + lfilter([1.0], [1.0, -rho], w)  # AR(1): e_i = rho e_(i-1) + w_i
-        spikes = rng.random(len(u)) < noise.spike_rate
-        h[spikes] += rng.choice([-1.0, 1.0], spikes.sum()) * rng.uniform(*noise.spike_mm, spikes.sum())
-        keep = rng.random(len(u)) >= noise.dropout_rate
-        u, h = u[keep], h[keep]
+        u, h = add_scan_noise(u, h, spacing_mm=spacing_mm, noise=noise, rng=rng)
     return u, h, half
+
+
+def add_scan_noise(u: np.ndarray, h: np.ndarray, *, spacing_mm: float, noise: ScanNoise,
+                   rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(u, h) of an exact profile sampled every ``spacing_mm`` (mm, (n,) each, in order along it)
+    as a scanner returns it: correlated noise, spikes, dropouts (``noise``)."""
+    rho = math.exp(-spacing_mm / noise.correlation_mm)
+    w = rng.normal(0.0, noise.rms_mm * math.sqrt(1 - rho * rho), len(u))
+    w[0] = rng.normal(0.0, noise.rms_mm)
+    h = h + lfilter([1.0], [1.0, -rho], w)  # AR(1): e_i = rho e_(i-1) + w_i
+    spikes = rng.random(len(u)) < noise.spike_rate
+    h[spikes] += rng.choice([-1.0, 1.0], spikes.sum()) * rng.uniform(*noise.spike_mm, spikes.sum())
+    keep = rng.random(len(u)) >= noise.dropout_rate
+    return u[keep], h[keep]

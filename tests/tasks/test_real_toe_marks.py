@@ -1,0 +1,86 @@
+"""weldrecon's toe positions on a real scan against toes marked by eye (``tests/data/realweld_marks``:
+20 toes of 10 profiles of AW-front, marked on the pictures kept there, drawn by
+``bench/draw_mark_sections.py``; ``../shared/data/realweld`` beside the repository holds the scan).
+
+Tolerance 0.3 mm a toe: a mark is read to +-0.05 mm (sure "high") .. +-0.15 mm ("low") on points
+0.05 mm apart; and the two name different points of a rounded toe: the eye marks where the flank's
+steep points reach the plate, the fit its flank's virtual corner on the plate, inward of the
+fillet's tangent point by r tan(theta / 2): 0.16 mm for the 0.44 mm that bounds the radius on
+half of this file's toes at 40 deg (bench/README.md, "Real welds"), 0.2 mm at 0.55 mm. The
+median offset toward the plate within 0.1 mm (two points): no bias between the two readings
+(found: +0.05 mm, ours the further out; the largest 0.12 mm)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pydantic import Field
+
+from data_catalog.pointclouds import read_point_cloud
+from flows.scan_weld import profile_settings
+from schemas.common import StrictModel
+from schemas.profile_weld import MeasureWeldConfig
+from tasks.scan_weld import find_weld_line, measure_scan
+
+REALWELD = Path(__file__).resolve().parents[3] / "shared" / "data" / "realweld"
+MARKS = Path(__file__).resolve().parents[1] / "data" / "realweld_marks" / "marks.json"
+TOLERANCE_MM = 0.3
+MEDIAN_TOLERANCE_MM = 0.1
+
+
+class ToeMark(StrictModel):
+    y_mm: float
+    side: str = Field(pattern="^(minus|plus)$")
+    x_mm: float
+    sure: str = Field(pattern="^(high|medium|low)$")
+    picture: str
+
+
+class ToeMarks(StrictModel):
+    schema_version: str = Field(pattern="^1$")
+    file: str
+    how: str
+    marks: list[ToeMark]
+
+
+@pytest.fixture(scope="module")
+def marks_and_ours():
+    """The marks and, per mark, weldrecon's toe x on the scan (mm), the weld line found on the whole scan."""
+    marks = ToeMarks.model_validate_json(MARKS.read_text())
+    scan = REALWELD / marks.file
+    if not scan.is_file():
+        pytest.skip(f"the real weld scans are not at {REALWELD} (../shared/data beside the repository)")
+    points = read_point_cloud(scan, units="mm").points_mm
+    line = find_weld_line(points, min_rise_mm=MeasureWeldConfig().min_rise_mm)
+    ys = sorted({m.y_mm for m in marks.marks})
+    marked = np.isin(np.round(points[:, 1], 3), ys)
+    measured = measure_scan(points[marked], line, settings=profile_settings(MeasureWeldConfig()), treated=False,
+                            step_mm=None, half_width_mm=None, name="weld")
+    assert len(measured.sections) == len(ys)
+    origin, across = np.asarray(line.start_mm), np.asarray(line.across)
+    t = np.subtract(line.end_mm, line.start_mm)
+    t /= np.linalg.norm(t)
+    ours = {}
+    for y, section in zip(ys, measured.sections):  # profiles in the order of their y
+        for side, toe in zip(("minus", "plus"), section.toes):
+            u = toe.fit.position_u_mm if toe.fit is not None else np.nan
+            ours[(y, side)] = float((origin + section.section.position_mm * t + u * across)[0])
+    return marks, ours
+
+
+def test_marks_file_reads():
+    marks = ToeMarks.model_validate_json(MARKS.read_text())
+    assert len({m.y_mm for m in marks.marks}) >= 8 and len(marks.marks) == 2 * len({m.y_mm for m in marks.marks})
+    assert all((MARKS.parent / m.picture).is_file() for m in marks.marks)
+
+
+def test_toe_positions_against_marks(marks_and_ours):
+    marks, ours = marks_and_ours
+    off = {(m.y_mm, m.side): ours[(m.y_mm, m.side)] - m.x_mm for m in marks.marks}
+    far = [f"y {y} {side}: ours {ours[(y, side)]:.3f}, marked {ours[(y, side)] - d:.2f} ({d:+.3f} mm)"
+           for (y, side), d in off.items() if not abs(d) <= TOLERANCE_MM]
+    assert not far, "; ".join(far)
+    outward = [d if side == "plus" else -d for (_, side), d in off.items()]  # + : ours nearer the plate's end
+    assert abs(np.median(outward)) <= MEDIAN_TOLERANCE_MM, sorted(outward)
