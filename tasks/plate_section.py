@@ -379,6 +379,15 @@ def _rounded_corner(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, radius_m
     return centre + radius_mm * np.c_[np.cos(t), np.sin(t)]
 
 
+def _evenly(path: np.ndarray, step_mm: float) -> np.ndarray:
+    """The open polyline ``path`` with points added on each stretch longer than ``step_mm``, evenly."""
+    out = [path[:1]]
+    for p, q in zip(path[:-1], path[1:]):
+        n = max(1, int(np.ceil(np.linalg.norm(q - p) / step_mm)))
+        out.append(p + (q - p) * (np.arange(1, n + 1) / n)[:, None])
+    return np.concatenate(out)
+
+
 def drawn_tee_section(*, base_thickness_mm: float, stem_thickness_mm: float, legs: dict[int, tuple[float, float]],
                       half_length_mm: float, stem_cut_mm: float, radius_mm: float, step_mm: float) -> PlaneSection:
     """The drawn (idealised) section of a T-joint: a base plate of ``base_thickness_mm`` (faces at
@@ -402,9 +411,15 @@ def drawn_tee_section(*, base_thickness_mm: float, stem_thickness_mm: float, leg
                                _rounded_corner(S, face, np.array([0.0, 1.0]), radius_mm, step_mm)])
         halves[side] = np.r_[[[half_length_mm, z0]], path, [[x0, z0 + stem_cut_mm]]] * [side, 1.0]
     right, left = halves[1], halves[-1][::-1]
-    outline = np.r_[[[-half_length_mm, -z0], [half_length_mm, -z0]], right, left]
-    n_right = 2 + len(right)
-    corners = (0, 1, 2, n_right - 1, n_right, len(outline) - 1)
+    # every straight stretch in points ``step_mm`` apart too (the mesher's splines through points
+    # spaced unevenly overshoot), the corners' places kept
+    bottom = _evenly(np.array([[-half_length_mm, -z0], [half_length_mm, -z0]]), step_mm)
+    right, left = _evenly(right, step_mm), _evenly(left, step_mm)
+    parts = [bottom, _evenly(np.r_[bottom[-1:], right[:1]], step_mm)[1:-1], right,
+             _evenly(np.r_[right[-1:], left[:1]], step_mm)[1:-1], left, _evenly(np.r_[left[-1:], bottom[:1]], step_mm)[1:-1]]
+    outline = np.concatenate(parts)
+    starts = np.cumsum([0] + [len(p) for p in parts])
+    corners = tuple(int(k) for k in (0, starts[1] - 1, starts[2], starts[3] - 1, starts[4], starts[5] - 1))
     toes = [np.array([side * (x0 + legs[side][0]), z0]) for side in (1, -1)] + \
         [np.array([side * x0, z0 + legs[side][1]]) for side in (1, -1)]
     return PlaneSection(outline, fine_mm=np.array(toes), corners=corners)
