@@ -287,6 +287,35 @@ def weld_section(u: np.ndarray, h: np.ndarray, *, title: str, toes: Sequence[tup
     return png(fig)
 
 
+def toe_closeups(closeups: Sequence, *, title: str) -> bytes:
+    """One section's toes seen close (``tasks.weld_views.ToeCloseup``), a panel each: the measured
+    points along the plate and over it up to 1 mm, the height exaggerated (the factor in each
+    panel's corner: an HFMI groove of 0.3 mm or a toe's rounding cannot be seen at true scale),
+    the fitted toe drawn over them."""
+    fig = _figure(3.7 * max(len(closeups), 1), 2.2)
+    for k, c in enumerate(closeups):
+        ax = fig.add_subplot(1, len(closeups), k + 1)
+        ax.plot(c.t_mm, c.n_mm, ".", ms=2.0, color="tab:blue", label="measured points")
+        if len(c.model_t_mm):
+            ax.plot(c.model_t_mm, c.model_n_mm, "-", color="tab:red", lw=0.9, label="the fitted toe")
+        if len(c.t_mm):
+            lo, hi = float(np.min(c.n_mm)), min(float(np.max(c.n_mm)), 1.0)  # the toe: up to 1 mm over its plate
+            ax.set_ylim(lo - 0.05, hi + 0.05)
+            ax.set_xlim(float(np.min(c.t_mm)), float(np.max(c.t_mm)))
+            # how much taller than true scale the panel draws heights
+            box = ax.get_position()
+            w_in, h_in = box.width * fig.get_figwidth(), box.height * fig.get_figheight()
+            factor = (np.ptp(ax.get_xlim()) / w_in) / (np.ptp(ax.get_ylim()) / h_in)
+            ax.text(0.98, 0.95, f"height x{factor:.1f}", transform=ax.transAxes, ha="right", va="top", fontsize=6)
+        ax.set_title(c.label, loc="left", fontsize=6)
+        ax.set_xlabel("along the plate, out from the toe, mm", fontsize=6)
+        ax.set_ylabel("over the plate, mm", fontsize=6)
+        ax.tick_params(labelsize=6)
+        ax.legend(loc="lower left", frameon=False, fontsize=5)
+    fig.suptitle(title, x=0.01, ha="left", fontsize=7)
+    return png(fig)
+
+
 @dataclass(frozen=True)
 class AlongWeldSeries:
     """One figure's values along the weld: ``position_mm`` and ``value`` (n,) per curve label,

@@ -18,7 +18,7 @@ from schemas.weld_document import Figure, FilletWeldSection, WeldGeometry, WeldL
 from tasks.report_figures import AlongWeldSeries
 
 __all__ = ["TOE_SERIES", "SECTION_SERIES", "FILLET_SERIES", "figure_value", "along_weld_series", "chosen_sections", "SectionCut",
-           "section_cut"]
+           "section_cut", "ToeCloseup", "toe_closeups"]
 
 # the figures drawn along the weld: (name in the document, label, unit)
 TOE_SERIES = (("toe_radius_mm", "toe radius", "mm"), ("flank_angle_deg", "flank angle", "deg"),
@@ -167,3 +167,70 @@ def section_cut(points_mm: np.ndarray, section: WeldSection | FilletWeldSection,
     width = figure_value(section.reinforcement_width_mm)[0]
     span = (width / 2 if math.isfinite(width) else reach_mm / 2) + margin_mm
     return SectionCut(u, h, toes, plate, min(span, reach_mm))
+
+
+@dataclass(frozen=True)
+class ToeCloseup:
+    """One toe seen close: the measured points ``t_mm`` along its plate (outward from the toe,
+    away from the weld) and ``n_mm`` over the plate's face (toward the weld's side), (n,) float64,
+    within ``reach_mm`` of the toe; the fitted toe drawn back (``model_t_mm``, ``model_n_mm``: the
+    plate, the rounding of the measured radius and the flank at the measured angle from the corner
+    at t = 0; empty where either was not measured); ``label`` names toe and figures."""
+
+    label: str
+    t_mm: np.ndarray
+    n_mm: np.ndarray
+    model_t_mm: np.ndarray
+    model_n_mm: np.ndarray
+
+
+def _toe_model(radius_mm: float, angle_deg: float, reach_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted toe (tasks.weld_fits' model without its flank's curvature): the plate n = 0
+    beyond the rounding, a circle of ``radius_mm`` tangent to it and to the flank's line, which
+    leaves the corner (t = 0) inward at ``angle_deg``."""
+    theta = math.radians(angle_deg)
+    d = radius_mm * math.tan(theta / 2)  # the rounding's ends, from the corner
+    phi = np.linspace(-math.pi / 2, -math.pi / 2 - theta, 24)  # round the centre (d, r), plate to flank
+    t = np.r_[reach_mm, d + radius_mm * np.cos(phi), -reach_mm * math.cos(theta)]
+    n = np.r_[0.0, radius_mm + radius_mm * np.sin(phi), reach_mm * math.sin(theta)]
+    return t, n
+
+
+def toe_closeups(points_mm: np.ndarray, section: WeldSection | FilletWeldSection, line: WeldLineFound, *,
+                 half_width_mm: float, reach_mm: float = 2.5) -> list[ToeCloseup]:
+    """Each measured toe of ``section`` seen close (``ToeCloseup``), from the points of
+    ``points_mm`` ((n, 3), specimen frame) within ``half_width_mm`` of the section along the weld;
+    a butt weld's toes along the plate across the weld, a fillet weld's base toe along the base
+    and its stem toe along the stem. The plate's level near the toe (the median over its plate's
+    side, 1-2.5 mm out) is taken off, so that a misaligned plate is drawn level."""
+    points = np.asarray(points_mm, np.float64)
+    normal, across = np.asarray(line.face_normal, np.float64), np.asarray(line.across, np.float64)
+    along = np.cross(normal, across)
+    centre = np.asarray(section.centre_specimen_mm, np.float64)
+    toes = []
+    if isinstance(section, FilletWeldSection):
+        for side, toe in section.toes.sides():
+            if toe is not None:
+                outward = np.asarray(section.base_direction if side == "base" else section.stem_direction, np.float64)
+                up = normal if side == "base" else across  # toward the weld's side: up from the base, out from the stem
+                toes.append((side, toe, np.asarray(section.toe_specimen_mm(side)), outward, up))
+    elif section.toes.both():
+        mid = (section.toes.minus.position_u_mm + section.toes.plus.position_u_mm) / 2
+        for side, toe in section.toes.sides():
+            sign = -1.0 if side == "minus" else 1.0
+            toes.append((side, toe, centre + (toe.position_u_mm - mid) * across, sign * across, normal))
+    out = []
+    for side, toe, at, outward, up in toes:
+        d = points - at
+        sel = (np.abs(d @ along) <= half_width_mm) & (np.abs(d @ outward) <= reach_mm) & (np.abs(d @ up) <= reach_mm)
+        t, n = d[sel] @ outward, d[sel] @ up
+        plate = (t > 1.0) & (np.abs(n) < 0.5)
+        if plate.any():
+            n = n - float(np.median(n[plate]))
+        radius, angle = figure_value(toe.toe_radius_mm)[0], figure_value(toe.flank_angle_deg)[0]
+        model = _toe_model(radius, angle, reach_mm) if math.isfinite(radius) and math.isfinite(angle) and radius > 0 \
+            else (np.zeros(0), np.zeros(0))
+        label = (f"{section.line} {side} toe at {section.position_mm:g} mm: r {radius:.2f} mm, angle {angle:.1f} deg"
+                 if model[0].size else f"{section.line} {side} toe at {section.position_mm:g} mm (radius or angle not measured)")
+        out.append(ToeCloseup(label, t, n, *model))
+    return out

@@ -48,7 +48,8 @@ from tasks.qa_views import (PassRow, SurfaceView, coverage_maps, mesh_in_view, o
                             plan_view_lines, registration_edges, sticker_marks, surface_view, thinning_steps)
 from tasks.report_figures import (along_weld, face_map, histogram, intensity_image, mesh_view, registration_graph,
                                   stress_along_toes, stress_field, weld_section)
-from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut
+from tasks.report_figures import toe_closeups as closeup_picture
+from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut, toe_closeups
 from tasks.weld_zone import WeldZone
 
 __all__ = ["qa_report"]
@@ -207,6 +208,13 @@ def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
         out.append(_picture(weld_section(cut.u_mm, cut.h_mm, title=title, toes=cut.toes, nominal=cut.plate,
                                          failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points),
                             f"weld section {sec.line} {sec.position_mm:g} mm", f"{verdict}. " + "; ".join(notes)))
+        closeups = toe_closeups(points_specimen, sec, geometry.line(sec.line), half_width_mm=weld.section_half_width_mm)
+        if closeups:
+            out.append(_picture(closeup_picture(closeups, title=f"{sec.line} at {sec.position_mm:g} mm: the toes close, "
+                                                                "height exaggerated"),
+                                f"toe close-up {sec.line} {sec.position_mm:g} mm",
+                                "Each toe's measured points and the fitted toe (its rounding of the measured radius "
+                                "and its flank at the measured angle), the height drawn taller than true scale."))
     return out
 
 

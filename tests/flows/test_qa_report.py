@@ -70,6 +70,7 @@ def test_the_report_opens_offline_in_chromium_with_every_picture_loaded(ci_run, 
     assert sum(a.startswith("pass ") and a.endswith(" intensity") for a in alts) == len(report["passes"])
     lines = {line["name"] for line in report["weld"]["lines"]}
     assert sum(a.startswith("weld section ") for a in alts) == 4 * len(lines)  # sections_per_line, every line
+    assert sum(a.startswith("toe close-up ") for a in alts) == 4 * len(lines)  # each drawn section's toes, close
     assert "weld figures along the weld" in alts
     text = found["text"]
     assert f"QA report: {report['sample_id']}" in text and "Audit trail intact" in text

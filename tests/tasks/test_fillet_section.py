@@ -123,3 +123,41 @@ def test_plates_without_a_weld_say_so_and_bad_arrays_are_refused():
     assert m.base_toe is None and "no weld above the base plate" in m.note and "no weld above the stem plate" in m.note
     with pytest.raises(ValueError, match=r"a and b must be \(n,\) arrays of one length"):
         measure_fillet_section(np.zeros(3), np.zeros(4), settings=SETTINGS, treated=False)
+
+
+def test_the_toes_close_up_show_the_points_and_the_fitted_toe_where_the_toe_is():
+    from schemas.weld_document import FilletToes, FilletWeldSection, Figure, ToeFigures, WeldLineFound
+    from tasks.weld_views import toe_closeups
+
+    rng = np.random.default_rng(3)
+    fillet = _drawn(rng)
+    truth = fillet_truth(TJ, fillet, 0.0, "x")
+    ab = fillet_profile(TJ, fillet, 0.0, 0.05)
+    points = np.concatenate([np.stack([5.0 + ab[:, 0], np.full(len(ab), y), 6.0 + ab[:, 1]], 1) for y in (-0.2, 0.0, 0.2)])
+    m = measure_fillet_section(ab[:, 0], ab[:, 1], settings=SETTINGS, treated=False)
+
+    def toe(fit, side):
+        return ToeFigures(side=side, position_u_mm=fit.position_u_mm, position_sigma_mm=None,
+                          flank_angle_deg=Figure(value=fit.flank_angle_deg.value, sigma=None),
+                          toe_radius_mm=Figure(value=fit.notch_radius.value, sigma=None),
+                          undercut_depth_mm=Figure(value=0.0, sigma=None), fit_rms_mm=0.0, points=0, treated=False)
+
+    none = Figure(value=None, sigma=None)
+    section = FilletWeldSection(line="fillet-pos", position_mm=20.0, centre_specimen_mm=(5.0 + m.root_ab_mm[0], 0.0, 6.0 + m.root_ab_mm[1]),
+                                points=len(ab), base_direction=(m.base_direction[0], 0.0, m.base_direction[1]),
+                                stem_direction=(m.stem_direction[0], 0.0, m.stem_direction[1]), plates_angle_deg=90.0,
+                                leg_base_mm=none, leg_stem_mm=none, throat_mm=none, convexity_mm=none,
+                                toes=FilletToes(base=toe(m.base_toe, "base"), stem=toe(m.stem_toe, "stem")),
+                                passed=None, verdict=None, violations=[], uncertain=[])
+    line = WeldLineFound(name="fillet-pos", sections=1, offset_mm=0.0, turn_deg=0.0, face_normal=(0.0, 0.0, 1.0),
+                         across=(1.0, 0.0, 0.0), measured_extent_mm=(0.0, 40.0))
+    base, stem = toe_closeups(points, section, line, half_width_mm=0.5)
+    assert base.label.startswith("fillet-pos base toe at 20 mm: r ") and stem.label.startswith("fillet-pos stem toe")
+    for c, radius in ((base, truth.toe_radius_mm[0]), (stem, truth.toe_radius_mm[1])):
+        assert len(c.t_mm) > 50 and np.abs(c.t_mm).max() <= 2.5 and np.abs(c.n_mm).max() <= 2.5
+        beyond = c.t_mm > radius + 0.3  # past the rounding, out on the plate: level, drawn at 0
+        assert np.abs(c.n_mm[beyond]).max() < 0.01
+        # the fitted toe drawn back runs through the measured points within a few hundredths
+        on_model = np.interp(c.t_mm, c.model_t_mm[::-1], c.model_n_mm[::-1])
+        near = (c.t_mm > -0.5) & (c.t_mm < 2.0)
+        assert np.median(np.abs(c.n_mm[near] - on_model[near])) < 0.03
