@@ -31,7 +31,8 @@ from flows.stages.stress import notch_mesh
 from schemas.reconstruction import ReconstructionConfig
 from simulator.evaluate import fit_gauge, true_specimen, true_tjoint
 from tasks.frames import apply, invert, rotate
-from tasks.plate_section import SectionFrame, plate_profile, profile_section, rounded_notches, tee_profile, tee_section
+from tasks.plate_section import (SectionFrame, plate_profile, profile_section, rounded_notches, rounded_tee, tee_profile,
+                                 tee_section)
 from tasks.section_model import SectionMeshSettings, mesh_sections, peaks_near, pull_sections
 
 __all__ = ["true_factors", "compare"]
@@ -82,6 +83,8 @@ def true_factors(run: Path, sample: Path, *, notch: bool = False, stress: Path |
                 roots[1 if rel @ across > 0 else -1] = np.array([rel @ across, rel @ up])
             profile = tee_profile(points, normals, frame, roots_mm=roots, stem_cut_mm=s.stem_cut_mm, half_width_mm=0.05,
                                   bin_mm=0.02, smooth_mm=0.0)
+            if notch:
+                profile = rounded_tee(profile, summary.notch_radius_mm)
             planes.append((profile.plate, tee_section(profile, cut_mm=s.cut_mm, fine_mm=toes)))
             fine.append(toes)
             continue

@@ -15,7 +15,7 @@ Arrays in, arrays out: no files, no solver."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d, median_filter
@@ -24,7 +24,7 @@ from scipy.signal import savgol_filter
 from tasks.section_model import PlaneSection
 
 __all__ = ["SectionFrame", "PlateProfile", "plate_profile", "profile_section", "to_section", "rounded_notches",
-           "StemFace", "TeeProfile", "tee_profile", "tee_section", "drawn_tee_section",
+           "StemFace", "TeeProfile", "tee_profile", "tee_section", "drawn_tee_section", "rounded_tee",
            "drawn_profile"]
 
 
@@ -191,11 +191,12 @@ def rounded_notches(profile: PlateProfile, radius_mm: float) -> PlateProfile:
     out = {}
     for name, sign in (("top_mm", 1.0), ("bottom_mm", -1.0)):
         values = getattr(profile, name)
-        finite = np.flatnonzero(np.isfinite(values))
+        finite = np.isfinite(values)
         rounded = np.full(len(values), np.nan)
-        if len(finite):
-            lo, hi = finite[0], finite[-1]
-            rounded[lo:hi + 1] = sign * _closed_from_above(sign * values[lo:hi + 1], step, radius_mm)
+        # each stretch of the face on its own (a T-joint's top face stops at the stem on either side)
+        edges = np.flatnonzero(np.diff(np.r_[False, finite, False].astype(np.int8)))
+        for lo, hi in zip(edges[::2], edges[1::2]):
+            rounded[lo:hi] = sign * _closed_from_above(sign * values[lo:hi], step, radius_mm)
         out[name] = rounded
     return PlateProfile(x_mm=x, top_mm=out["top_mm"], bottom_mm=out["bottom_mm"], measured_top=profile.measured_top,
                         measured_bottom=profile.measured_bottom)
@@ -363,6 +364,22 @@ def tee_section(profile: TeeProfile, *, cut_mm: float, fine_mm: np.ndarray) -> P
     n = np.cumsum([len(p) for p in parts])
     corners = (0, n[0] - 1, n[0], n[2] - 1, n[2], n[4] - 1)
     return PlaneSection(outline, fine_mm=np.asarray(fine_mm, np.float64).reshape(-1, 2), corners=corners)
+
+
+def rounded_tee(profile: TeeProfile, radius_mm: float) -> TeeProfile:
+    """A T-joint's section with every notch rounded to ``radius_mm`` at least (``rounded_notches``'
+    rolling disk): the base's faces as a plate's (the base toes), each stem face as a face seen
+    from its side, heights along the stem (the stem toes), the stem's cut left where it is."""
+    if not radius_mm > 0:
+        raise ValueError(f"radius_mm must be positive, got {radius_mm}")
+    faces = []
+    for face in profile.stem:
+        step = float(np.median(np.diff(face.y_mm)))
+        # seen from its side (outward +side): the part lies at smaller side * x
+        x = face.side * _closed_from_above(face.side * face.x_mm, step, radius_mm)
+        faces.append(replace(face, x_mm=x))
+    return TeeProfile(plate=rounded_notches(profile.plate, radius_mm), stem=(faces[0], faces[1]),
+                      stem_top_mm=profile.stem_top_mm)
 
 
 def _rounded_corner(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, radius_mm: float, step_mm: float) -> np.ndarray:

@@ -39,7 +39,8 @@ from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, Str
 from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
 from tasks.frames import apply, invert, rotate
 from tasks.plate_section import (PlateProfile, SectionFrame, TeeProfile, drawn_profile, plate_profile,
-                                 profile_section, rounded_notches, tee_profile, tee_section, drawn_tee_section)
+                                 profile_section, rounded_notches, rounded_tee, tee_profile, tee_section,
+                                 drawn_tee_section)
 from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, SectionMesh, SectionSolution,
                                  bend_sections, mesh_sections, peaks_near, pull_sections)
 from tasks.fatigue import notch_cycles
@@ -232,7 +233,7 @@ def stress(ctx) -> dict[str, Any]:
     try:
         meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
         solutions = _load_sections(meshes, s, bending)
-        notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress and not fillet else None
+        notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
     spacing = _point_spacing(points, [m.frame for m in models], s.half_width_mm)
@@ -375,7 +376,9 @@ def _notch_peaks(models: list[_Model], s,
     """Per model: each toe's (peak, where) with the section's notches rounded to
     ``s.notch_radius_mm`` (``tasks.plate_section.rounded_notches``, meshed as ``notch_mesh``), and
     its solution (loaded as the measured sections are)."""
-    planes = [profile_section(rounded_notches(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
+    planes = [tee_section(rounded_tee(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
+                          fine_mm=np.array([c.xy for c in m.toes])) if isinstance(m.profile, TeeProfile) else
+              profile_section(rounded_notches(m.profile, s.notch_radius_mm), cut_mm=s.cut_mm,
                               fine_mm=np.array([c.xy for c in m.toes])) for m in models]
     settings, reach = notch_mesh(s)
     solutions = _load_sections(mesh_sections(planes, settings, timeout_s=s.timeout_s), s, bending)
