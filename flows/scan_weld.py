@@ -13,12 +13,11 @@ import numpy as np
 
 from data_catalog.acceptance import load_acceptance_limits
 from data_catalog.pointclouds import read_point_cloud
-from flows.stages.weld import _finding, _section, _statistics
+from flows.stages.weld import judged, section_document, section_statistics
 from schemas.profile_weld import MeasureWeldConfig, ScanSource, ScanToe, ScanWeld, ScanWeldLine
-from schemas.weld_document import WeldGeometry, WeldLineFound, WeldSummary
+from schemas.weld_document import WeldGeometry, WeldLineFound
 from tasks.profile_weld import ProfileSettings
 from tasks.scan_weld import find_weld_line, given_weld_line, measure_scan
-from tasks.weld_acceptance import judge_weld
 
 __all__ = ["scan_weld_document", "profile_settings"]
 
@@ -46,25 +45,16 @@ def scan_weld_document(path: str | Path, *, units: str, line, joint: str, treatm
         raise ValueError(f"{path}: {exc}") from exc
     sections = [r.section for r in scan.sections]
     rule = load_acceptance_limits(None).rule_for(joint, treatment)
-    verdict = judge_weld(sections, rule) if rule is not None else None
+    verdict, summary, failing, uncertain = judged(sections, rule)
     length = float(np.linalg.norm(np.subtract(found.end_mm, found.start_mm)))
-    failing = [] if verdict is None else [_finding(v) for sv in verdict.sections for v in sv.violations]
-    uncertain = [] if verdict is None else [_finding(v) for sv in verdict.sections if sv.passed for v in sv.uncertain]
-    summary = WeldSummary(sections=len(sections), sections_measured=None if verdict is None else verdict.n_measured,
-                          sections_not_measured=None if verdict is None else verdict.n_not_measured,
-                          failing=None if verdict is None else verdict.n_failing,
-                          sections_uncertain=None if verdict is None else verdict.n_uncertain,
-                          passed=None if verdict is None else verdict.passed,
-                          verdict=("no acceptance rule for this joint and treatment" if verdict is None
-                                   else "pass" if verdict.passed else "fail"))
     geometry = WeldGeometry(
         measured=True, joint=joint, treatment=treatment, frame=f"the scan's own ({name})", acceptance=rule,
         acceptance_source="data_catalog/weld_acceptance.yaml",
         lines=[WeldLineFound(name="weld", sections=len(sections), offset_mm=0.0, turn_deg=0.0,
                              face_normal=tuple(round(v, 5) for v in found.normal),
                              across=tuple(round(v, 5) for v in found.across), measured_extent_mm=(0.0, round(length, 3)))],
-        summary=summary, statistics=_statistics(sections), failing=failing, uncertain=uncertain,
-        sections=[_section(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)])
+        summary=summary, statistics=section_statistics(sections), failing=failing, uncertain=uncertain,
+        sections=[section_document(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)])
     toes, problems = [], []
     for r in scan.sections:
         where = f"{name} at {r.section.position_mm:.2f} mm"

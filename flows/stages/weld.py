@@ -37,7 +37,8 @@ from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
-__all__ = ["weld", "MEASURABLE_JOINTS", "FILLET_JOINTS"]
+__all__ = ["weld", "MEASURABLE_JOINTS", "FILLET_JOINTS", "section_settings", "judged", "section_document",
+           "section_statistics", "finding_document"]
 
 MEASURABLE_JOINTS = ("double-sided butt", "single-V butt", "double-V butt")  # a cap between two plates
 FILLET_JOINTS = ("fillet", "double fillet", "cruciform fillet")  # between a base plate and a stem on it
@@ -61,12 +62,12 @@ def _toe_figures(toe) -> ToeFigures | None:
                       treated=g is not None, groove=groove, note=toe.note or None)
 
 
-def _finding(v) -> Finding:
+def finding_document(v) -> Finding:
     return Finding(line=v.line, position_mm=v.position_mm, toe=v.toe, figure=v.figure, value=v.value, limit=v.limit,
                    sigma=v.sigma)
 
 
-def _section(sec: SectionMeasurement, verdict) -> WeldSection:
+def section_document(sec: SectionMeasurement, verdict) -> WeldSection:
     return WeldSection(line=sec.line, position_mm=round(sec.position_mm, 3),
                        centre_specimen_mm=tuple(round(v, 4) for v in sec.centre_mm), points=sec.n_points,
                        reinforcement_height_mm=_figure(sec.height), reinforcement_width_mm=_figure(sec.width),
@@ -74,13 +75,31 @@ def _section(sec: SectionMeasurement, verdict) -> WeldSection:
                        angular_misalignment_deg=_figure(sec.angular_misalignment_deg),
                        toes=SectionToes(minus=_toe_figures(sec.toes[0]), plus=_toe_figures(sec.toes[1])),
                        passed=None if verdict is None else verdict.passed,
-                       violations=[] if verdict is None else [_finding(v) for v in verdict.violations],
+                       violations=[] if verdict is None else [finding_document(v) for v in verdict.violations],
                        verdict=None if verdict is None else verdict.verdict,
-                       uncertain=[] if verdict is None else [_finding(v) for v in verdict.uncertain],
+                       uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain],
                        note=sec.note or None)
 
 
-def _statistics(sections: list[SectionMeasurement]) -> dict[str, FigureStatistics]:
+def judged(sections: list[SectionMeasurement], rule):
+    """The sections judged by ``rule`` (None: no rule): the verdict (None without a rule), the
+    summary, the failing findings and the uncertain ones of passing sections."""
+    verdict = judge_weld(sections, rule) if rule is not None else None
+    failing = [] if verdict is None else [finding_document(v) for sv in verdict.sections for v in sv.violations]
+    uncertain = [] if verdict is None else [finding_document(v) for sv in verdict.sections if sv.passed
+                                            for v in sv.uncertain]
+    summary = WeldSummary(sections=len(sections),
+                          sections_measured=None if verdict is None else verdict.n_measured,
+                          sections_not_measured=None if verdict is None else verdict.n_not_measured,
+                          failing=None if verdict is None else verdict.n_failing,
+                          sections_uncertain=None if verdict is None else verdict.n_uncertain,
+                          passed=None if verdict is None else verdict.passed,
+                          verdict=("no acceptance rule for this joint and treatment" if verdict is None
+                                   else "pass" if verdict.passed else "fail"))
+    return verdict, summary, failing, uncertain
+
+
+def section_statistics(sections: list[SectionMeasurement]) -> dict[str, FigureStatistics]:
     return _along(sections, {"reinforcement_height_mm": lambda s: s.height.value,
                              "reinforcement_width_mm": lambda s: s.width.value,
                              "axial_misalignment_mm": lambda s: s.axial_misalignment.value,
@@ -122,7 +141,8 @@ def _not_measured(ctx, document: WeldGeometry) -> dict[str, Any]:
     return {"measured": False, "why_not": document.why_not}
 
 
-def _section_settings(s) -> SectionSettings:
+def section_settings(s) -> SectionSettings:
+    """How a section is read, from the weld settings (``schemas.reconstruction.WeldGeometryConfig``)."""
     return SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
                            toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
                            groove_plate_gap_mm=s.groove_plate_gap_mm, undercut_min_depth_mm=s.undercut_min_depth_mm,
@@ -168,7 +188,7 @@ def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str
     treated = manifest.weld.treatment != "as-welded"
     found = [measure_fillet_line(points, np.asarray(line.points_mm, np.float64), *sides[line.name], name=line.name,
                                  step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
-                                 reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=_section_settings(s),
+                                 reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=section_settings(s),
                                  treated=treated)
              for line in manifest.weld_lines()]
     sections = [_fillet_section(line, position, sec) for line in found for position, sec in line.sections]
@@ -239,11 +259,7 @@ def weld(ctx) -> dict[str, Any]:
     normals = rotate(T_specimen_common, cloud.normals[keep].astype(np.float64))
     if joint in FILLET_JOINTS:
         return _fillet_weld(ctx, points, T, head)
-    settings = SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
-                               toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
-                               groove_plate_gap_mm=s.groove_plate_gap_mm,
-                               undercut_min_depth_mm=s.undercut_min_depth_mm,
-                               height_half_width_mm=s.height_half_width_mm, min_points=s.min_points)
+    settings = section_settings(s)
     treated = treatment != "as-welded"
     found_lines = [measure_weld_line(points, normals, np.asarray(line.points_mm, np.float64), name=line.name,
                                      step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
@@ -255,21 +271,11 @@ def weld(ctx) -> dict[str, Any]:
                            across=tuple(round(v, 5) for v in f.across),
                            measured_extent_mm=tuple(round(v, 3) for v in f.extent_mm)) for f in found_lines]
     sections = [sec for f in found_lines for sec in f.sections]
-    verdict = judge_weld(sections, rule) if rule is not None else None
-    failing = [] if verdict is None else [_finding(v) for sv in verdict.sections for v in sv.violations]
-    uncertain = [] if verdict is None else [_finding(v) for sv in verdict.sections if sv.passed for v in sv.uncertain]
-    summary = WeldSummary(sections=len(sections),
-                          sections_measured=None if verdict is None else verdict.n_measured,
-                          sections_not_measured=None if verdict is None else verdict.n_not_measured,
-                          failing=None if verdict is None else verdict.n_failing,
-                          sections_uncertain=None if verdict is None else verdict.n_uncertain,
-                          passed=None if verdict is None else verdict.passed,
-                          verdict=("no acceptance rule for this joint and treatment" if verdict is None
-                                   else "pass" if verdict.passed else "fail"))
-    statistics = _statistics(sections)
+    verdict, summary, failing, uncertain = judged(sections, rule)
+    statistics = section_statistics(sections)
     WELD_GEOMETRY.write(ctx.out, WeldGeometry(
         measured=True, lines=lines, summary=summary, statistics=statistics, failing=failing, uncertain=uncertain,
-        sections=[_section(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)],
+        sections=[section_document(sec, None if verdict is None else verdict.sections[k]) for k, sec in enumerate(sections)],
         **head))
     # the toes as polylines in the common frame, at full precision (the FE model grades its elements toward them)
     toes = toe_polylines(found_lines)

@@ -10,18 +10,14 @@ import math
 import numpy as np
 import pytest
 
+from flows.stages.weld import section_settings
 from schemas.reconstruction import WeldGeometryConfig
 from schemas.simulation import TJointConfig
 from simulator.tjoint import constant_fillet, fillet_profile, fillet_truth
 from tasks.fillet_section import measure_fillet_line, measure_fillet_section
-from tasks.weld_fits import SectionSettings
 
 DEFAULTS = WeldGeometryConfig()
-SETTINGS = SectionSettings(plate_window_mm=DEFAULTS.plate_window_mm, toe_window_mm=DEFAULTS.toe_window_mm,
-                           toe_threshold_mm=DEFAULTS.toe_threshold_mm, groove_min_depth_mm=DEFAULTS.groove_min_depth_mm,
-                           groove_plate_gap_mm=DEFAULTS.groove_plate_gap_mm,
-                           undercut_min_depth_mm=DEFAULTS.undercut_min_depth_mm,
-                           height_half_width_mm=DEFAULTS.height_half_width_mm, min_points=DEFAULTS.min_points)
+SETTINGS = section_settings(DEFAULTS)  # as stage weld reads its sections
 TJ = TJointConfig()
 
 

@@ -12,19 +12,16 @@ from pydantic import ValidationError
 
 from data_catalog.acceptance import load_acceptance_limits
 from flows.preflight import load_config
+from flows.stages.weld import section_settings
 from schemas.reconstruction import WeldGeometryConfig
 from schemas.simulation import WeldConfig
 from simulator.weld import draw_weld_cap
 from tasks.weld_acceptance import judge_weld
-from tasks.weld_fits import Measured, SectionSettings, fit_groove, fit_plate_line
+from tasks.weld_fits import Measured, fit_groove, fit_plate_line
 from tasks.weld_geometry import along_weld_statistics, measure_section, measure_weld_line
 
 DEFAULTS = WeldGeometryConfig()
-SETTINGS = SectionSettings(plate_window_mm=DEFAULTS.plate_window_mm, toe_window_mm=DEFAULTS.toe_window_mm,
-                           toe_threshold_mm=DEFAULTS.toe_threshold_mm, groove_min_depth_mm=DEFAULTS.groove_min_depth_mm,
-                           groove_plate_gap_mm=DEFAULTS.groove_plate_gap_mm,
-                           undercut_min_depth_mm=DEFAULTS.undercut_min_depth_mm,
-                           height_half_width_mm=DEFAULTS.height_half_width_mm, min_points=DEFAULTS.min_points)
+SETTINGS = section_settings(DEFAULTS)  # as stage weld reads its sections
 
 
 def _cap(*, height=2.0, width=16.0, flank=30.0, radius=1.0, undercut=0.0, groove=None):
