@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tasks.weld_fits import Measured, PlateFit, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, propagate
+from tasks.weld_fits import (Measured, PlateFit, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, propagate,
+                             running_median)
 
 __all__ = ["FilletSection", "FilletLine", "measure_fillet_section", "measure_fillet_line", "fillet_frame"]
 
@@ -62,14 +63,6 @@ class FilletSection:
                 self.root_ab_mm[1] + fit.position_u_mm * direction[1])
 
 
-def _running_median(z: np.ndarray, k: int = 5) -> np.ndarray:
-    if len(z) < k:
-        return z.copy()
-    half = k // 2
-    padded = np.concatenate([np.full(half, np.nan), z, np.full(half, np.nan)])
-    return np.nanmedian(np.lib.stride_tricks.sliding_window_view(padded, k), axis=1)
-
-
 def _toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, treated: bool) -> tuple[ToeFit | None, str]:
     """One toe's fit on its profile (v outward from the root, h over the plate), or why not."""
     order = np.argsort(v)
@@ -79,7 +72,7 @@ def _toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: str, 
     v, h = v[inside], h[inside]
     if len(v) < settings.min_points:
         return None, f"{side} toe: {len(v)} points between the root and the plate's window"
-    smooth = _running_median(h)
+    smooth = running_median(h)
     raised = smooth > settings.toe_threshold_mm
     if not raised.any():
         return None, f"{side} toe: no weld above the {side} plate"
@@ -157,7 +150,7 @@ def measure_fillet_section(a: np.ndarray, b: np.ndarray, *, settings: SectionSet
         if face.sum() >= settings.min_points:
             order = np.argsort(t[face])
             rise = ((rel[face] - B) @ out)[order]
-            smooth = _running_median(rise)
+            smooth = running_median(rise)
             k = int(np.nanargmax(smooth))
             spread = float(np.std(rise - smooth)) if len(rise) > 5 else math.nan
             convexity = Measured(float(smooth[k]), spread / math.sqrt(5))

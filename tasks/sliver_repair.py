@@ -220,33 +220,50 @@ def _try_move(mesh: _Mesh, element: int, on_boundary: np.ndarray) -> bool:
         else:  # inside: anywhere
             normals = np.zeros((1, 3))
             directions = list(np.vstack([np.eye(3), -np.eye(3)]))
-        ball = sorted(mesh.elements_at(node))
-        rows = mesh.tets[ball]
-        corners = mesh.points[rows]
         start = mesh.points[node].copy()
-        here, best = start, _score(mesh.limits, *_quality(corners))
-        step = 0.2 * float(np.median(np.linalg.norm(mesh.points[rows[rows != node]] - start, axis=1)))
-        smallest, tries = step / 1000, 0
-        while step > smallest and tries < 200:  # each try a step's length in every direction
-            tries += 1
-            moved = False
-            for direction in directions:
-                where = here + step * direction
-                if np.abs((normals * (where - start)).sum(axis=1)).max() > _OFF_SURFACE_MM:
-                    continue
-                corners[rows == node] = where
-                score = _score(mesh.limits, *_quality(corners))
-                if score > best:
-                    best, candidate, moved = score, where, True
-            if moved:
-                here = candidate
-            else:
-                step /= 2
-        if here is not start:
-            mesh.points[node] = here
-            mesh.moved.add(node)
+
+        def within(here, step, direction, normals=normals, start=start):
+            where = here + step * direction
+            return None if np.abs((normals * (where - start)).sum(axis=1)).max() > _OFF_SURFACE_MM else where
+
+        if _pattern_search(mesh, node, directions, within):
             return True
     return False
+
+
+def _pattern_search(mesh: _Mesh, node: int, directions, place, accept=None) -> bool:
+    """Move ``node`` to where the elements around it are best, if better than they are: a pattern
+    search, steps from a fifth of its edges' median length in each of ``directions``, halved down
+    to 1/1000 of it (200 tries at most). ``place(here, step, direction)``: where a step leads
+    (None: nowhere it may go); ``accept(where)``: whether a better place is kept (None: always).
+    True: the node moved."""
+    ball = sorted(mesh.elements_at(node))
+    rows = mesh.tets[ball]
+    corners = mesh.points[rows]
+    start = mesh.points[node].copy()
+    here, best = start, _score(mesh.limits, *_quality(corners))
+    step = 0.2 * float(np.median(np.linalg.norm(mesh.points[rows[rows != node]] - start, axis=1)))
+    smallest, tries = step / 1000, 0
+    while step > smallest and tries < 200:  # each try a step's length in every direction
+        tries += 1
+        moved = False
+        for direction in directions:
+            where = place(here, step, direction)
+            if where is None:
+                continue
+            corners[rows == node] = where
+            score = _score(mesh.limits, *_quality(corners))
+            if score > best and (accept is None or accept(where)):
+                best, candidate, moved = score, where, True
+        if moved:
+            here = candidate
+        else:
+            step /= 2
+    if here is start:
+        return False
+    mesh.points[node] = here
+    mesh.moved.add(node)
+    return True
 
 
 def _closest_points(q: np.ndarray, tri: np.ndarray) -> np.ndarray:
@@ -312,31 +329,13 @@ def _try_slide(mesh: _Mesh, element: int, surface: _Surface) -> bool:
         if surface._starts[node] == surface._starts[node + 1]:
             continue  # not on the surface as it was
         patch = surface.around(node)
-        ball = sorted(mesh.elements_at(node))
-        rows = mesh.tets[ball]
-        corners = mesh.points[rows]
-        start = mesh.points[node].copy()
-        here, best = start, _score(mesh.limits, *_quality(corners))
-        step = 0.2 * float(np.median(np.linalg.norm(mesh.points[rows[rows != node]] - start, axis=1)))
-        smallest, tries = step / 1000, 0
-        while step > smallest and tries < 200:
-            tries += 1
-            moved = False
-            for direction in np.vstack([np.eye(3), -np.eye(3)]):
-                _, where = surface.distance(here + step * direction, patch)
-                if np.array_equal(where, here):
-                    continue
-                corners[rows == node] = where
-                score = _score(mesh.limits, *_quality(corners))
-                if score > best and _faces_on(mesh, node, where, surface, patch):
-                    best, candidate, moved = score, where, True
-            if moved:
-                here = candidate
-            else:
-                step /= 2
-        if here is not start:
-            mesh.points[node] = here
-            mesh.moved.add(node)
+
+        def onto(here, step, direction, patch=patch):
+            _, where = surface.distance(here + step * direction, patch)
+            return None if np.array_equal(where, here) else where
+
+        if _pattern_search(mesh, node, np.vstack([np.eye(3), -np.eye(3)]), onto,
+                           lambda where, node=node, patch=patch: _faces_on(mesh, node, where, surface, patch)):
             return True
     return False
 

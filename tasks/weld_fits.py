@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 __all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
-           "fit_groove", "propagate", "toe_radius_range"]
+           "fit_groove", "propagate", "toe_radius_range", "running_median"]
 
 _NAN = float("nan")
 _R_MIN_MM, _R_MAX_MM = 0.02, 10.0  # the toe fillet's radius is fitted between these
@@ -368,7 +368,7 @@ def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray
     return np.hypot(v - p[0], z - p[1]) - p[2]
 
 
-def _running_median(z: np.ndarray, k: int = 5) -> np.ndarray:
+def running_median(z: np.ndarray, k: int = 5) -> np.ndarray:
     """Each value replaced by the median of the k (odd) around it (fewer at the ends)."""
     if len(z) < k:
         return z.copy()
@@ -412,7 +412,7 @@ def fit_groove(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side:
         return None
     order = np.argsort(v[region])
     vv, hh = v[region][order], h[region][order]
-    smooth = _running_median(hh)
+    smooth = running_median(hh)
     k = int(np.argmin(smooth))
     depth0 = -float(smooth[k])
     if depth0 < settings.groove_min_depth_mm:
