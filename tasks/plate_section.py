@@ -300,9 +300,8 @@ def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *,
     hi = min(np.flatnonzero(has_top)[-1], np.flatnonzero(has_bottom)[-1])
     half = smooth_mm / bin_mm
     # the top face's bins between the stem's faces are neither face's: left out before filling
-    outside = (centres < left) | (centres > right)
     top_filled = np.full(len(top), np.nan)
-    for side_bins in (np.flatnonzero(outside & (centres < left)), np.flatnonzero(outside & (centres > right))):
+    for side_bins in (np.flatnonzero(centres < left), np.flatnonzero(centres > right)):
         side_bins = side_bins[(side_bins >= lo) & (side_bins <= hi)]
         if len(side_bins) < 10 or not has_top[side_bins].any():
             return None

@@ -109,9 +109,9 @@ class _Model:
     """One section to solve: the weld stage's section, its plane, the measured profile, the outline
     and the toes it crosses."""
 
-    section: WeldSection
+    section: WeldSection | FilletWeldSection
     frame: SectionFrame
-    profile: PlateProfile
+    profile: PlateProfile | TeeProfile
     plane: PlaneSection
     toes: list[_Toe]
 
