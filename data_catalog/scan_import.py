@@ -21,9 +21,10 @@ from data_catalog.atomic import atomic_directory
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.pointclouds import POINT_CLOUD_SUFFIXES, UNITS_TO_MM, PointCloudFormatError, ScanCloud, read_conf_poses, read_point_clouds
 from data_catalog.scans import write_scan
-from schemas.manifest import MANIFEST_SCHEMA_VERSION, SampleManifest, ScanEntry, Setup
+from schemas.manifest import MANIFEST_SCHEMA_VERSION, SampleManifest, ScanEntry, Setup, WeldDescription
 
-__all__ = ["ScanImportError", "ScanImportSummary", "import_scans", "SMALLEST_SCAN_MM", "LARGEST_SCAN_MM"]
+__all__ = ["ScanImportError", "ScanImportSummary", "ScansRead", "read_scans", "write_scans_sample", "import_scans",
+           "SMALLEST_SCAN_MM", "LARGEST_SCAN_MM"]
 
 SMALLEST_SCAN_MM = 1.0  # a scan whose bounding box is smaller was read in too small a unit (metres as mm)
 LARGEST_SCAN_MM = 1.0e6  # 1 km: larger, too large a unit (mm as metres)
@@ -32,6 +33,33 @@ _ID = re.compile(r"[^A-Za-z0-9_.-]+")
 
 class ScanImportError(ValueError):
     """Scans that cannot be imported as given; the message names the file and what was expected."""
+
+
+@dataclass(frozen=True)
+class ScansRead:
+    """Scans read and checked, not yet written: each scan's points (scan frame, mm), its pass id,
+    its pose (``T_world_pass``, or None) and what it came from."""
+
+    out: Path
+    scans: list[ScanCloud]
+    paths: list[Path]
+    pass_ids: list[str]
+    T_world_pass: list[np.ndarray | None]
+    sample_id: str
+    created: datetime
+    view_direction: tuple[float, float, float]
+
+    def points_in_weld_frame(self, max_points: int = 2_000_000) -> tuple[np.ndarray, str]:
+        """The points in the frame a sample's weld lines are given in, and its name: the world
+        frame of the scans' poses (every scan, posed), or without poses the first scan's own (the
+        registration holds the first scan where it is). At most ``max_points``, evenly thinned."""
+        if self.T_world_pass[0] is None:
+            pts, frame = self.scans[0].points_mm, f"the first scan's own ({self.paths[0].name})"
+        else:
+            pts = np.concatenate([s.points_mm @ T[:3, :3].T + T[:3, 3] for s, T in zip(self.scans, self.T_world_pass)])
+            frame = "the world frame of the scans' poses"
+        step = max(1, -(-len(pts) // max_points))
+        return np.asarray(pts[::step], np.float64), frame
 
 
 @dataclass(frozen=True)
@@ -97,10 +125,19 @@ def _view(view_direction) -> tuple[float, float, float]:
 
 
 def import_scans(files: list[str | Path], out_sample: str | Path, *, units: str | None, poses: str | Path | None = None,
-                 ignore_poses: bool = False, sample_id: str | None = None,
-                 view_direction=(0.0, 0.0, 1.0)) -> ScanImportSummary:
-    """Import ``files`` (point clouds, ``data_catalog.pointclouds`` formats) into the new sample
-    folder ``out_sample``. ``units``: of the files' coordinates and of the .conf's translations
+                 ignore_poses: bool = False, sample_id: str | None = None, view_direction=(0.0, 0.0, 1.0),
+                 weld: WeldDescription | None = None, placement_tolerance_mm: float = 0.0) -> ScanImportSummary:
+    """Import ``files`` into the new sample folder ``out_sample``: ``read_scans`` then
+    ``write_scans_sample`` (their arguments)."""
+    return write_scans_sample(read_scans(files, out_sample, units=units, poses=poses, ignore_poses=ignore_poses,
+                                         sample_id=sample_id, view_direction=view_direction),
+                              weld=weld, placement_tolerance_mm=placement_tolerance_mm)
+
+
+def read_scans(files: list[str | Path], out_sample: str | Path, *, units: str | None, poses: str | Path | None = None,
+               ignore_poses: bool = False, sample_id: str | None = None, view_direction=(0.0, 0.0, 1.0)) -> ScansRead:
+    """Read and check ``files`` (point clouds, ``data_catalog.pointclouds`` formats) for the new
+    sample folder ``out_sample`` (nothing is written). ``units``: of the files' coordinates and of the .conf's translations
     (mm, cm, m, in; None only for E57, metres by its standard). ``poses``: a .conf giving every
     scan's pose by its file name (``bmesh FILE tx ty tz qx qy qz qw``); without it the E57 files'
     own poses are used when every scan has one; ``ignore_poses``: none is used (the registration
@@ -167,18 +204,36 @@ def import_scans(files: list[str | Path], out_sample: str | Path, *, units: str 
                               "'-' (up to 64 in all)")
     # the scans' date: the newest file's modification time (importing the same files twice gives the same bytes)
     created = datetime.fromtimestamp(int(max(p.stat().st_mtime for p in paths)), tz=UTC)
+    return ScansRead(out=out, scans=[scan for _, scan in read], paths=[path for path, _ in read], pass_ids=ids,
+                     T_world_pass=T, sample_id=sample_id, created=created, view_direction=view)
+
+
+def write_scans_sample(read: ScansRead, *, weld: WeldDescription | None = None,
+                       placement_tolerance_mm: float = 0.0) -> ScanImportSummary:
+    """Write the sample folder of scans read by ``read_scans``. ``weld``: the weld in the scans
+    (its lines in the frame ``ScansRead.points_in_weld_frame`` names): the setup then states that
+    frame as the specimen's (``T_world_specimen_nominal`` the identity), the lines within
+    ``placement_tolerance_mm`` of where they are, so that the reconstruction keeps its full
+    resolution around them and measures the weld there."""
+    out = read.out
+    if out.exists():
+        raise ScanImportError(f"{out}: already exists; expected a new folder for the sample (nothing was written)")
+    whole = len(read.pass_ids) == len({p for p in read.paths})
     entries = []
     with atomic_directory(out) as tmp:
         (tmp / "passes").mkdir()
-        for (path, scan), pass_id, pose in zip(read, ids, T):
+        for path, scan, pass_id, pose in zip(read.paths, read.scans, read.pass_ids, read.T_world_pass):
             write_scan(tmp / "passes" / f"{pass_id}.zarr", pass_id=pass_id, points_mm=scan.points_mm,
                        T_world_pass=pose, source=path.name)
             entries.append(ScanEntry(kind="scan", pass_id=pass_id, file=f"passes/{pass_id}.zarr",
-                                     n_points=len(scan.points_mm), has_pose=pose is not None, view_direction=view,
-                                     source=path.name if len(ids) == len(paths) else f"{path.name}: {scan.scan_name}"))
-        manifest = SampleManifest(schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=sample_id,
-                                  created=created, registration="surfaces",
-                                  setups=[Setup(name="scans", passes=entries)])
+                                     n_points=len(scan.points_mm), has_pose=pose is not None,
+                                     view_direction=read.view_direction,
+                                     source=path.name if whole else f"{path.name}: {scan.scan_name}"))
+        placed = {} if weld is None else {"T_world_specimen_nominal": np.eye(4).tolist(),
+                                          "placement_tolerance_mm": placement_tolerance_mm}
+        manifest = SampleManifest(schema_version=MANIFEST_SCHEMA_VERSION, units="mm", sample_id=read.sample_id,
+                                  created=read.created, registration="surfaces", weld=weld,
+                                  setups=[Setup(name="scans", passes=entries, **placed)])
         write_manifest(tmp / MANIFEST_NAME, manifest)
     return ScanImportSummary(out_dir=out, n_scans=len(entries), n_points=sum(e.n_points for e in entries),
-                             with_poses=T[0] is not None)
+                             with_poses=read.T_world_pass[0] is not None)

@@ -525,8 +525,9 @@ class SampleManifest(StrictModel):
             if len(posed) > 1:
                 raise ValueError("some scans have a pose and some none (has_pose); expected all or none: give every "
                                  "scan's pose, or none and let the registration find them")
-            if (self.specimen is None) != (self.weld is None):
-                raise ValueError("specimen and weld go together: give both or neither")
+            if self.specimen is not None and self.weld is None:
+                raise ValueError("a specimen without its weld: give the weld too, or neither (a weld alone is "
+                                 "measured in the scans' frame, where the setup's T_world_specimen_nominal puts it)")
         return self
 
     @model_serializer(mode="wrap")

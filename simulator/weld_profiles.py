@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-__all__ = ["ScanNoise", "REAL_SCAN_NOISE", "add_scan_noise", "draw_butt_profile"]
+__all__ = ["ScanNoise", "REAL_SCAN_NOISE", "add_scan_noise", "draw_butt_profile", "ScannedView", "butt_weld_views"]
 
 
 @dataclass(frozen=True)
@@ -75,3 +75,42 @@ def add_scan_noise(u: np.ndarray, h: np.ndarray, *, spacing_mm: float, noise: Sc
     h[spikes] += rng.choice([-1.0, 1.0], spikes.sum()) * rng.uniform(*noise.spike_mm, spikes.sum())
     keep = rng.random(len(u)) >= noise.dropout_rate
     return u[keep], h[keep]
+
+
+@dataclass(frozen=True)
+class ScannedView:
+    """One view of a scanned weld patch: its points in its own frame (mm) and its pose."""
+
+    points_mm: np.ndarray  # (n, 3), the view's frame
+    T_world_scan: np.ndarray  # (4, 4)
+
+
+def butt_weld_views(*, toe_radius_mm: float, toe_angle_deg: float, spacing_mm: float, profile_pitch_mm: float,
+                    length_mm: float, height_mm: float = 3.0, plate_mm: float = 32.0,
+                    x_ranges_mm: tuple[tuple[float, float], ...] = ((-100.0, 6.0), (-6.0, 100.0)),
+                    noise: ScanNoise | None, rng: np.random.Generator) -> tuple[list[ScannedView], float]:
+    """Views of a straight butt weld's cap on a flat plate, as a line scanner sweeping along it
+    returns them (``draw_butt_profile``'s profile every ``profile_pitch_mm`` along the weld, each
+    view with its own noise): world frame x across the weld (its centre x = 0), y along it (0 to
+    ``length_mm``), z up from the plate's face (z = 0); each view holds the points with x in its
+    range of ``x_ranges_mm``, in its own frame (turned about z and shifted, its pose
+    ``T_world_scan``). Returns the views and the toes' half width (the toes' virtual corners at
+    x = +-half)."""
+    ys = np.arange(0.0, length_mm + 1e-9, profile_pitch_mm)
+    views = []
+    half = 0.0
+    for k, (x0, x1) in enumerate(x_ranges_mm):
+        rows = []
+        for y in ys:
+            u, h, half = draw_butt_profile(toe_radius_mm=toe_radius_mm, toe_angle_deg=toe_angle_deg,
+                                           spacing_mm=spacing_mm, height_mm=height_mm, plate_mm=plate_mm, noise=noise,
+                                           rng=rng)
+            keep = (u >= x0) & (u <= x1)
+            rows.append(np.column_stack([u[keep], np.full(keep.sum(), y), h[keep]]))
+        world = np.concatenate(rows)
+        turn = math.radians(25.0 + 50.0 * k)
+        T = np.eye(4)
+        T[:3, :3] = [[math.cos(turn), -math.sin(turn), 0.0], [math.sin(turn), math.cos(turn), 0.0], [0.0, 0.0, 1.0]]
+        T[:3, 3] = [40.0 * k - 15.0, 10.0 - 30.0 * k, 5.0 * k + 2.0]
+        views.append(ScannedView(points_mm=(world - T[:3, 3]) @ T[:3, :3], T_world_scan=T))
+    return views, half

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-__all__ = ["add_measure_weld"]
+__all__ = ["add_measure_weld", "parse_weld_line"]
 
 _JOINTS = {"butt": "double-sided butt"}  # the acceptance catalog's name for each
 _TREATMENTS = {"as-welded": "as-welded", "hfmi": "hfmi-treated"}
@@ -30,14 +30,14 @@ def add_measure_weld(sub) -> None:
     mw.set_defaults(func=_cmd_measure_weld)
 
 
-def _weld_line(text: str):
+def parse_weld_line(text: str, option: str = "--weld-line"):
     """``X0,Y0,Z0:X1,Y1,Z1`` as two points; ValueError naming the option."""
     try:
         ends = [tuple(float(v) for v in part.split(",")) for part in text.split(":")]
     except ValueError:
         ends = []
     if len(ends) != 2 or any(len(e) != 3 for e in ends):
-        raise ValueError(f"--weld-line must be X0,Y0,Z0:X1,Y1,Z1 (mm), got {text!r}")
+        raise ValueError(f"{option} must be X0,Y0,Z0:X1,Y1,Z1 (mm), got {text!r}")
     return ends
 
 
@@ -47,7 +47,7 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
     from flows.scan_weld import scan_weld_document
     from schemas.profile_weld import MeasureWeldConfig
 
-    line = _weld_line(args.weld_line) if args.weld_line else None
+    line = parse_weld_line(args.weld_line) if args.weld_line else None
     config = read_yaml_model(args.config, MeasureWeldConfig, "measure-weld settings") if args.config else MeasureWeldConfig()
     if args.step_mm is not None:
         config = config.model_copy(update={"step_mm": MeasureWeldConfig(step_mm=args.step_mm).step_mm})

@@ -22,7 +22,7 @@ from flows.stages.outputs import CLOUD
 from flows.stages.passes import block_rows, open_entry, pass_blocks
 from schemas.manifest import ScanEntry
 from tasks.consistency import MotionCheck, chunk_jumps, profile_steps
-from tasks.denoise import DistanceStats, check_window, mean_knn_distance, mean_neighbour_distance
+from tasks.denoise import DistanceStats, check_window, mean_knn_distance, relative_neighbour_distance
 from tasks.mesh import estimate_normals
 from tasks.normals import grid_normals, normal_window
 
@@ -38,7 +38,8 @@ _SCAN_CHUNK_ROWS = 1 << 16
 
 def _denoise_scan(ctx) -> dict[str, Any]:
     """An imported scan (no grid): into the coarse world frame by its given pose (none: its own
-    frame), statistical outliers removed on its k nearest points, a normal per kept point from its
+    frame), statistical outliers removed on its k nearest points (each point's mean distance to
+    them relative to theirs: ``tasks.denoise.relative_neighbour_distance``), a normal per kept point from its
     ``scan_normal_neighbours`` nearest, turned toward the scan's view direction. Written as a
     (points, 1) grid: one point per row, its row's sensor origin far along the view direction."""
     s = ctx.settings
@@ -46,11 +47,11 @@ def _denoise_scan(ctx) -> dict[str, Any]:
     T = scan.T_world_pass if scan.T_world_pass is not None else np.eye(4)
     points = scan.points_mm @ T[:3, :3].T + T[:3, 3]
     view = T[:3, :3] @ np.asarray(ctx.entry.view_direction, dtype=np.float64)
-    distances = mean_neighbour_distance(points, k=s.k)
+    ratios = relative_neighbour_distance(points, k=s.k)
     stats = DistanceStats()
-    stats.add(distances)
-    threshold = stats.threshold_mm(s.alpha)
-    kept = points[~(distances > threshold)]  # NaN (too few points to judge): kept
+    stats.add(ratios)
+    threshold = stats.threshold_mm(s.alpha)  # of the ratio here
+    kept = points[~(ratios > threshold)]  # NaN (too few points to judge): kept
     if len(kept) < s.scan_normal_neighbours:
         raise ValueError(f"pass {ctx.entry.pass_id}: {len(kept)} points left after the outliers went, fewer than "
                          f"denoise.scan_normal_neighbours {s.scan_normal_neighbours}; a scan needs more to register")
@@ -65,7 +66,7 @@ def _denoise_scan(ctx) -> dict[str, Any]:
     out.write("sensor_origins", 0, sensors)
     out.close()
     return {"points_in": int(len(points)), "points_out": int(len(kept)), "removed": int(len(points) - len(kept)),
-            "threshold_mm": threshold, "pose": "given" if scan.T_world_pass is not None else "none"}
+            "threshold_ratio": threshold, "pose": "given" if scan.T_world_pass is not None else "none"}
 
 
 def denoise(ctx) -> dict[str, Any]:

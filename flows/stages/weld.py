@@ -240,7 +240,9 @@ def weld(ctx) -> dict[str, Any]:
     treatment = manifest.weld.treatment
     limits = s.acceptance if s.acceptance is not None else load_acceptance_limits(None)
     rule = None if joint in FILLET_JOINTS else limits.rule_for(joint, treatment)
-    head = dict(joint=joint, treatment=treatment, frame="specimen (nominal placement, lines refined on the data)",
+    frame = ("the scans' (their weld lines given or found at import; lines refined on the data)"
+             if manifest.surfaces and manifest.specimen is None else "specimen (nominal placement, lines refined on the data)")
+    head = dict(joint=joint, treatment=treatment, frame=frame,
                 acceptance=rule, acceptance_source="settings (weld.acceptance)" if s.acceptance is not None
                 else "data_catalog/weld_acceptance.yaml")
     T = weld_frame(manifest, np.asarray(REFINED.open(ctx.inputs["refine"]).T_common_pass[...]))
