@@ -1,9 +1,9 @@
 """The scheduled service for real: deploy/service.sh starts a Prefect server on loopback, the
 process work pool, the deployments of deploy/prefect.yaml and a worker; the on-demand
 deployment is triggered on the six-pass ``ci`` subset and must complete through the worker, making
-every stage (those already in the session's stage cache are copied from it: the service's
-plumbing, not the reconstruction, is what this test runs; waiting here for the session's own run of
-the subset left a core idle for a minute)."""
+every stage. The session's own run of the subset (``six_run``) is made first: the deployment's run
+then copies its stages from the session's stage cache (the service's plumbing, not the
+reconstruction, is what this test runs; made here too, the stages cost a minute of CPU twice)."""
 
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_server_worker_and_deployments_on_loopback(six_sample, tmp_path):
+def test_server_worker_and_deployments_on_loopback(six_sample, six_run, tmp_path):
     if not PREFECT.exists():
         pytest.fail(f"{PREFECT} is missing: run `make setup` first")
     port = _free_port()
