@@ -155,11 +155,12 @@ def _scaled(m: Measured, f: float) -> Measured:
 
 
 def measure_profile(u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings, treated: bool, line: str,
-                    position_mm: float, to_frame) -> ProfileResult:
+                    position_mm: float, to_frame, toe_guess_u: dict[str, float] | None = None) -> ProfileResult:
     """One scanned section: ``u`` (n,) across the weld, ``h`` (n,) height, mm, float64, any order.
     ``treated``: a toe is first looked for as an HFMI groove (``fit_groove``; its radius is the
     groove's circle, not bounded here). ``to_frame(u, h)``: the 3-D point (the scan's frame) of a
-    profile position."""
+    profile position. ``toe_guess_u``: per side ("minus", "plus"), where on u to start its toe's
+    fit instead of where the surface first rises off the plate (the neighbouring sections' toe)."""
     u, h = np.asarray(u, np.float64), np.asarray(h, np.float64)
     if u.shape != h.shape or u.ndim != 1:
         raise ValueError(f"u and h must be (n,) arrays of one length, got {u.shape} and {h.shape}")
@@ -185,6 +186,8 @@ def measure_profile(u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings, 
         if plate is None:
             results.append(ToeResult(None, reason=guess, plate_missing=True))
             continue
+        if toe_guess_u and side in toe_guess_u:
+            guess = sign * (toe_guess_u[side] - centre)
         rel = hv - plate.at(v)
         groove = fit_groove(v, rel, settings=fitting, side=side, toe_guess_v=guess) if treated else None
         if groove is not None:

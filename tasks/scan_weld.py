@@ -21,7 +21,7 @@ profile is ``u`` (along ``a``, mm from the weld line) and ``h`` (along ``n``, mm
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -175,6 +175,68 @@ def _profiles(points: np.ndarray) -> np.ndarray | None:
     return None
 
 
+_NEIGHBOURS = 3  # sections either side a toe is held against
+_OFF_MM = 0.25  # a toe further than this (or 4 of its and its neighbours' sigmas) from theirs is fitted again
+_STARTS_MM = (0.0, -0.05, 0.05, -0.1, 0.1)  # ... started this far from their toe
+
+
+def _along_the_weld(sections: list, groups: list, u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings,
+                    treated: bool, name: str, frame) -> list:
+    """Each toe held against its neighbours along the weld: one further from the median of the
+    ``_NEIGHBOURS`` sections either side than ``_OFF_MM`` and 4 combined sigmas (its own, their
+    spread's) is fitted again from their toe (a dip in the plate beside a toe reads as flank, and
+    the fit then lands half a millimetre out). The section measured again is kept when each toe
+    fitted again lands among its neighbours (its note says so), else the first stays."""
+    origin, t, a, n = frame
+    position = np.array([[r.toes[k].fit.position_u_mm if r.toes[k].fit is not None else np.nan for k in (0, 1)]
+                         for r in sections]).reshape(-1, 2)
+    out = list(sections)
+    for i, r in enumerate(sections):
+        off: dict[str, tuple[float, float, float]] = {}  # side -> (neighbours' median, limit, first fit's position)
+        for k, side in enumerate(("minus", "plus")):
+            fit = r.toes[k].fit
+            if fit is None or fit.groove is not None:
+                continue
+            near = np.r_[position[max(i - _NEIGHBOURS, 0):i, k], position[i + 1:i + 1 + _NEIGHBOURS, k]]
+            near = near[np.isfinite(near)]
+            if len(near) < 3:
+                continue
+            median = float(np.median(near))
+            spread = 1.4826 * float(np.median(np.abs(near - median)))
+            sigma = fit.position_sigma_mm if math.isfinite(fit.position_sigma_mm) else 0.0
+            limit = max(_OFF_MM, 4 * math.hypot(sigma, spread))
+            if abs(fit.position_u_mm - median) > limit:
+                off[side] = (median, limit, fit.position_u_mm)
+        if not off:
+            continue
+        pos, sel = groups[i]
+
+        def to_frame(uu, hh, pos=pos):
+            return origin + pos * t + uu * a + hh * n
+
+        best = None
+        for shift in _STARTS_MM:  # started at and around their toe: the best fit that lands among them
+            again = measure_profile(u[sel], h[sel], settings=settings, treated=treated, line=name, position_mm=pos,
+                                    to_frame=to_frame, toe_guess_u={side: m + shift for side, (m, _, _) in off.items()})
+            fits = {side: again.toes[k].fit for k, side in enumerate(("minus", "plus")) if side in off}
+            if all(f is not None and abs(f.position_u_mm - off[side][0]) <= off[side][1] for side, f in fits.items()):
+                rms = sum(f.rms_mm ** 2 for f in fits.values())
+                if best is None or rms < best[0]:
+                    best = (rms, again)
+        if best is None:
+            continue
+        again = best[1]
+        toes = list(again.toes)
+        for k, side in enumerate(("minus", "plus")):
+            if side in off:
+                median, _, first = off[side]
+                note = (f"fitted again from its neighbours' toe ({median:.3f} mm): the first fit lay {first - median:+.3f} "
+                        "mm off")
+                toes[k] = replace(toes[k], fit=replace(toes[k].fit, note="; ".join(x for x in (toes[k].fit.note, note) if x)))
+        out[i] = replace(again, toes=tuple(toes), section=replace(again.section, toes=tuple(tr.fit for tr in toes)))
+    return out
+
+
 def measure_scan(points: np.ndarray, line: WeldLine, *, settings: ProfileSettings, treated: bool,
                  step_mm: float | None, half_width_mm: float | None, name: str) -> ScanMeasurement:
     """The weld's sections along ``line``: one per profile of a profile scan (``step_mm`` None),
@@ -212,6 +274,8 @@ def measure_scan(points: np.ndarray, line: WeldLine, *, settings: ProfileSetting
 
         sections.append(measure_profile(u[sel], h[sel], settings=settings, treated=treated, line=name, position_mm=pos,
                                         to_frame=to_frame))
+    sections = _along_the_weld(sections, groups, u, h, settings=settings, treated=treated, name=name,
+                               frame=(origin, t, a, n))
     for side, k in (("minus", 0), ("plus", 1)):
         missing = [r.toes[k].reason for r in sections if r.toes[k].plate_missing]
         if sections and len(missing) == len(sections):
