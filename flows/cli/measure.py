@@ -1,6 +1,10 @@
 """``weldrecon measure-weld``: a butt weld measured straight from scanned points (any file
 ``data_catalog.pointclouds`` reads), no sample, no reconstruction: ``<scan>.weld.json``
-(``schemas.profile_weld.ScanWeld``) per scan in ``--out`` and a line per problem on the terminal."""
+(``schemas.profile_weld.ScanWeld``) per scan in ``--out`` and a line per problem on the terminal.
+
+Exit status: 0 when every weld passes (or is not judged), 1 when a weld fails its acceptance rule
+(every scan measured and written, its problems printed), 2 on bad input (one line on stderr,
+``flows.cli.errors.say_error``)."""
 
 from __future__ import annotations
 
@@ -53,6 +57,7 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
         config = config.model_copy(update={"step_mm": MeasureWeldConfig(step_mm=args.step_mm).step_mm})
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    failed = []
     for scan in args.scans:
         document, problems = scan_weld_document(scan, units=args.units, line=line, joint=_JOINTS[args.joint],
                                                 treatment=_TREATMENTS[args.treatment], config=config)
@@ -64,4 +69,6 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
               f"({below} with a radius below resolution); verdict: {g.summary.verdict} -> {path}")
         for problem in problems:
             print(f"  {problem}")
-    return 0
+        if g.summary.passed is False:
+            failed.append(scan)
+    return 1 if failed else 0
