@@ -1,7 +1,8 @@
 """``weldrecon measure-weld``: a butt or fillet weld measured straight from scanned points (any
 file ``data_catalog.pointclouds`` reads, a sample of imported scans, a run folder:
 ``flows.scan_sources``), no reconstruction needed: ``<scan>.weld.json``
-(``schemas.profile_weld.ScanWeld``) per scan in ``--out`` and a line per problem on the terminal.
+(``schemas.profile_weld.ScanWeld``) and its QA page ``<scan>.weld.html`` (``flows.scan_weld_page``)
+per scan in ``--out``, and a line per problem on the terminal.
 
 Exit status: 0 when every weld passes (or is not judged), 1 when a weld fails its acceptance rule
 (every scan measured and written, its problems printed), 2 on bad input (one line on stderr,
@@ -53,6 +54,7 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
     from data_catalog.atomic import atomic_write_text
     from data_catalog.textfiles import read_yaml_model
     from flows.scan_weld import measure_scan_weld
+    from flows.scan_weld_page import scan_weld_page
     from schemas.profile_weld import MeasureWeldConfig
 
     line = _weld_line(args.weld_line) if args.weld_line else None
@@ -68,10 +70,12 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
         document, problems = measured.document, measured.problems
         path = out / f"{Path(scan).name}.weld.json"
         atomic_write_text(path, document.model_dump_json(indent=1))
+        atomic_write_text(path.with_suffix(".html"), scan_weld_page(measured))
         g, toes = document.geometry, document.toes
         below = sum(t.toe_radius_below_mm is not None for t in toes)
         print(f"{scan}: {g.summary.sections} sections, {sum(t.measured for t in toes)} of {len(toes)} toes measured "
-              f"({below} with a radius below resolution); verdict: {g.summary.verdict} -> {path}")
+              f"({below} with a radius below resolution); verdict: {g.summary.verdict} -> {path} "
+              f"(QA page {path.with_suffix('.html').name})")
         for problem in problems:
             print(f"  {problem}")
         if g.summary.passed is False:

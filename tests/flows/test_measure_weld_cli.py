@@ -47,7 +47,7 @@ def test_a_failing_weld_is_written_and_exits_1(tmp_path):
     assert doc.geometry.summary.verdict == "fail" and doc.geometry.summary.failing == 20
     assert (tmp_path / "out" / "good.xyz.weld.json").is_file()  # every scan measured, the failing one too
     lines = done.stdout.splitlines()
-    assert lines[0].endswith("verdict: pass -> " + str(tmp_path / "out" / "good.xyz.weld.json"))
+    assert lines[0].endswith(f"verdict: pass -> {tmp_path / 'out' / 'good.xyz.weld.json'} (QA page good.xyz.weld.html)")
     assert sum("reinforcement_height_mm" in line and " fails (" in line for line in lines) == 20
 
 
