@@ -10,8 +10,9 @@ stands on a base plate, the weld in it (``tasks.fillet_section`` measures its se
   on under a stem welded on both sides); else the plate whose normal is nearer the file's z (a
   scanner looks down on a base plate lying flat, a stem stands up from it).
 - ``up``: the base's normal, toward the side where the stem's points are; ``out``: along the base,
-  perpendicular to the root line, toward the side of the stem's plane where most of the base's
-  points are (the weld's side). Both perpendicular to the line and to each other, as
+  perpendicular to the root line, toward the weld's side of the stem's plane: where the points on
+  neither plate within ``_CORNER_MM`` of the root are (the weld's face), else where most of the
+  base's points are. A stem welded on both sides: the corner of the stem face found first. Both perpendicular to the line and to each other, as
   ``measure_fillet_line`` takes them.
 - The root line: where the two planes cross (``auto``), or the line given; its ends where the
   points within ``reach_mm`` of it reach along it.
@@ -31,6 +32,7 @@ _SAMPLE = 40_000  # RANSAC counts on at most this many points (a fixed draw); th
 _MIN_PLATES_ANGLE_DEG = 30.0  # plates closer to parallel than this are one plate, not a corner
 _BOTH_SIDES_MM = 3.0  # a base runs on this far past the stem's plane on either side ...
 _BOTH_SIDES_FRACTION = 0.2  # ... with at least this fraction of its points on the lesser side
+_CORNER_MM = 8.0  # the weld's points: off both plates within this of the root (under a 10 mm stem's thickness)
 
 
 @dataclass(frozen=True)
@@ -150,7 +152,7 @@ def find_fillet_root(points: np.ndarray, *, line_mm=None, tolerance_mm: float = 
     if np.median((on_stem - corner) @ up) < 0:  # the stem stands on this side of the base
         up = -up
     out = np.cross(t, up)
-    if np.count_nonzero((on_base - corner) @ out > 0) < 0.5 * len(on_base):  # the base's side of the stem: the weld's
+    if _weld_side(points, on_base, corner, out, up, (pb, nb), (ps, ns), tolerance_mm) < 0:
         out = -out
     rel = points - corner
     s, a, b = rel @ t, rel @ out, rel @ up
@@ -170,6 +172,21 @@ def find_fillet_root(points: np.ndarray, *, line_mm=None, tolerance_mm: float = 
                       base=Plane(tuple(map(float, pb)), tuple(map(float, nb)), len(on_base)),
                       stem=Plane(tuple(map(float, ps)), tuple(map(float, ns)), len(on_stem)),
                       plates_angle_deg=plates, found=found)
+
+
+def _weld_side(points, on_base, corner, out, up, base, stem, tolerance_mm: float) -> float:
+    """+1 when the weld lies on the ``out`` side of the stem's plane, -1 when on the other: the side
+    of the points in the corner (within ``_CORNER_MM`` of the root, above the base) on neither
+    plate (the weld's face; the stem's other face, a stem's thickness away, is left out); with
+    none there, the side where most of the base's points are."""
+    rel = points - corner
+    a, b = rel @ out, rel @ up
+    off = ((np.abs((points - base[0]) @ base[1]) > 2 * tolerance_mm)
+           & (np.abs((points - stem[0]) @ stem[1]) > 2 * tolerance_mm))
+    weld = off & (np.abs(a) < _CORNER_MM) & (b > 0) & (b < _CORNER_MM)
+    if np.count_nonzero(weld) >= 20:
+        return float(np.sign(np.median(a[weld])) or 1.0)
+    return 1.0 if np.count_nonzero((on_base - corner) @ out > 0) >= 0.5 * len(on_base) else -1.0
 
 
 def _xyz(p: np.ndarray) -> str:
