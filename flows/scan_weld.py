@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import ValidationError
 
 from data_catalog.acceptance import load_acceptance_limits
 from flows.scan_sources import ScanPoints, read_scan_points
@@ -58,7 +59,14 @@ def fillet_settings(config: MeasureWeldConfig) -> WeldGeometryConfig:
     fillet = config.fillet if config.fillet is not None else WeldGeometryConfig()
     update = {k: v for k, v in (("section_step_mm", config.step_mm),
                                 ("section_half_width_mm", config.section_half_width_mm)) if v is not None}
-    return WeldGeometryConfig.model_validate({**fillet.model_dump(), **update}) if update else fillet
+    if not update:
+        return fillet
+    try:
+        return WeldGeometryConfig.model_validate({**fillet.model_dump(), **update})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise ValueError(f"a fillet weld's {'.'.join(map(str, first['loc']))}: {first['msg']} (the step and slab "
+                         "half width given for it)") from None
 
 
 def scan_weld_document(path: str | Path, *, units: str, line, joint: str, treatment: str,

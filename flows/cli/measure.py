@@ -53,6 +53,8 @@ def _weld_line(text: str):
 def _cmd_measure_weld(args: argparse.Namespace) -> int:
     from data_catalog.atomic import atomic_write_text
     from data_catalog.textfiles import read_yaml_model
+    from pydantic import ValidationError
+
     from flows.scan_weld import measure_scan_weld
     from flows.scan_weld_page import scan_weld_page
     from schemas.profile_weld import MeasureWeldConfig
@@ -60,7 +62,11 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
     line = _weld_line(args.weld_line) if args.weld_line else None
     config = read_yaml_model(args.config, MeasureWeldConfig, "measure-weld settings") if args.config else MeasureWeldConfig()
     if args.step_mm is not None:
-        config = config.model_copy(update={"step_mm": MeasureWeldConfig(step_mm=args.step_mm).step_mm})
+        try:
+            step = MeasureWeldConfig(step_mm=args.step_mm).step_mm
+        except ValidationError as exc:
+            raise ValueError(f"--step-mm {args.step_mm:g}: {exc.errors()[0]['msg']}") from None
+        config = config.model_copy(update={"step_mm": step})
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     failed = []

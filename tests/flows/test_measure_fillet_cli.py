@@ -126,3 +126,14 @@ def test_a_fillet_scan_without_a_corner_or_a_line_across_it_is_one_line(tmp_path
     assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
     assert done.stderr.startswith(f"weldrecon measure-weld: error: {scan}: ") and says in done.stderr, done.stderr
     assert not (tmp_path / "bad.ply.weld.json").exists()
+
+
+def test_a_step_or_slab_out_of_bounds_is_one_line(tmp_path):
+    scan = write_ply(tmp_path / "tee.ply", tjoint_corner())
+    (tmp_path / "wide.yaml").write_text("section_half_width_mm: 20\n")  # a butt weld's slab may be 50 mm, a fillet's 10
+    for args, says in ((["--step-mm", "150"], "--step-mm 150: Input should be less than or equal to 100"),
+                       (["--config", str(tmp_path / "wide.yaml")],
+                        "a fillet weld's section_half_width_mm: Input should be less than or equal to 10 (the step "
+                        "and slab half width given for it)")):
+        done = weldrecon("measure-weld", str(scan), "--joint", "fillet", *args, "--out", str(tmp_path))
+        assert done.returncode == 2 and done.stderr.splitlines() == [f"weldrecon measure-weld: error: {says}"], done.stderr
