@@ -19,7 +19,7 @@ import numpy as np
 from data_catalog.atomic import atomic_write_text
 from data_catalog.catalog import Catalog, SampleRecord
 from flows.stages.outputs import REPORT
-from flows.stages.qa_report import _ENV
+from flows.stages.qa_report import TEMPLATES
 from tasks.report_figures import sample_chart
 
 __all__ = ["write_index", "INDEX_NAME"]
@@ -72,7 +72,7 @@ def write_index(workspace: Path) -> Path:
                            [(r["weld"] or {}).get("verdict", "") for r in measured])
         chart = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
     counts = {state: sum(r["state"] == state for r in rows) for state in dict.fromkeys(r["state"] for r in rows)}
-    page = _ENV.get_template("qa_index.html.j2").render(workspace=str(workspace), rows=rows, chart=chart, counts=counts)
+    page = TEMPLATES.get_template("qa_index.html.j2").render(workspace=str(workspace), rows=rows, chart=chart, counts=counts)
     path = workspace / INDEX_NAME
     atomic_write_text(path, page)
     return path

@@ -1,4 +1,4 @@
-"""``weldrecon measure-weld``: a butt weld measured straight from a scan's points. Its settings
+"""``weldrecon measure-weld``: a butt or a fillet weld measured straight from a scan's points. Its settings
 (``MeasureWeldConfig``, written into the document) and its document (``ScanWeld``,
 ``<scan>.weld.json``): the weld document of the pipeline (``schemas.weld_document.WeldGeometry``,
 frame: the scan's own) with what only a scan needs: the scan, the weld line and how it was found,
@@ -12,6 +12,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from schemas.common import StrictModel
+from schemas.reconstruction import WeldGeometryConfig
 from schemas.weld_document import WeldGeometry
 
 __all__ = ["MeasureWeldConfig", "ScanSource", "ScanWeldLine", "ScanToe", "ScanWeld"]
@@ -50,6 +51,13 @@ class MeasureWeldConfig(StrictModel):
     bound_sigmas: float = Field(default=2.0, gt=0, le=10, description=(
         "the toe radii the points allow: within this many sigmas (profile likelihood)"))
     min_points: int = Field(default=8, ge=4, le=10000, description="fewer points in a fit: not measured")
+    fillet: WeldGeometryConfig | None = Field(default=None, description=(
+        "a fillet weld (--joint fillet) is read as stage weld reads a T-joint's (tasks.fillet_section) with "
+        "these settings (schemas.reconstruction.WeldGeometryConfig; its section_step_mm and "
+        "section_half_width_mm replaced by step_mm and section_half_width_mm where given); None: the "
+        "stage's defaults, written in the document of a fillet weld; the butt weld's fields above do not apply"))
+    fillet_plane_tolerance_mm: float = Field(default=0.3, gt=0, le=10, description=(
+        "a fillet scan's plates are the planes most points lie within this of (tasks.scan_fillet)"))
 
     @model_validator(mode="after")
     def _odd_window(self) -> "MeasureWeldConfig":
@@ -61,7 +69,13 @@ class MeasureWeldConfig(StrictModel):
 
 
 class ScanSource(StrictModel):
+    """What was measured: ``file`` a point file, or a folder (``kind``): a sample of imported scans
+    (every scan, each placed by its pose) or a reconstruction's run folder (its published mesh's
+    vertices, ``results/<sample_id>.ply``)."""
+
     file: str
+    kind: Literal["file", "sample", "run"] = "file"
+    files: list[str] = Field(default_factory=list, description="a folder's: the files its points came from")
     points: int
     profile_scan: bool  # each profile a section; False: slabs of an unordered cloud
     profile_pitch_mm: float | None  # between profiles along the weld
@@ -70,7 +84,9 @@ class ScanSource(StrictModel):
 
 
 class ScanWeldLine(StrictModel):
-    """The weld line in the scan's frame; ``found``: given on the command line or found on the data."""
+    """The weld line in the scan's frame; ``found``: given on the command line or found on the data.
+    A fillet weld's: its root line, ``face_normal`` up the stem (the base's normal), ``across``
+    out along the base away from the stem."""
 
     start_mm: tuple[float, float, float]
     end_mm: tuple[float, float, float]
@@ -83,7 +99,7 @@ class ScanToe(StrictModel):
     """One toe of one section, beside its figures in ``geometry.sections``."""
 
     position_mm: float  # the section's, along the line
-    side: Literal["minus", "plus"]
+    side: Literal["minus", "plus", "base", "stem"]  # a butt weld's two sides, a fillet weld's two plates
     measured: bool
     toe_radius_below_mm: float | None = Field(default=None, description=(
         "the points do not resolve the toe radius (a sharp corner fits them): it is at most this "

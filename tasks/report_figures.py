@@ -328,9 +328,9 @@ class AlongWeldSeries:
     limit_max: float | None
 
 
-def along_weld(series: Sequence[AlongWeldSeries], *, title: str) -> bytes:
-    """The figures along the weld, one panel each, 1-sigma bands, the acceptance limits drawn,
-    failing sections marked."""
+def along_weld(series: Sequence[AlongWeldSeries], *, title: str, error_bars: bool = False) -> bytes:
+    """The figures along the weld, one panel each, the 1-sigma as bands (or as error bars at each
+    position: ``error_bars``), the acceptance limits drawn, failing sections marked."""
     n = max(len(series), 1)
     fig = _figure(7.5, 1.55 * n + 0.6)
     axes = fig.subplots(n, 1, squeeze=False, sharex=True)[:, 0]
@@ -340,7 +340,9 @@ def along_weld(series: Sequence[AlongWeldSeries], *, title: str) -> bytes:
             colour = palette(k % 10)
             ax.plot(pos, val, "-", lw=0.8, color=colour, label=label)
             ok = np.isfinite(sig)
-            if ok.any():
+            if ok.any() and error_bars:
+                ax.errorbar(pos[ok], val[ok], yerr=sig[ok], fmt="none", ecolor=colour, elinewidth=0.6, capsize=1.5)
+            elif ok.any():
                 ax.fill_between(pos, val - np.where(ok, sig, 0), val + np.where(ok, sig, 0), color=colour, alpha=0.2,
                                 lw=0)
             if bad.any():

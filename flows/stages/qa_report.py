@@ -52,9 +52,9 @@ from tasks.report_figures import toe_closeups as closeup_picture
 from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut, toe_closeups
 from tasks.weld_zone import WeldZone
 
-__all__ = ["qa_report"]
+__all__ = ["qa_report", "TEMPLATES", "section_pictures", "along_weld_pictures"]
 
-_ENV = Environment(loader=PackageLoader("flows", "templates"), autoescape=select_autoescape(["html", "j2"]),
+TEMPLATES = Environment(loader=PackageLoader("flows", "templates"), autoescape=select_autoescape(["html", "j2"]),
                    undefined=StrictUndefined, keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
 
 
@@ -152,12 +152,15 @@ def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[
     return out
 
 
-def _along_weld(geometry: WeldGeometry) -> list[dict[str, str]]:
+def along_weld_pictures(geometry: WeldGeometry, *, error_bars: bool = False) -> list[dict[str, str]]:
+    """The weld's figures along it (``tasks.weld_views.along_weld_series``), four panels a
+    picture; each 1-sigma a band, or an error bar at each section (``error_bars``)."""
     series = along_weld_series(geometry)
+    sigma = "bars" if error_bars else "band"
     pictures = []
     for start in range(0, len(series), 4):  # at most four panels a picture
-        pictures.append(_picture(along_weld(series[start:start + 4], title="Along the weld (band: 1 sigma; dashed red: "
-                                            "the acceptance limits; x: a failing section)"),
+        pictures.append(_picture(along_weld(series[start:start + 4], title=f"Along the weld ({sigma}: 1 sigma; dashed red: "
+                                            "the acceptance limits; x: a failing section)", error_bars=error_bars),
                                  "weld figures along the weld"))
     return pictures
 
@@ -178,10 +181,21 @@ def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
     """Cross-sections measured over the drawing's plate faces (``points_specimen``: the specimen's
     measured points in the frame the weld was measured in; ``weld``: the settings it was measured with)."""
     bounds = ctx.manifest.specimen.bounds_mm() if ctx.manifest.specimen is not None else None
+    return section_pictures(geometry, points_specimen, per_line=ctx.settings.sections_per_line,
+                            half_width_mm=weld.section_half_width_mm, reach_mm=weld.reach_mm, bounds_mm=bounds)
+
+
+def section_pictures(geometry: WeldGeometry, points_mm: np.ndarray, *, per_line: int, half_width_mm: float,
+                     reach_mm: float, bounds_mm=None) -> list[dict[str, str]]:
+    """Up to ``per_line`` sections per weld line (``tasks.weld_views.chosen_sections``), each its
+    measured points (``points_mm`` (n, 3): the frame the weld was measured in, read within
+    ``half_width_mm`` along the weld and ``reach_mm`` across it) with its toes, its figures and
+    verdict in the caption, over the drawing's plate face (``bounds_mm``; None: no drawing), and
+    its toes close up."""
     out = []
-    for sec in chosen_sections(geometry, ctx.settings.sections_per_line):
-        cut = section_cut(points_specimen, sec, geometry.line(sec.line), half_width_mm=weld.section_half_width_mm,
-                          reach_mm=weld.reach_mm, bounds_mm=bounds)
+    for sec in chosen_sections(geometry, per_line):
+        cut = section_cut(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm,
+                          reach_mm=reach_mm, bounds_mm=bounds_mm)
         if isinstance(sec, FilletWeldSection):
             notes = [f"legs {_fmt(sec.leg_base_mm, 'mm')} on the base, {_fmt(sec.leg_stem_mm, 'mm')} on the stem",
                      f"throat {_fmt(sec.throat_mm, 'mm')}", f"convexity {_fmt(sec.convexity_mm, 'mm')}"]
@@ -208,7 +222,7 @@ def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
         out.append(_picture(weld_section(cut.u_mm, cut.h_mm, title=title, toes=cut.toes, nominal=cut.plate,
                                          failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points),
                             f"weld section {sec.line} {sec.position_mm:g} mm", f"{verdict}. " + "; ".join(notes)))
-        closeups = toe_closeups(points_specimen, sec, geometry.line(sec.line), half_width_mm=weld.section_half_width_mm)
+        closeups = toe_closeups(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm)
         if closeups:
             out.append(_picture(closeup_picture(closeups, title=f"{sec.line} at {sec.position_mm:g} mm: the toes close, "
                                                                 "height exaggerated"),
@@ -290,14 +304,14 @@ def qa_report(ctx) -> dict[str, Any]:
     weld = report.weld
     weld_pictures = []
     if geometry.measured:
-        weld_pictures = _section_pictures(ctx, geometry, view.points_mm, recorded.weld) + _along_weld(geometry)
+        weld_pictures = _section_pictures(ctx, geometry, view.points_mm, recorded.weld) + along_weld_pictures(geometry)
     volume = VOLUME_SUMMARY.read(inputs["volume"])
     checks = report.checks
     try:
         version = importlib.metadata.version("weldrecon")
     except importlib.metadata.PackageNotFoundError:
         version = "unknown"
-    page = _ENV.get_template("qa_report.html.j2").render(
+    page = TEMPLATES.get_template("qa_report.html.j2").render(
         sample_id=ctx.manifest.sample_id, version=version, frame=frame, audit_mark=AUDIT_MARK,
         manifest=ctx.manifest, passes=len(ctx.names), setups=len(ctx.manifest.setups),
         checks=checks, flagged=[c for c in checks if c.result != "ok"], weld=weld, volume=volume,

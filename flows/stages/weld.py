@@ -38,7 +38,8 @@ from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
 __all__ = ["weld", "MEASURABLE_JOINTS", "FILLET_JOINTS", "section_settings", "judged", "section_document",
-           "section_statistics", "finding_document"]
+           "section_statistics", "finding_document",
+           "fillet_section_document", "fillet_weld_figures"]
 
 MEASURABLE_JOINTS = ("double-sided butt", "single-V butt", "double-V butt")  # a cap between two plates
 FILLET_JOINTS = ("fillet", "double fillet", "cruciform fillet")  # between a base plate and a stem on it
@@ -164,7 +165,8 @@ def _fillet_sides(manifest, line) -> tuple[np.ndarray, np.ndarray] | str:
     return np.array([math.copysign(1.0, side), 0.0, 0.0]), np.array([0.0, 0.0, math.copysign(1.0, face)])
 
 
-def _fillet_section(line: FilletLine, position: float, sec) -> FilletWeldSection:
+def fillet_section_document(line: FilletLine, position: float, sec) -> FilletWeldSection:
+    """A fillet section (``tasks.fillet_section``) at ``position`` along ``line`` as the document's."""
     ok = math.isfinite(sec.root_ab_mm[0])
     root = line.to_frame(position, sec.root_ab_mm) if ok else line.to_frame(position, (0.0, 0.0))
     return FilletWeldSection(
@@ -178,20 +180,11 @@ def _fillet_section(line: FilletLine, position: float, sec) -> FilletWeldSection
         passed=None, verdict=None, violations=[], uncertain=[], note=sec.note or None)
 
 
-def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str, Any]:
-    """A fillet weld's sections along each root line (module description), its document and toes."""
-    s, manifest = ctx.settings, ctx.manifest
-    sides = {line.name: _fillet_sides(manifest, line) for line in manifest.weld_lines()}
-    why = next((v for v in sides.values() if isinstance(v, str)), None)
-    if why:
-        return _not_measured(ctx, WeldGeometry(measured=False, why_not=why, **head))
-    treated = manifest.weld.treatment != "as-welded"
-    found = [measure_fillet_line(points, np.asarray(line.points_mm, np.float64), *sides[line.name], name=line.name,
-                                 step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
-                                 reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=section_settings(s),
-                                 treated=treated)
-             for line in manifest.weld_lines()]
-    sections = [_fillet_section(line, position, sec) for line in found for position, sec in line.sections]
+def fillet_weld_figures(found: list[FilletLine]) -> tuple[list[FilletWeldSection], list[WeldLineFound], WeldSummary,
+                                                         dict[str, FigureStatistics]]:
+    """The document's parts of a fillet weld measured along its root lines (``found``): its
+    sections, its lines, the summary (measured, not judged) and the statistics along it."""
+    sections = [fillet_section_document(line, position, sec) for line in found for position, sec in line.sections]
     lines = []
     for line in found:
         roots = [sec.root_ab_mm for _, sec in line.sections if math.isfinite(sec.root_ab_mm[0])]
@@ -209,6 +202,23 @@ def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str
     statistics = _along(rows, dict(zip(FILLET_SECTION_FIGURES, (
         lambda r: r[2].leg_base.value, lambda r: r[2].leg_stem.value, lambda r: r[2].throat.value,
         lambda r: r[2].convexity.value))), lambda r: (r[0], r[1], (r[2].base_toe, r[2].stem_toe)))
+    return sections, lines, summary, statistics
+
+
+def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str, Any]:
+    """A fillet weld's sections along each root line (module description), its document and toes."""
+    s, manifest = ctx.settings, ctx.manifest
+    sides = {line.name: _fillet_sides(manifest, line) for line in manifest.weld_lines()}
+    why = next((v for v in sides.values() if isinstance(v, str)), None)
+    if why:
+        return _not_measured(ctx, WeldGeometry(measured=False, why_not=why, **head))
+    treated = manifest.weld.treatment != "as-welded"
+    found = [measure_fillet_line(points, np.asarray(line.points_mm, np.float64), *sides[line.name], name=line.name,
+                                 step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
+                                 reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=section_settings(s),
+                                 treated=treated)
+             for line in manifest.weld_lines()]
+    sections, lines, summary, statistics = fillet_weld_figures(found)
     WELD_GEOMETRY.write(ctx.out, WeldGeometry(measured=True, lines=lines, summary=summary, statistics=statistics,
                                               sections=sections, **head))
     # the toes as polylines in the common frame (the FE model grades its elements toward them)

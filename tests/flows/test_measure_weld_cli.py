@@ -15,11 +15,12 @@ from tests.flows.cli import weldrecon
 REALWELD = Path(__file__).resolve().parents[3] / "shared" / "data" / "realweld"
 
 
-def _write_scan(path: Path, *, scale: float = 1.0, keep=lambda x: True) -> Path:
+def _write_scan(path: Path, *, scale: float = 1.0, keep=lambda x: True, height_mm: float = 3.0) -> Path:
     rng = np.random.default_rng(5)
     rows = []
     for k in range(20):
-        u, h, _ = draw_butt_profile(toe_radius_mm=1.0, toe_angle_deg=30, spacing_mm=0.05, noise=REAL_SCAN_NOISE, rng=rng)
+        u, h, _ = draw_butt_profile(toe_radius_mm=1.0, toe_angle_deg=30, spacing_mm=0.05, height_mm=height_mm,
+                                    noise=REAL_SCAN_NOISE, rng=rng)
         rows += [(150 + a, 16 + 0.5 * k, b) for a, b in zip(u, h) if keep(150 + a)]
     np.savetxt(path, np.asarray(rows) * scale, fmt="%.5f", delimiter="\t")
     return path
@@ -33,6 +34,21 @@ def test_a_drawn_scan_is_measured_and_written(tmp_path):
     assert doc.source.profile_scan and doc.geometry.summary.sections == 20
     assert all(t.measured for t in doc.toes) and doc.weld_line.found == "auto"
     assert done.stdout.splitlines()[0].startswith(f"{scan}: 20 sections, 40 of 40 toes measured")
+    assert doc.geometry.summary.verdict == "pass"  # so the exit status 0 says the weld passed
+
+
+def test_a_failing_weld_is_written_and_exits_1(tmp_path):
+    # a cap 5 mm high: over the as-welded butt rule's 4 mm reinforcement in every section
+    good = _write_scan(tmp_path / "good.xyz")
+    high = _write_scan(tmp_path / "high.xyz", height_mm=5.0)
+    done = weldrecon("measure-weld", str(good), str(high), "--out", str(tmp_path / "out"))
+    assert done.returncode == 1 and done.stderr == "", done.stderr
+    doc = ScanWeld.model_validate_json((tmp_path / "out" / "high.xyz.weld.json").read_text())
+    assert doc.geometry.summary.verdict == "fail" and doc.geometry.summary.failing == 20
+    assert (tmp_path / "out" / "good.xyz.weld.json").is_file()  # every scan measured, the failing one too
+    lines = done.stdout.splitlines()
+    assert lines[0].endswith(f"verdict: pass -> {tmp_path / 'out' / 'good.xyz.weld.json'} (QA page good.xyz.weld.html)")
+    assert sum("reinforcement_height_mm" in line and " fails (" in line for line in lines) == 20
 
 
 @pytest.mark.parametrize("case, args, says", [
@@ -61,8 +77,10 @@ def test_real_scan_every_toe_measured_or_said_why(tmp_path):
     if not scan.is_file():
         pytest.skip(f"the real weld scans are not at {REALWELD} (../shared/data beside the repository)")
     done = weldrecon("measure-weld", str(scan), "--out", str(tmp_path))
-    assert done.returncode == 0, done.stderr
+    # its angular misalignment exceeds the rule's 1 deg in a few sections: the weld fails, exit 1
+    assert done.returncode == 1 and done.stderr == "", done.stderr
     doc = ScanWeld.model_validate_json((tmp_path / f"{scan.name}.weld.json").read_text())
+    assert doc.geometry.summary.verdict == "fail"
     assert doc.geometry.summary.sections == 57 and len(doc.toes) == 114
     assert all(t.measured or t.reason for t in doc.toes)
     assert sum(t.measured for t in doc.toes) >= 110

@@ -159,14 +159,14 @@ def test_the_command_line_summary_reads_the_report(capsys):
 
 
 def test_the_qa_pages_weld_figures_read_the_weld_document():
-    from flows.stages.qa_report import _along_weld
+    from flows.stages.qa_report import along_weld_pictures
     from tasks.weld_views import chosen_sections
 
     geometry = _geometry()
     chosen = chosen_sections(geometry, 2)
     assert len(chosen) == 2 * len(geometry.line_names())
     assert all(s in geometry.sections for s in chosen)
-    pictures = _along_weld(geometry)
+    pictures = along_weld_pictures(geometry)
     assert pictures and all(p["src"].startswith("data:image/png;base64,") for p in pictures)
 
 
