@@ -40,7 +40,7 @@ def add_import_scans(sub) -> None:
                        "centre line on the plate's face; a fillet's root), mm, in the frame of the scans' poses (none: "
                        "the first scan's own); repeat for several")
     where.add_argument("--weld-auto", action="store_true", help="find the weld line on the scans (a butt weld: where "
-                       "the surface rises from the plates)")
+                       "the surface rises from the plates; a fillet: where the two plates' planes cross)")
     weld.add_argument("--treatment", choices=sorted(_TREATMENTS), default="as-welded")
     isc.set_defaults(func=_cmd_import_scans)
 
@@ -76,6 +76,7 @@ def _scans_weld(args: argparse.Namespace, read):
     of the scans' poses) and the lines' tolerance; None: no weld given. ValueError naming the option."""
     from schemas.manifest import WeldDescription, WeldLine
     from schemas.profile_weld import MeasureWeldConfig
+    from tasks.scan_fillet import find_fillet_root
     from tasks.scan_weld import find_weld_line, given_weld_line
 
     if args.joint is None:
@@ -87,11 +88,9 @@ def _scans_weld(args: argparse.Namespace, read):
                          "frame of the scans' poses) or --weld-auto")
     points, frame = read.points_in_weld_frame()
     if args.weld_auto:
-        if args.joint != "butt":
-            raise ValueError(f"--weld-auto finds a butt weld's line; for --joint {args.joint} give its root line "
-                             "(--weld-line)")
         try:
-            found = find_weld_line(points, min_rise_mm=MeasureWeldConfig().min_rise_mm)
+            found = (find_weld_line(points, min_rise_mm=MeasureWeldConfig().min_rise_mm) if args.joint == "butt"
+                     else find_fillet_root(points))
         except ValueError as exc:
             raise ValueError(f"--weld-auto: {exc} (the scans in {frame})") from None
         ends, label, tolerance = [(found.start_mm, found.end_mm)], "found on the scans at import", FOUND_TOLERANCE_MM

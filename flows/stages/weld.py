@@ -9,7 +9,8 @@ figures are fitted on the measured points (cell means of the merged passes), not
 surface. A fillet weld (a T-joint's or a cruciform's) is measured in sections across its root
 line (``tasks.fillet_section``: toes on the base plate and on the stem, legs, throat, convexity),
 the plates' sides known from the specimen (the root on the stem's ``out`` side, the stem ``up``
-from the base's face); it is not judged (no acceptance rule for fillet welds yet). A sample whose
+from the base's face), or, where the manifest gives no specimen (imported scans), found on the
+points around the root line (``tasks.scan_fillet``); it is not judged (no acceptance rule for fillet welds yet). A sample whose
 setups state no nominal placement, or whose joint is neither, is not measured (said in the file,
 not an error).
 
@@ -33,6 +34,7 @@ from schemas.weld_document import (FILLET_SECTION_FIGURES, TOE_FIGURES, FilletTo
                                    WeldLineFound, WeldSection, WeldSummary)
 from tasks.fillet_section import FilletLine, measure_fillet_line
 from tasks.frames import apply, invert, rotate
+from tasks.scan_fillet import find_fillet_root
 from tasks.weld_acceptance import judge_weld
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
@@ -205,10 +207,29 @@ def fillet_weld_figures(found: list[FilletLine]) -> tuple[list[FilletWeldSection
     return sections, lines, summary, statistics
 
 
+def _fillet_sides_on_data(points: np.ndarray, line, reach_mm: float) -> tuple[np.ndarray, np.ndarray] | str:
+    """A fillet root line's ``out`` and ``up`` found on the points within ``reach_mm`` of it (where
+    the plates lie: ``tasks.scan_fillet``), for a sample that gives no specimen (imported scans)."""
+    ends = np.asarray(line.points_mm, np.float64)[[0, -1]]
+    t = ends[1] - ends[0]
+    length = float(np.linalg.norm(t))
+    t /= length
+    rel = points - ends[0]
+    along = rel @ t
+    near = points[(along >= -reach_mm) & (along <= length + reach_mm)
+                  & (np.linalg.norm(rel - along[:, None] * t, axis=1) <= reach_mm)]
+    try:
+        root = find_fillet_root(near, line_mm=(tuple(ends[0]), tuple(ends[1])), reach_mm=reach_mm)
+    except ValueError as exc:
+        return f"weld line {line.name!r}: the plates' sides were not found on the data: {exc}"
+    return np.asarray(root.out, np.float64), np.asarray(root.up, np.float64)
+
+
 def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str, Any]:
     """A fillet weld's sections along each root line (module description), its document and toes."""
     s, manifest = ctx.settings, ctx.manifest
-    sides = {line.name: _fillet_sides(manifest, line) for line in manifest.weld_lines()}
+    sides = {line.name: (_fillet_sides(manifest, line) if manifest.specimen is not None
+                         else _fillet_sides_on_data(points, line, s.reach_mm)) for line in manifest.weld_lines()}
     why = next((v for v in sides.values() if isinstance(v, str)), None)
     if why:
         return _not_measured(ctx, WeldGeometry(measured=False, why_not=why, **head))

@@ -1,8 +1,9 @@
 """Imported scans of a weld (``weldrecon import-scans --joint ... --weld-line | --weld-auto``)
 reconstructed and measured by the flow as a simulator sample is (stage weld): two overlapping
 views of a butt weld's cap, each in its own frame with its pose (a .conf), the real scans' noise,
-spikes and dropouts (``simulator.weld_profiles``), toe radius 1 mm at 45 deg drawn; and the weld
-options' bad input, one line each with nothing written."""
+spikes and dropouts (``simulator.weld_profiles``), toe radius 1 mm at 45 deg drawn; two
+overlapping halves of a T-joint's drawn fillet corner (the plates' sides found on the data, no
+specimen given); and the weld options' bad input, one line each with nothing written."""
 
 from __future__ import annotations
 
@@ -94,6 +95,55 @@ def test_a_weld_line_given_by_hand_is_found_on_the_data(scans, tmp_path):
     assert manifest.weld.treatment == "hfmi-treated" and manifest.setups[0].placement_tolerance_mm == 2.0
 
 
+def test_an_imported_fillet_weld_is_measured_with_its_plates_found_on_the_data(tmp_path):
+    """The drawn corner of ``test_measure_fillet_cli`` (legs 7.0 / 6.0 mm, toe radii 1.0 / 0.6 mm,
+    10 um of noise, profiles 0.5 mm apart, turned into the file's frame) in two halves overlapping
+    by 6 mm, each in a frame of its own: its root found at import, the sample reconstructed up to
+    the weld, every section with both toes, the figures within the bounds that command's test holds
+    the same corner to (0.1 mm, 4 deg: the per-section errors of tests/tasks/test_fillet_section.py)."""
+    from scipy.spatial.transform import Rotation
+
+    from tests.flows.test_measure_fillet_cli import ALONG, ROOT, TRUTH, tjoint_corner
+
+    world = tjoint_corner()
+    s = (world - ROOT) @ ALONG
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    files, poses = [], {}
+    for k, half in enumerate((world[s < 3.0], world[s >= -3.0])):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("zx", [30.0 + 40.0 * k, 10.0], degrees=True).as_matrix()
+        T[:3, 3] = [20.0 * k, -30.0, 5.0]
+        files.append(folder / f"half{k}.ply")
+        _ply(files[-1], (half - T[:3, 3]) @ T[:3, :3])
+        poses[files[-1].name] = T
+    _conf(folder / "poses.conf", poses, unit_mm=1.0)
+    sample = tmp_path / "sample"
+    done = weldrecon("import-scans", str(sample), *map(str, files), "--units", "mm", "--poses",
+                     str(folder / "poses.conf"), "--joint", "fillet", "--weld-auto")
+    assert done.returncode == 0, done.stderr
+    (line,) = SampleManifest.model_validate_json((sample / "manifest.json").read_text()).weld_lines()
+    for end in np.array(line.points_mm):  # the root found where the plates cross, on the drawn root line
+        rel = end - ROOT
+        assert np.linalg.norm(rel - (rel @ ALONG) * ALONG) < 0.05
+    done = weldrecon("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--stop-after", "weld")
+    assert done.returncode == 0, done.stderr
+    (document,) = (tmp_path / "run" / "stages" / "weld").glob("*/weld_geometry.json")
+    weld = json.loads(document.read_text())
+    assert weld["measured"] and weld["joint"] == "fillet", weld.get("why_not")
+    sections = weld["sections"]
+    assert len(sections) >= 30 and all(x["toes"]["base"] and x["toes"]["stem"] for x in sections)
+
+    def median(get):
+        return float(np.median([get(x) for x in sections]))
+
+    assert abs(median(lambda x: x["leg_base_mm"]["value"]) - TRUTH.leg_base_mm) < 0.1
+    assert abs(median(lambda x: x["leg_stem_mm"]["value"]) - TRUTH.leg_stem_mm) < 0.1
+    assert abs(median(lambda x: x["toes"]["base"]["toe_radius_mm"]["value"]) - 1.0) < 0.1
+    assert abs(median(lambda x: x["toes"]["stem"]["toe_radius_mm"]["value"]) - 0.6) < 0.1
+    assert abs(median(lambda x: x["throat_mm"]["value"]) - TRUTH.throat_mm) < 0.1
+
+
 @pytest.fixture
 def flat(tmp_path):
     x, y = np.meshgrid(np.arange(0.0, 30.0, 0.2), np.arange(0.0, 20.0, 0.2))
@@ -112,7 +162,7 @@ def test_bad_weld_options_are_one_line_and_nothing_is_written(case, scans, flat,
                          "--weld-line 200,0,0:200,10,0: the weld line 200,0,0:200,10,0 lies outside the scan"),
         "bad line": ([*posed, "--joint", "butt", "--weld-line", "0,0:1,1"], "--weld-line must be X0,Y0,Z0:X1,Y1,Z1"),
         "no weld": ([flat, "--units", "mm", "--joint", "butt", "--weld-auto"], "--weld-auto: no weld in the scan"),
-        "auto fillet": ([*posed, "--joint", "fillet", "--weld-auto"], "--weld-auto finds a butt weld's line"),
+        "auto fillet": ([flat, "--units", "mm", "--joint", "fillet", "--weld-auto"], "--weld-auto: no stem"),
     }[case]
     out = tmp_path / "out" / "sample"
     assert main(["import-scans", str(out), *args]) == 2
