@@ -177,7 +177,7 @@ def _profiles(points: np.ndarray) -> np.ndarray | None:
 
 _NEIGHBOURS = 3  # sections either side a toe is held against
 _OFF_MM = 0.25  # a toe further than this (or 4 of its and its neighbours' sigmas) from theirs is fitted again
-_STARTS_MM = (0.0, -0.05, 0.05, -0.1, 0.1)  # ... started this far from their toe
+_STARTS_MM = (0.0, -0.05, 0.05, -0.1, 0.1, -0.15, 0.15, -0.2, 0.2)  # ... started this far from their toe
 
 
 def _along_the_weld(sections: list, groups: list, u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings,
