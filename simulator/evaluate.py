@@ -242,8 +242,9 @@ def true_specimen(sample_dir: Path):
 
 
 def true_tjoint(sample_dir: Path):
-    """The simulated T-joint of a sample as the simulator drew it (``simulator.tjoint.TJoint``: its
-    fillets' figures along y), drawn again from ``truth/simulation.json`` with the same seed."""
+    """The simulated T-joint or cruciform of a sample as the simulator drew it
+    (``simulator.tjoint.TJoint``: its fillets' figures along y), drawn again from
+    ``truth/simulation.json`` with the same seed."""
     from schemas.simulation import SimulationConfig
     from simulator.tjoint import build_tjoint
 
