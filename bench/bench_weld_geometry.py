@@ -8,8 +8,9 @@ the groove's), flank angle, reinforcement height (the drawn profile's peak, ripp
 groove depth, width and undercut. A treated toe's flank angle and the treated weld's width are not
 compared: the drawn flank at the toe is cut away by the groove (the stage reports the flank just
 above it, and the width between where the grooves meet the weld). A T-joint's fillet welds are
-compared with ``truth/fillet_weld.json``: legs, throat, convexity, each toe's radius and angle.
-Median and worst absolute error, and the median signed error.
+compared with ``truth/fillet_weld.json``: legs, throat, convexity, each toe's radius and angle;
+a cruciform's also face by face (``errors_by_face``: the fillets on the base plate's upper face,
+z > 0, and on its lower face). Median and worst absolute error, and the median signed error.
 
     .venv/bin/python bench/bench_weld_geometry.py SAMPLE_DIR CONFIG.yaml WORK_DIR [--json OUT.json]
 
@@ -59,12 +60,23 @@ def main() -> int:
               "verdict": None if summary is None else summary.verdict,
               "weld_stage_seconds": refs["weld"].metrics.get("seconds"), "run_seconds": round(seconds, 1),
               "errors": summarise_weld_errors(errors)}
+    if fillet and manifest.specimen.kind == "cruciform":
+        faces = {"upper face": [line.name for line in manifest.weld_lines() if line.points_mm[0][2] > 0],
+                 "lower face": [line.name for line in manifest.weld_lines() if line.points_mm[0][2] < 0]}
+        result["errors_by_face"] = {face: summarise_weld_errors(fillet_errors(args.sample, geometry, T_true_nominal,
+                                                                              lines=names))
+                                    for face, names in faces.items()}
     print(f"{result['sample']} ({result['treatment']}): {result['sections']} sections, weld stage "
           f"{result['weld_stage_seconds']} s, verdict {result['verdict']}")
     print(f"{'figure':42s} {'n':>5s} {'median |e|':>11s} {'p90 |e|':>9s} {'worst |e|':>10s} {'median e':>9s}")
     for name, s in result["errors"].items():
         print(f"{name:42s} {s['n']:5d} {s['median_abs']:11.4f} {s['p90_abs']:9.4f} {s['worst_abs']:10.4f} "
               f"{s['median_signed']:9.4f}")
+    for face, figures in result.get("errors_by_face", {}).items():
+        print(f"-- {face}")
+        for name, s in figures.items():
+            print(f"{name:42s} {s['n']:5d} {s['median_abs']:11.4f} {s['p90_abs']:9.4f} {s['worst_abs']:10.4f} "
+                  f"{s['median_signed']:9.4f}")
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")
     return 0

@@ -235,8 +235,13 @@ class TJointConfig(StrictModel):
     convex fillet welds, one on each side of the stem. Specimen frame as the manifest's
     ``TJointSpecimen``: origin at the base plate's centre (mid-thickness), x across the stem, y along
     it and its welds, z toward the stem. The weld's toe radius, ripples, bead wander and variation
-    length come from ``weld``; the scan plan's setups and margin from ``plan``."""
+    length come from ``weld``; the scan plan's setups and margin from ``plan``. With ``stems:
+    both`` a cruciform joint (the manifest's ``CruciformSpecimen``): a second stem of the same
+    size on the base plate's other face, in the same plane, with its own two fillets, four in all.
+    A T-joint's config is written without ``stems`` (``simulation_json``), as before cruciforms."""
 
+    stems: Literal["one", "both"] = Field(default="one", description=(
+        "one: a T-joint; both: a cruciform joint (a stem on each face of the base plate)"))
     base_length_mm: float = Field(default=260.0, gt=0, le=1000)
     base_width_mm: float = Field(default=120.0, gt=0, le=1000)
     base_thickness_mm: float = Field(default=12.0, gt=0, le=100)
@@ -280,7 +285,7 @@ class SimulationConfig(StrictModel):
     placement: PlacementConfig = PlacementConfig()
     mesh: TrueMeshConfig = TrueMeshConfig()
     tjoint: TJointConfig | None = Field(default=None, description=(
-        "simulate a T-joint (simulator.tjoint) instead of the dog-bone of ``specimen``"))
+        "simulate a T-joint or a cruciform joint (simulator.tjoint) instead of the dog-bone of ``specimen``"))
     chunk_profiles: int = Field(default=256, ge=1, le=100000, description="profiles per zarr chunk and per render batch")
 
     @model_validator(mode="after")
@@ -308,3 +313,9 @@ class SimulationConfig(StrictModel):
         if self.fixture.block_size_mm[1] >= spec.grip_width_mm:
             raise ValueError("fixture.block_size_mm must be narrower (y) than specimen.grip_width_mm")
         return self
+
+    def simulation_json(self) -> str:
+        """The config as ``truth/simulation.json`` holds it: a dog-bone's without ``tjoint`` (as
+        before T-joints existed), a T-joint's without ``tjoint.stems`` (as before cruciforms)."""
+        exclude = {"tjoint"} if self.tjoint is None else {"tjoint": {"stems"}} if self.tjoint.stems == "one" else None
+        return self.model_dump_json(indent=2, exclude=exclude) + "\n"

@@ -20,7 +20,7 @@ def face_params(face: np.ndarray, points: np.ndarray) -> np.ndarray:
     """(a, b) parameters (n, 2) of specimen-frame points (n, 3) on faces (n,)."""
     x, y, z = points[:, 0], points[:, 1], points[:, 2]
     a = np.where(np.isin(face, (Face.END_POS, Face.END_NEG, Face.STEM_NEG, Face.STEM_POS)), y, x)
-    b = np.where(np.isin(face, (Face.TOP, Face.BOTTOM, Face.STEM_TOP)), y, z)
+    b = np.where(np.isin(face, (Face.TOP, Face.BOTTOM, Face.STEM_TOP, Face.STEM_BOTTOM)), y, z)
     return np.stack([a, b], axis=1)
 
 

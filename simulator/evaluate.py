@@ -8,6 +8,7 @@ against the registered specimen targets.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -169,11 +170,13 @@ def weld_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: n
     return errors
 
 
-def fillet_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: np.ndarray) -> dict[str, list[tuple[float, float]]]:
-    """A fillet weld's ``weld_geometry.json`` against ``truth/fillet_weld.json`` (a T-joint's):
-    figure -> [(measured - true, true)] over every measured section and toe, each section's root
-    placed in the true specimen frame and compared with the drawn fillet of its line there
-    (interpolated along y)."""
+def fillet_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal: np.ndarray, *,
+                  lines: Collection[str] | None = None) -> dict[str, list[tuple[float, float]]]:
+    """A fillet weld's ``weld_geometry.json`` against ``truth/fillet_weld.json`` (a T-joint's or
+    a cruciform's): figure -> [(measured - true, true)] over every measured section and toe (of
+    the weld lines ``lines`` only, when given: e.g. a cruciform's on one face of its base plate),
+    each section's root placed in the true specimen frame and compared with the drawn fillet of
+    its line there (interpolated along y)."""
     truth = read_fillet_truth(Path(sample) / TRUTH_DIR / FILLET_TRUTH_NAME)
     by_line: dict[str, list] = {}
     for s in truth.sections:
@@ -187,7 +190,7 @@ def fillet_errors(sample: Path, geometry: WeldGeometry, T_true_specimen_nominal:
     R, t = T_true_specimen_nominal[:3, :3], T_true_specimen_nominal[:3, 3]
     for sec in geometry.sections:
         rows = by_line.get(sec.line)
-        if not rows:
+        if not rows or (lines is not None and sec.line not in lines):
             continue
         y = float((R @ np.asarray(sec.centre_specimen_mm) + t)[1])
         ys = np.array([r.y_mm for r in rows])
@@ -239,8 +242,9 @@ def true_specimen(sample_dir: Path):
 
 
 def true_tjoint(sample_dir: Path):
-    """The simulated T-joint of a sample as the simulator drew it (``simulator.tjoint.TJoint``: its
-    fillets' figures along y), drawn again from ``truth/simulation.json`` with the same seed."""
+    """The simulated T-joint or cruciform of a sample as the simulator drew it
+    (``simulator.tjoint.TJoint``: its fillets' figures along y), drawn again from
+    ``truth/simulation.json`` with the same seed."""
     from schemas.simulation import SimulationConfig
     from simulator.tjoint import build_tjoint
 

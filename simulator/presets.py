@@ -7,6 +7,10 @@
   setups (stem up; turned over, the stem between the support blocks) whose only shared surfaces are
   the base plate's 12 mm walls: 17 passes, about 2.3 M points.
 - ``tjoint-single``: the same T-joint in one setup (stem up): 10 passes.
+- ``cruciform``: a cruciform joint: the T-joint's plates with a second stem on the base plate's
+  other face, in the same plane, four convex fillet welds; two setups (each with one stem up, the
+  other hanging between the support blocks) whose only shared surfaces are again the base plate's
+  walls: 20 passes. The same seed as ``tjoint``: its upper fillets are the T-joint's, drawn first.
 - ``paper``: Table I at full resolution (2048 points per profile at 0.02 mm, 0.1 mm between
   profiles at 15 mm/s): hundreds of millions of points, written pass by pass.
 """
@@ -60,10 +64,10 @@ def _ci() -> SimulationConfig:
     )
 
 
-def _tjoint(setups: list[str], sample_id: str, preset: str) -> SimulationConfig:
+def _tjoint(setups: list[str], sample_id: str, preset: str, *, stems: str = "one") -> SimulationConfig:
     return SimulationConfig(
         preset=preset, seed=41, sample_id=sample_id,
-        tjoint=TJointConfig(),
+        tjoint=TJointConfig(stems=stems),
         weld=WeldConfig(treatment="as-welded", toe_radius_mm=(0.5, 2.0), undercut_probability=0.0),
         stickers=StickerConfig(diameter_mm=5.0, n_fixture=8),
         fixture=FixtureConfig(plate_size_mm=(420.0, 320.0, 10.0), block_size_mm=(30.0, 60.0, 80.0),
@@ -79,7 +83,8 @@ def _tjoint(setups: list[str], sample_id: str, preset: str) -> SimulationConfig:
 
 PRESETS = {"ci": _ci, "demo": _demo, "paper": _paper,
            "tjoint": lambda: _tjoint(["top", "bottom"], "sim-tjoint-0041", "tjoint"),
-           "tjoint-single": lambda: _tjoint(["top"], "sim-tjoint-single-0041", "tjoint-single")}
+           "tjoint-single": lambda: _tjoint(["top"], "sim-tjoint-single-0041", "tjoint-single"),
+           "cruciform": lambda: _tjoint(["top", "bottom"], "sim-cruciform-0041", "cruciform", stems="both")}
 
 
 def preset_config(name: str) -> SimulationConfig:

@@ -188,6 +188,9 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
         tj = config.tjoint
         if tj is None:
             description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
+        elif tj.stems == "both":
+            description = "the upper stem up, the base plate on the support blocks, the lower stem hanging between " \
+                "them" if setup == "top" else "turned over by hand about the base plate's length: the lower stem up"
         else:
             description = "stem up, the base plate on the support blocks" if setup == "top" else \
                 "turned over by hand about the base plate's length: the stem hangs between the support blocks"
@@ -199,7 +202,8 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
                             placement_tolerance_mm=round(placement_tolerance_mm(config.placement, half_width), 3)))
     if config.tjoint is not None:
         specimen = tjoint_specimen(config.tjoint)
-        weld = WeldDescription(joint="double fillet", weld_lines=tjoint_weld_lines(config.tjoint),
+        weld = WeldDescription(joint="double fillet" if config.tjoint.stems == "one" else "cruciform fillet",
+                               weld_lines=tjoint_weld_lines(config.tjoint),
                                treatment=config.weld.treatment)
     else:
         specimen = DogBoneSpecimen(length_mm=sp.length_mm, grip_width_mm=sp.grip_width_mm,
@@ -388,9 +392,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
             atomic_write_text(tmp / TRUTH_DIR / TOES_NAME, TrueToeLines(
                 sample_id=config.sample_id, toes=specimen.toes).model_dump_json(indent=1) + "\n")
             atomic_write_text(tmp / TRUTH_DIR / FILLET_TRUTH_NAME, specimen.fillet_truth().model_dump_json(indent=1) + "\n")
-        # a dog-bone's config is written as before T-joints existed (no "tjoint": null)
-        atomic_write_text(tmp / TRUTH_DIR / "simulation.json",
-                          config.model_dump_json(indent=2, exclude={"tjoint"} if tj is None else None) + "\n")
+        atomic_write_text(tmp / TRUTH_DIR / "simulation.json", config.simulation_json())
         _write_mesh(tmp / TRUTH_DIR / "specimen.ply", specimen.mesh)
         _write_mesh(tmp / TRUTH_DIR / "fixture.ply", fixture_mesh)
         if previews:

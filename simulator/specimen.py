@@ -22,8 +22,9 @@ __all__ = ["Face", "SurfaceMesh", "Specimen", "build_specimen"]
 class Face:
     TOP, BOTTOM, SIDE_NEG, SIDE_POS, END_POS, END_NEG, FIXTURE = range(7)
     STEM_NEG, STEM_POS, STEM_TOP, WELD = range(7, 11)  # a T-joint's stem (faces x < 0, x > 0, its end), its welds
+    STEM_BOTTOM = 11  # a cruciform's lower stem's end (its faces x < 0, x > 0 are STEM_NEG, STEM_POS below the base)
     NAMES = ("top", "bottom", "side_neg", "side_pos", "end_pos", "end_neg", "fixture",
-             "stem_neg", "stem_pos", "stem_top", "weld")
+             "stem_neg", "stem_pos", "stem_top", "weld", "stem_bottom")
 
 
 @dataclass(frozen=True)

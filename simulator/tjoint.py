@@ -1,4 +1,6 @@
-"""A T-joint: a stem plate welded upright across a base plate by two convex fillet welds.
+"""A T-joint: a stem plate welded upright across a base plate by two convex fillet welds; or a
+cruciform joint (``TJointConfig.stems`` "both"): a second such stem on the base plate's other face,
+in the same plane, with its own two fillets.
 
 Specimen frame (the manifest's ``TJointSpecimen``): origin at the base plate's centre
 (mid-thickness), x across the stem, y along the stem and its welds, z toward the stem. The part
@@ -13,6 +15,14 @@ runs from the base toe B = (x0 + a, z0) to the stem toe S = (x0, z0 + b), risen 
 B-S by ``h (1 - |2s - 1|^p)`` plus ripples; each toe is rounded by a circle of the toe radius
 tangent to the plate and to the weld face. The true toe lines (``truth/toes.json``) are the
 middles of those roundings.
+
+A cruciform's lower stem and its fillets are the upper ones' picture turned half a turn about the
+y axis ((x, z) -> (-x, -z)): each of its fillets is drawn in the frame above (legs along +x and
++z), then placed by its side (x < 0 or x > 0) and face (-1: the base's lower face). Its two
+setups are alike: one stem up, the other hanging between the support blocks; the base plate's
+walls are still the only surfaces both see. The weld lines of a T-joint are ``fillet-neg`` and
+``fillet-pos`` (x < 0, x > 0); a cruciform's ``fillet-top-neg``, ``fillet-top-pos``,
+``fillet-bottom-neg`` and ``fillet-bottom-pos`` (``weld_names``).
 """
 
 from __future__ import annotations
@@ -21,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.manifest import TJointSpecimen, WeldLine
+from schemas.manifest import CruciformSpecimen, TJointSpecimen, WeldLine
 from schemas.simulation import TrueMeshConfig, SimulationConfig, TJointConfig, WeldConfig
 from schemas.truth import FilletSectionTruth, FilletWeldTruth, TrueToeLine
 from simulator.robot import PlannedPass, _sensor_frame
@@ -30,7 +40,8 @@ from simulator.specimen import Face, SurfaceMesh
 from simulator.stickers import Candidates, fixture_stickers_beside
 from simulator.weld import _smooth
 
-__all__ = ["TJoint", "build_tjoint", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes", "constant_fillet",
+__all__ = ["TJoint", "build_tjoint", "weld_names", "tjoint_specimen", "tjoint_weld_lines", "plan_tjoint_passes",
+           "constant_fillet",
            "fillet_profile", "fillet_truth",
            "tjoint_sticker_candidates", "wall_sticker_picks", "place_tjoint_fixture_stickers"]
 
@@ -57,37 +68,63 @@ class TJoint:
     mesh: SurfaceMesh
     toes: list[TrueToeLine]
     fillets: dict  # +1 / -1 (the weld on the x > 0 / x < 0 side) -> its drawn _Fillet
+    fillets_below: dict | None = None  # a cruciform's: the lower stem's, +1 / -1 as ``fillets``
+
+    def welds(self) -> list[tuple[int, int, str, _Fillet]]:
+        """Every fillet in the manifest's order: (face: +1 on the base's upper face, -1 its lower;
+        side: +1 x > 0, -1 x < 0; its weld line's name; its drawn figures)."""
+        drawn = {1: self.fillets, -1: self.fillets_below}
+        return [(face, side, name, drawn[face][side]) for (face, side), name in weld_names(self.config).items()]
 
     def section(self, y: float, spacing_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """The part's closed outline at station y as drawn, its points every ``spacing_mm`` (x, z)
-        (k, 2) and their outward normals (k, 2): the base's bottom, its end walls, its top with both
-        fillets (their toes rounded) and the stem to its end."""
+        (k, 2) and their outward normals (k, 2): the base's bottom (a cruciform's: with its fillets
+        and the lower stem, turned half a turn), its end walls, its top with both fillets (their
+        toes rounded) and the stem to its end."""
         tj = self.config
-        L, z0, x0 = tj.base_length_mm, tj.base_thickness_mm / 2, tj.stem_thickness_mm / 2
-        right = fillet_profile(tj, self.fillets[1], y, spacing_mm) + [x0, z0]
-        left = (fillet_profile(tj, self.fillets[-1], y, spacing_mm) + [x0, z0])[::-1] * [-1.0, 1.0]
-        top = z0 + tj.stem_height_mm
-        across = np.arange(x0, -x0, -spacing_mm)
-        bottom = np.arange(-L / 2, L / 2, spacing_mm)
+        L, z0 = tj.base_length_mm, tj.base_thickness_mm / 2
         wall = np.arange(-z0, z0, spacing_mm)
-        loop = np.concatenate([np.c_[bottom, np.full(len(bottom), -z0)], np.c_[np.full(len(wall), L / 2), wall], right,
-                               np.c_[across, np.full(len(across), top)], left,
-                               np.c_[np.full(len(wall), -L / 2), wall[::-1]]])
+        if self.fillets_below is None:
+            bottom = np.arange(-L / 2, L / 2, spacing_mm)
+            below, left_wall = np.c_[bottom, np.full(len(bottom), -z0)], wall[::-1]
+        else:  # from (-L/2, -z0) to where the right wall starts; the left wall ends where it starts
+            below = -self._stem_section(self.fillets_below[-1], self.fillets_below[1], y, spacing_mm)[:-1]
+            left_wall = wall[::-1][:-1]
+        loop = np.concatenate([below, np.c_[np.full(len(wall), L / 2), wall],
+                               self._stem_section(self.fillets[1], self.fillets[-1], y, spacing_mm),
+                               np.c_[np.full(len(left_wall), -L / 2), left_wall]])
         tangent = np.roll(loop, -1, axis=0) - np.roll(loop, 1, axis=0)
         normals = np.c_[tangent[:, 1], -tangent[:, 0]]  # counter-clockwise: outward is the tangent turned right
         return loop, normals / np.linalg.norm(normals, axis=1)[:, None]
 
+    def _stem_section(self, right_fillet: _Fillet, left_fillet: _Fillet, y: float, spacing_mm: float) -> np.ndarray:
+        """The upper face's outline at station y from (L/2, z0) to (-L/2, z0): the base's face,
+        the x > 0 fillet, the stem up, across its end and down, the x < 0 fillet, the base's face."""
+        tj = self.config
+        z0, x0 = tj.base_thickness_mm / 2, tj.stem_thickness_mm / 2
+        right = fillet_profile(tj, right_fillet, y, spacing_mm) + [x0, z0]
+        left = (fillet_profile(tj, left_fillet, y, spacing_mm) + [x0, z0])[::-1] * [-1.0, 1.0]
+        across = np.arange(x0, -x0, -spacing_mm)
+        return np.concatenate([right, np.c_[across, np.full(len(across), z0 + tj.stem_height_mm)], left])
+
     def fillet_truth(self, step_mm: float = 1.0) -> FilletWeldTruth:
-        """Both fillets as drawn every ``step_mm`` across the base plate's width (the x < 0 one
-        mirrored: the same figures)."""
+        """Every fillet as drawn every ``step_mm`` across the base plate's width (each in its own
+        frame, ``fillet_profile``'s: mirrored and turned ones give the same figures)."""
         half = self.config.base_width_mm / 2
-        names = {1: "fillet-pos", -1: "fillet-neg"}
         return FilletWeldTruth(step_mm=step_mm, sections=[
-            fillet_truth(self.config, self.fillets[side], float(y), names[side])
-            for side in (-1, 1) for y in np.arange(-half, half + 1e-9, step_mm)])
+            fillet_truth(self.config, fillet, float(y), name)
+            for _, _, name, fillet in self.welds() for y in np.arange(-half, half + 1e-9, step_mm)])
 
     def weld_zone_half_mm(self) -> float:
         return float(self.config.leg_mm[1]) + 1.5
+
+
+def weld_names(tj: TJointConfig) -> dict[tuple[int, int], str]:
+    """Each fillet's weld line name by (face, side) (``TJoint.welds``), in the manifest's order."""
+    if tj.stems == "one":
+        return {(1, -1): "fillet-neg", (1, 1): "fillet-pos"}
+    return {(face, side): f"fillet-{'top' if face > 0 else 'bottom'}-{'pos' if side > 0 else 'neg'}"
+            for face in (1, -1) for side in (-1, 1)}
 
 
 def _draw_fillet(tj: TJointConfig, weld: WeldConfig, rng: np.random.Generator) -> _Fillet:
@@ -265,12 +302,37 @@ def _half_outline(tj: TJointConfig, f: _Fillet, y: float, fr: dict[str, np.ndarr
     return nodes, faces, toe_b, toe_s
 
 
+def _stem_outline(tj: TJointConfig, right_fillet: _Fillet, left_fillet: _Fillet, y: float, fr: dict[str, np.ndarray],
+                  top_x: np.ndarray) -> tuple[np.ndarray, list[int], dict[tuple[int, str], np.ndarray]]:
+    """The upper face's outline at station y from (L/2, z0) to (-L/2, z0), both corners in: the
+    base's face, the x > 0 fillet, the stem up, across its end (``top_x``, both corners) and down,
+    the x < 0 fillet, the base's face. Its nodes (k, 2) in (x, z), each node's following edge's
+    face (the last one's: the x < 0 end wall) and the toe points by (side, plate)."""
+    right, f_right, tb, ts = _half_outline(tj, right_fillet, y, fr)
+    left, f_left, lb, ls = _half_outline(tj, left_fillet, y, fr)
+    left = left[::-1] * np.array([-1.0, 1.0])
+    f_left = [Face.STEM_NEG if f == Face.STEM_POS else f for f in f_left[::-1]]
+    # each node's following edge: the reversed left half's edges run from node k to k + 1
+    f_left = f_left[1:] + [Face.END_NEG]
+    top = tj.base_thickness_mm / 2 + tj.stem_height_mm
+    nodes = np.concatenate([right, np.stack([top_x, np.full(len(top_x), top)], 1), left])
+    faces = f_right + [Face.STEM_TOP] * (len(top_x) - 1) + [Face.STEM_NEG] + f_left
+    mirror = np.array([-1.0, 1.0])
+    return nodes, faces, {(1, "base"): tb, (1, "stem"): ts, (-1, "base"): lb * mirror, (-1, "stem"): ls * mirror}
+
+
+# a face of the upper outline turned half a turn about y: the same face of the part below the base
+_TURNED = {Face.TOP: Face.BOTTOM, Face.STEM_POS: Face.STEM_NEG, Face.STEM_NEG: Face.STEM_POS,
+           Face.STEM_TOP: Face.STEM_BOTTOM, Face.WELD: Face.WELD}
+
+
 def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: TrueMeshConfig, rng: np.random.Generator) -> TJoint:
-    """Draw both fillet welds and mesh the closed T-joint surface."""
+    """Draw the fillet welds (a T-joint's two, a cruciform's four: the upper ones first, as a
+    T-joint's) and mesh the closed surface."""
     fillets = {+1: _draw_fillet(tj, weld, rng), -1: _draw_fillet(tj, weld, rng)}
+    below = None if tj.stems == "one" else {+1: _draw_fillet(tj, weld, rng), -1: _draw_fillet(tj, weld, rng)}
     L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm
     x0, z0 = tj.stem_thickness_mm / 2, t / 2
-    top = z0 + tj.stem_height_mm
     leg = float(np.mean(tj.leg_mm))
     fr = {"weld": _both_ends(mesh_cfg.toe_dx_mm, mesh_cfg.weld_dx_mm, leg * np.sqrt(2)),
           "stem": _graded(tj.stem_height_mm - leg, mesh_cfg.toe_dx_mm, mesh_cfg.plate_dx_mm)}
@@ -284,27 +346,26 @@ def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: TrueMeshConfig, r
     n_top = max(2, int(np.ceil(tj.stem_thickness_mm / mesh_cfg.plate_dx_mm)))
     top_x = x0 - 2 * x0 * np.arange(n_top + 1) / n_top  # both corners
     ys = np.linspace(-W / 2, W / 2, max(3, int(np.ceil(W / tj.along_weld_dx_mm)) + 1))
-    outlines, toes = [], {(s, k): [] for s in (1, -1) for k in ("base", "stem")}
+    outlines, toes = [], {(f, s, k): [] for f in (1, -1) for s in (1, -1) for k in ("base", "stem")}
     faces = None
     for y in ys:
-        right, f_right, tb, ts = _half_outline(tj, fillets[+1], float(y), fr)
-        left, f_left, lb, ls = _half_outline(tj, fillets[-1], float(y), fr)
-        left = left[::-1] * np.array([-1.0, 1.0])
-        f_left = [Face.STEM_NEG if f == Face.STEM_POS else f for f in f_left[::-1]]
-        # each node's following edge: the reversed left half's edges run from node k to k + 1
-        f_left = f_left[1:] + [Face.END_NEG]
-        poly = np.concatenate([np.stack([bottom_x, np.full(n_bottom, -z0)], 1),
-                               np.stack([np.full(rows - 1, L / 2), wall_z], 1), right,
-                               np.stack([top_x, np.full(n_top + 1, top)], 1), left,
+        upper, f_upper, toes_upper = _stem_outline(tj, fillets[+1], fillets[-1], float(y), fr, top_x)
+        if below is None:
+            lower, f_lower = np.stack([bottom_x, np.full(n_bottom, -z0)], 1), [Face.BOTTOM] * n_bottom
+            found = {(1, *k): p for k, p in toes_upper.items()}
+        else:  # the upper outline of the lower stem's fillets, turned: from (-L/2, -z0), its last corner left
+            # out (the right wall starts there); its x > 0 fillet is the lower stem's x < 0 one
+            lower, f_lower, toes_lower = _stem_outline(tj, below[-1], below[+1], float(y), fr, top_x)
+            lower, f_lower = -lower[:-1], [_TURNED[f] for f in f_lower[:-1]]
+            found = {**{(1, *k): p for k, p in toes_upper.items()},
+                     **{(-1, -s, plate): -p for (s, plate), p in toes_lower.items()}}
+        poly = np.concatenate([lower, np.stack([np.full(rows - 1, L / 2), wall_z], 1), upper,
                                np.stack([np.full(rows - 2, -L / 2), -wall_z[1:]], 1)])
         if faces is None:
-            faces = np.array([Face.BOTTOM] * n_bottom + [Face.END_POS] * (rows - 1) + f_right
-                             + [Face.STEM_TOP] * n_top + [Face.STEM_NEG] + f_left + [Face.END_NEG] * (rows - 2),
-                             np.uint8)
+            faces = np.array(f_lower + [Face.END_POS] * (rows - 1) + f_upper + [Face.END_NEG] * (rows - 2), np.uint8)
         outlines.append(poly)
-        for s, tb_, ts_ in ((1, tb, ts), (-1, lb * np.array([-1.0, 1.0]), ls * np.array([-1.0, 1.0]))):
-            toes[(s, "base")].append((tb_[0], y, tb_[1]))
-            toes[(s, "stem")].append((ts_[0], y, ts_[1]))
+        for key, p in found.items():
+            toes[key].append((p[0], y, p[1]))
     outline = np.stack(outlines)  # (ny, k, 2)
     ny, k, _ = outline.shape
     angle = np.unwrap(np.arctan2(outline[0, :, 1], outline[0, :, 0]))
@@ -330,33 +391,37 @@ def build_tjoint(tj: TJointConfig, weld: WeldConfig, mesh_cfg: TrueMeshConfig, r
     if mesh.signed_volume_mm3() < 0:
         mesh = SurfaceMesh(vertices=vertices, triangles=triangles[:, ::-1].copy(), face_id=face_id,
                            reflective=mesh.reflective)
-    names = {1: "fillet-pos", -1: "fillet-neg"}
-    toe_lines = [TrueToeLine(name=f"{names[s]}-{plate}-toe", weld=names[s], plate=plate,
-                             points_mm=[tuple(float(v) for v in p) for p in toes[(s, plate)]])
-                 for s in (-1, 1) for plate in ("base", "stem")]
-    return TJoint(config=tj, mesh=mesh, toes=toe_lines, fillets=fillets)
+    toe_lines = [TrueToeLine(name=f"{name}-{plate}-toe", weld=name, plate=plate,
+                             points_mm=[tuple(float(v) for v in p) for p in toes[(f, s, plate)]])
+                 for (f, s), name in weld_names(tj).items() for plate in ("base", "stem")]
+    return TJoint(config=tj, mesh=mesh, toes=toe_lines, fillets=fillets, fillets_below=below)
 
 
-def tjoint_specimen(tj: TJointConfig) -> TJointSpecimen:
-    return TJointSpecimen(kind="t-joint", base_length_mm=tj.base_length_mm, base_width_mm=tj.base_width_mm,
-                          base_thickness_mm=tj.base_thickness_mm, stem_height_mm=tj.stem_height_mm,
-                          stem_thickness_mm=tj.stem_thickness_mm, stem_x_mm=0.0)
+def tjoint_specimen(tj: TJointConfig) -> TJointSpecimen | CruciformSpecimen:
+    figures = dict(base_length_mm=tj.base_length_mm, base_width_mm=tj.base_width_mm,
+                   base_thickness_mm=tj.base_thickness_mm, stem_height_mm=tj.stem_height_mm,
+                   stem_thickness_mm=tj.stem_thickness_mm, stem_x_mm=0.0)
+    if tj.stems == "both":
+        return CruciformSpecimen(kind="cruciform", **figures)
+    return TJointSpecimen(kind="t-joint", **figures)
 
 
 def tjoint_weld_lines(tj: TJointConfig) -> list[WeldLine]:
-    """The two fillets' roots: the stem's faces on the base plate, across the whole width."""
+    """The fillets' roots: the stems' faces on the base plate, across the whole width."""
     y, x0, z0 = tj.base_width_mm / 2, tj.stem_thickness_mm / 2, tj.base_thickness_mm / 2
-    return [WeldLine(name=name, label=f"fillet weld root, x {side} side",
-                     points_mm=[(sign * x0, -y, z0), (sign * x0, y, z0)])
-            for name, side, sign in (("fillet-neg", "< 0", -1.0), ("fillet-pos", "> 0", 1.0))]
+    where = {1: "" if tj.stems == "one" else ", upper face", -1: ", lower face"}
+    return [WeldLine(name=name, label=f"fillet weld root, x {'>' if side > 0 else '<'} 0 side{where[face]}",
+                     points_mm=[(side * x0, -y, face * z0), (side * x0, y, face * z0)])
+            for (face, side), name in weld_names(tj).items()]
 
 
 def plan_tjoint_passes(cfg: SimulationConfig, *, z_top_mm: float, setups: tuple[str, ...]) -> list[PlannedPass]:
     """The robot program, relative to the nominal placement (the base plate's upward face at
-    ``z_top_mm``, centred at the origin). Stem up ("top"): four passes along the welds over the
-    base plate (the outer two rolled outward onto its ends), two along each weld rolled toward it
-    (``fillet_rolls_deg``: both toes), one along each long wall. Turned over ("bottom"): four along
-    y over the underside, one along x down its middle, one along each long wall."""
+    ``z_top_mm``, centred at the origin). Stem up ("top"; a cruciform's both setups, one stem or
+    the other up): four passes along the welds over the base plate (the outer two rolled outward
+    onto its ends), two along each weld rolled toward it (``fillet_rolls_deg``: both toes), one
+    along each long wall. A T-joint turned over ("bottom"): four along y over the underside, one
+    along x down its middle, one along each long wall."""
     tj, robot, plan = cfg.tjoint, cfg.robot, cfg.plan
     standoff = cfg.scanner.reference_distance_mm
     rate = robot.profile_rate_hz()
@@ -385,7 +450,7 @@ def plan_tjoint_passes(cfg: SimulationConfig, *, z_top_mm: float, setups: tuple[
 
     br, wr = tj.base_roll_deg, tj.wall_roll_deg
     for setup in setups:
-        if setup == "top":
+        if setup == "top" or tj.stems == "both":
             add(setup, f"along-weld, base, rolled {br:g} out", -0.365 * L, z_top_mm, view(br, 0))
             add(setup, "along-weld, base", -0.17 * L, z_top_mm, view(0, 15))
             add(setup, "along-weld, base", 0.17 * L, z_top_mm, view(0, -15))
@@ -412,7 +477,7 @@ def _grid(lo: float, hi: float, step: float) -> np.ndarray:
 
 
 def tjoint_sticker_candidates(part: TJoint, cfg: SimulationConfig, step_mm: float = 1.0) -> Candidates:
-    """Where a sticker may go: the base plate's faces clear of the welds, the stem's faces above
+    """Where a sticker may go: the base plate's faces clear of the welds, the stems' faces beyond
     them, and (``wall_stickers``) the base plate's four walls; clear of every edge."""
     tj, sc = part.config, cfg.stickers
     r, clear = sc.diameter_mm / 2, sc.edge_clearance_mm
@@ -436,10 +501,13 @@ def tjoint_sticker_candidates(part: TJoint, cfg: SimulationConfig, step_mm: floa
         A, B = np.meshgrid(a, b, indexing="ij")
         return build(A.ravel(), B.ravel())
 
+    both = tj.stems == "both"
     add(Face.TOP, plane(xs_top, ys, lambda x, y: np.stack([x, y, np.full_like(x, z0)], 1)), (0, 0, 1))
-    add(Face.BOTTOM, plane(xs, ys, lambda x, y: np.stack([x, y, np.full_like(x, -z0)], 1)), (0, 0, -1))
+    add(Face.BOTTOM, plane(xs_top if both else xs, ys, lambda x, y: np.stack([x, y, np.full_like(x, -z0)], 1)),
+        (0, 0, -1))
     for face, s in ((Face.STEM_NEG, -1.0), (Face.STEM_POS, 1.0)):
-        add(face, plane(ys, zs_stem, lambda y, z: np.stack([np.full_like(y, s * x0), y, z], 1)), (s, 0, 0))
+        for zs in (zs_stem, -zs_stem[::-1]) if both else (zs_stem,):  # a cruciform's lower stem too
+            add(face, plane(ys, zs, lambda y, z: np.stack([np.full_like(y, s * x0), y, z], 1)), (s, 0, 0))
     if tj.wall_stickers:
         for face, s in ((Face.SIDE_NEG, -1.0), (Face.SIDE_POS, 1.0)):
             add(face, plane(xs, zs_wall, lambda x, z: np.stack([x, np.full_like(x, s * W / 2), z], 1)), (0, s, 0))

@@ -247,16 +247,21 @@ class StemFace:
 @dataclass(frozen=True)
 class TeeProfile:
     """A T-joint's section: the base plate's faces as a ``PlateProfile`` (the top face, fillets
-    included, up to each stem face's junction) and the stem's two faces up to ``stem_top_mm``."""
+    included, up to each stem face's junction) and the stem's two faces up to ``stem_top_mm``. A
+    cruciform's also has a stem on the bottom face (``below``: its two faces, from their junctions
+    down to ``stem_bottom_mm``, heights decreasing; the bottom face, fillets included, up to
+    them)."""
 
     plate: PlateProfile
     stem: tuple[StemFace, StemFace]
     stem_top_mm: float
+    below: tuple[StemFace, StemFace] | None = None
+    stem_bottom_mm: float | None = None
 
 
 def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *, roots_mm: dict[int, np.ndarray],
                 stem_cut_mm: float, half_width_mm: float, bin_mm: float, smooth_mm: float,
-                min_normal_cos: float = 0.5) -> TeeProfile | None:
+                min_normal_cos: float = 0.5, roots_below_mm: dict[int, np.ndarray] | None = None) -> TeeProfile | None:
     """A T-joint's section (a stem on the base's top face, +y): the points within
     ``half_width_mm`` of the plane; ``roots_mm`` each stem face's root (x, y) in the section, by the
     side the base runs on from it (+1, -1: the fillets' measured roots). The base's bottom face
@@ -265,10 +270,15 @@ def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *,
     and stem), a median per bin of ``bin_mm`` along x, smoothed as ``plate_profile`` does; each
     stem face from the points above its bisector, a median x per bin of height, smoothed the same
     way, from where the top face's profile crosses the bisector up to ``stem_cut_mm`` above the
-    root (the stem is cut there: no load reaches it in the base's tests). None: a face or the stem
-    has too few points."""
+    root (the stem is cut there: no load reaches it in the base's tests). A cruciform's section
+    (``roots_below_mm``: the lower stem's roots on the bottom face, by side as ``roots_mm``): its
+    bottom face and lower stem read as the top face and stem are, mirrored (y -> -y); the base's
+    mid-plane midway between the two faces' roots. None: a face or a stem has too few points."""
     if set(roots_mm) != {-1, 1}:
         raise ValueError(f"roots_mm must give the stem's two faces' roots (sides -1 and +1), got sides {sorted(roots_mm)}")
+    if roots_below_mm is not None and set(roots_below_mm) != {-1, 1}:
+        raise ValueError(f"roots_below_mm must give the lower stem's two faces' roots (sides -1 and +1), got sides "
+                         f"{sorted(roots_below_mm)}")
     if half_width_mm <= 0 or bin_mm <= 0 or smooth_mm < 0 or stem_cut_mm <= 0:
         raise ValueError(f"half_width_mm, bin_mm and stem_cut_mm must be positive and smooth_mm not negative, got "
                          f"{half_width_mm}, {bin_mm}, {stem_cut_mm}, {smooth_mm}")
@@ -280,26 +290,73 @@ def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *,
     x, y = xys[:, 0], xys[:, 1]
     roots = {s: np.asarray(roots_mm[s], np.float64) for s in (-1, 1)}
     base_top = 0.5 * (roots[-1][1] + roots[1][1])
-    right, left = roots[1][0], roots[-1][0]
     x0 = np.floor(x.min() / bin_mm) * bin_mm
     edges = x0 + bin_mm * np.arange(int(np.ceil((x.max() - x0) / bin_mm)) + 2)
     centres = 0.5 * (edges[:-1] + edges[1:])
-    bottom, has_bottom = _face(x[facing < -min_normal_cos], y[facing < -min_normal_cos], edges)
-    thickness_guess = base_top - np.nanmedian(bottom) if has_bottom.any() else np.nan
-    if not np.isfinite(thickness_guess):
-        return None
-    middle = 0.5 * (roots[-1][0] + roots[1][0])  # the stem's mid-plane
-    # above each root's bisector, on its side of the stem
-    above = {s: (s * (x - middle) > 0) & (s * (x - roots[s][0]) < (y - roots[s][1])) for s in (-1, 1)}
-    on_stem_side = (x > left - 1.0) & (x < right + 1.0)  # between the stem's faces (its top end)
-    top_points = (y > base_top - thickness_guess / 2) & ~above[-1] & ~above[1] & ~on_stem_side
-    top, has_top = _face(x[top_points], y[top_points], edges)
+    half = smooth_mm / bin_mm
+    if roots_below_mm is None:
+        bottom, has_bottom = _face(x[facing < -min_normal_cos], y[facing < -min_normal_cos], edges)
+        thickness_guess = base_top - np.nanmedian(bottom) if has_bottom.any() else np.nan
+        if not np.isfinite(thickness_guess):
+            return None
+    else:  # the bottom face as a top face, mirrored
+        below = {s: np.asarray(roots_below_mm[s], np.float64) * [1.0, -1.0] for s in (-1, 1)}
+        thickness_guess = base_top + 0.5 * (below[-1][1] + below[1][1])
+        bottom, has_bottom = _beside_stem(x, -y, below, thickness_guess, edges)
+    top, has_top = _beside_stem(x, y, roots, thickness_guess, edges)
     if has_top.sum() < 10 or has_bottom.sum() < 10:
         return None
     lo = max(np.flatnonzero(has_top)[0], np.flatnonzero(has_bottom)[0])
     hi = min(np.flatnonzero(has_top)[-1], np.flatnonzero(has_bottom)[-1])
-    half = smooth_mm / bin_mm
-    # the top face's bins between the stem's faces are neither face's: left out before filling
+    top_filled = _filled_beside_stem(top, has_top, centres, roots, lo, hi, half)
+    if roots_below_mm is None:
+        bottom_filled = _filled_smoothed(bottom, has_bottom, lo, hi, half, -1.0)
+    else:
+        bottom_filled = _filled_beside_stem(bottom, has_bottom, centres, below, lo, hi, half)
+    if top_filled is None or bottom_filled is None:
+        return None
+    stem_top = base_top + stem_cut_mm
+    faces = _stem_faces(x, y, roots, top_filled, centres, stem_cut_mm, stem_top, bin_mm, half)
+    if faces is None:
+        return None
+    if roots_below_mm is None:
+        return TeeProfile(plate=PlateProfile(x_mm=centres, top_mm=top_filled, bottom_mm=bottom_filled,
+                                             measured_top=has_top, measured_bottom=has_bottom),
+                          stem=faces, stem_top_mm=float(stem_top))
+    stem_bottom = 0.5 * (below[-1][1] + below[1][1]) + stem_cut_mm  # mirrored: the lower stem's cut, -y
+    under = _stem_faces(x, -y, below, bottom_filled, centres, stem_cut_mm, stem_bottom, bin_mm, half)
+    if under is None:
+        return None
+    under = tuple(replace(f, root_mm=f.root_mm * [1.0, -1.0], y_mm=-f.y_mm) for f in under)
+    return TeeProfile(plate=PlateProfile(x_mm=centres, top_mm=top_filled, bottom_mm=-bottom_filled,
+                                         measured_top=has_top, measured_bottom=has_bottom),
+                      stem=faces, stem_top_mm=float(stem_top), below=(under[0], under[1]),
+                      stem_bottom_mm=float(-stem_bottom))
+
+
+def _beyond(x: np.ndarray, y: np.ndarray, roots: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Per side, the points beyond the root's bisector on its side of the stem (the stem's)."""
+    middle = 0.5 * (roots[-1][0] + roots[1][0])  # the stem's mid-plane
+    return {s: (s * (x - middle) > 0) & (s * (x - roots[s][0]) < (y - roots[s][1])) for s in (-1, 1)}
+
+
+def _beside_stem(x: np.ndarray, y: np.ndarray, roots: dict[int, np.ndarray], thickness_guess: float,
+                 edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The top face's median y per bin (``_face``) beside a stem standing on it at ``roots``: the
+    points above the base's mid-plane and below each root's bisector, not between the stem's faces."""
+    base_top = 0.5 * (roots[-1][1] + roots[1][1])
+    right, left = roots[1][0], roots[-1][0]
+    above = _beyond(x, y, roots)
+    on_stem_side = (x > left - 1.0) & (x < right + 1.0)  # between the stem's faces (its top end)
+    top_points = (y > base_top - thickness_guess / 2) & ~above[-1] & ~above[1] & ~on_stem_side
+    return _face(x[top_points], y[top_points], edges)
+
+
+def _filled_beside_stem(top: np.ndarray, has_top: np.ndarray, centres: np.ndarray, roots: dict[int, np.ndarray],
+                        lo: int, hi: int, half: float) -> np.ndarray | None:
+    """The top face's heights on either side of the stem, each filled and smoothed on its own (the
+    bins between the stem's faces are neither face's: NaN); None: a side has too few bins."""
+    right, left = roots[1][0], roots[-1][0]
     top_filled = np.full(len(top), np.nan)
     for side_bins in (np.flatnonzero(centres < left), np.flatnonzero(centres > right)):
         side_bins = side_bins[(side_bins >= lo) & (side_bins <= hi)]
@@ -307,10 +364,17 @@ def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *,
             return None
         a, b = side_bins[0], side_bins[-1]
         top_filled[a:b + 1] = _filled_smoothed(top, has_top, a, b, half, 1.0)[a:b + 1]
-    plate = PlateProfile(x_mm=centres, top_mm=top_filled,
-                         bottom_mm=_filled_smoothed(bottom, has_bottom, lo, hi, half, -1.0), measured_top=has_top,
-                         measured_bottom=has_bottom)
-    stem_top = base_top + stem_cut_mm
+    return top_filled
+
+
+def _stem_faces(x: np.ndarray, y: np.ndarray, roots: dict[int, np.ndarray], top_filled: np.ndarray,
+                centres: np.ndarray, stem_cut_mm: float, stem_top: float, bin_mm: float,
+                half: float) -> tuple[StemFace, StemFace] | None:
+    """The stem's two faces (+1, then -1) standing on the top face at ``roots``, cut at ``stem_top``
+    (``stem_cut_mm`` over the base's face): each from where the top face's profile crosses its
+    root's bisector, a median x per bin of height from the points beyond the bisector, filled and
+    smoothed; None: too few points."""
+    above = _beyond(x, y, roots)
     faces = []
     for s in (1, -1):
         root = roots[s]
@@ -333,19 +397,23 @@ def tee_profile(points: np.ndarray, normals: np.ndarray, frame: SectionFrame, *,
         keep = heights < stem_top
         faces.append(StemFace(side=s, root_mm=root, junction_x_mm=float(junction[0]),
                               y_mm=np.r_[heights[keep], stem_top], x_mm=np.r_[xs[keep], np.interp(stem_top, heights, xs)]))
-    return TeeProfile(plate=plate, stem=(faces[0], faces[1]), stem_top_mm=float(stem_top))
+    return faces[0], faces[1]
 
 
 def tee_section(profile: TeeProfile, *, cut_mm: float, fine_mm: np.ndarray) -> PlaneSection:
     """A T-joint's outline (counter-clockwise): the base's bottom face left to right, the right
     cut, the top face right to left up to the right stem face's junction, up that face to the
     stem's cut, across, down the left face, the top face on to the left cut; ``cut_mm`` inside the
-    range both base faces span; the corners kept, the elements finest at ``fine_mm``."""
+    range both base faces span; the corners kept, the elements finest at ``fine_mm``. A
+    cruciform's bottom face (``profile.below``) likewise: left to right up to the lower stem's
+    left face's junction, down it to the lower stem's cut, across, up its right face, on to the
+    right cut."""
     plate = profile.plate
     both = np.isfinite(plate.bottom_mm)
     x_lo, x_hi = plate.x_mm[both][0] + cut_mm, plate.x_mm[both][-1] - cut_mm
     right, left = profile.stem
-    if not (x_lo < left.junction_x_mm and right.junction_x_mm < x_hi):
+    stems = [profile.stem] + ([profile.below] if profile.below is not None else [])
+    if not all(x_lo < lf.junction_x_mm and rf.junction_x_mm < x_hi for rf, lf in stems):
         raise ValueError(f"the section spans {x_hi - x_lo + 2 * cut_mm:.1f} mm: the stem's fillets are not "
                          f"{cut_mm:g} mm inside either end")
     top_ok = np.isfinite(plate.top_mm)
@@ -353,32 +421,52 @@ def tee_section(profile: TeeProfile, *, cut_mm: float, fine_mm: np.ndarray) -> P
     def top_at(xs):
         return np.interp(xs, plate.x_mm[top_ok], plate.top_mm[top_ok])
 
-    bx = np.r_[x_lo, plate.x_mm[(plate.x_mm > x_lo) & (plate.x_mm < x_hi)], x_hi]
-    bottom = np.c_[bx, np.interp(bx, plate.x_mm[both], plate.bottom_mm[both])]
+    if profile.below is None:
+        bx = np.r_[x_lo, plate.x_mm[(plate.x_mm > x_lo) & (plate.x_mm < x_hi)], x_hi]
+        bottom = [np.c_[bx, np.interp(bx, plate.x_mm[both], plate.bottom_mm[both])]]
+    else:
+        low_right, low_left = profile.below
+
+        def bottom_at(xs):
+            return np.interp(xs, plate.x_mm[both], plate.bottom_mm[both])
+
+        blx = np.r_[x_lo, plate.x_mm[(plate.x_mm > x_lo) & (plate.x_mm < low_left.junction_x_mm) & both]]
+        brx = np.r_[plate.x_mm[(plate.x_mm > low_right.junction_x_mm) & (plate.x_mm < x_hi) & both], x_hi]
+        bottom = [np.c_[blx, bottom_at(blx)], np.c_[low_left.x_mm, low_left.y_mm],
+                  np.c_[low_right.x_mm, low_right.y_mm][::-1], np.c_[brx, bottom_at(brx)]]
     rx = np.r_[x_hi, plate.x_mm[(plate.x_mm < x_hi) & (plate.x_mm > right.junction_x_mm) & top_ok][::-1]]
     lx = np.r_[plate.x_mm[(plate.x_mm < left.junction_x_mm) & (plate.x_mm > x_lo) & top_ok][::-1], x_lo]
-    parts = [bottom, np.c_[rx, top_at(rx)], np.c_[right.x_mm, right.y_mm], np.c_[left.x_mm, left.y_mm][::-1],
-             np.c_[lx, top_at(lx)]]
+    parts = bottom + [np.c_[rx, top_at(rx)], np.c_[right.x_mm, right.y_mm], np.c_[left.x_mm, left.y_mm][::-1],
+                      np.c_[lx, top_at(lx)]]
     outline = np.concatenate(parts)
     n = np.cumsum([len(p) for p in parts])
-    corners = (0, n[0] - 1, n[0], n[2] - 1, n[2], n[4] - 1)
+    if profile.below is None:
+        corners = (0, n[0] - 1, n[0], n[2] - 1, n[2], n[4] - 1)
+    else:  # the lower stem's cut's two ends too
+        corners = (0, n[1] - 1, n[1], n[3] - 1, n[3], n[5] - 1, n[5], n[7] - 1)
     return PlaneSection(outline, fine_mm=np.asarray(fine_mm, np.float64).reshape(-1, 2), corners=corners)
 
 
 def rounded_tee(profile: TeeProfile, radius_mm: float) -> TeeProfile:
     """A T-joint's section with every notch rounded to ``radius_mm`` at least (``rounded_notches``'
     rolling disk): the base's faces as a plate's (the base toes), each stem face as a face seen
-    from its side, heights along the stem (the stem toes), the stem's cut left where it is."""
+    from its side, heights along the stem (the stem toes), the stem's cut left where it is; a
+    cruciform's lower stem too."""
     if not radius_mm > 0:
         raise ValueError(f"radius_mm must be positive, got {radius_mm}")
-    faces = []
-    for face in profile.stem:
-        step = float(np.median(np.diff(face.y_mm)))
-        # seen from its side (outward +side): the part lies at smaller side * x
-        x = face.side * _closed_from_above(face.side * face.x_mm, step, radius_mm)
-        faces.append(replace(face, x_mm=x))
-    return TeeProfile(plate=rounded_notches(profile.plate, radius_mm), stem=(faces[0], faces[1]),
-                      stem_top_mm=profile.stem_top_mm)
+
+    def rounded(stem: tuple[StemFace, StemFace]) -> tuple[StemFace, StemFace]:
+        faces = []
+        for face in stem:
+            step = abs(float(np.median(np.diff(face.y_mm))))  # a lower stem's heights decrease
+            # seen from its side (outward +side): the part lies at smaller side * x
+            x = face.side * _closed_from_above(face.side * face.x_mm, step, radius_mm)
+            faces.append(replace(face, x_mm=x))
+        return faces[0], faces[1]
+
+    return TeeProfile(plate=rounded_notches(profile.plate, radius_mm), stem=rounded(profile.stem),
+                      stem_top_mm=profile.stem_top_mm, below=None if profile.below is None else rounded(profile.below),
+                      stem_bottom_mm=profile.stem_bottom_mm)
 
 
 def _rounded_corner(corner: np.ndarray, e1: np.ndarray, e2: np.ndarray, radius_mm: float, step_mm: float) -> np.ndarray:
@@ -405,37 +493,59 @@ def _evenly(path: np.ndarray, step_mm: float) -> np.ndarray:
 
 
 def drawn_tee_section(*, base_thickness_mm: float, stem_thickness_mm: float, legs: dict[int, tuple[float, float]],
-                      half_length_mm: float, stem_cut_mm: float, radius_mm: float, step_mm: float) -> PlaneSection:
+                      half_length_mm: float, stem_cut_mm: float, radius_mm: float, step_mm: float,
+                      legs_below: dict[int, tuple[float, float]] | None = None) -> PlaneSection:
     """The drawn (idealised) section of a T-joint: a base plate of ``base_thickness_mm`` (faces at
     +-thickness/2, ``half_length_mm`` either side of the stem's mid-plane x = 0), a stem of
     ``stem_thickness_mm`` standing on its top face, cut ``stem_cut_mm`` above it, and on each side
     (``legs``: +1 / -1 -> (leg on the base, leg on the stem), mm) a fillet with a straight face, each
     toe rounded to ``radius_mm``; the outline's points about ``step_mm`` apart along the face and
-    the toes, its corners kept, the elements finest at the four toes."""
+    the toes, its corners kept, the elements finest at the four toes (base +1, base -1, stem +1,
+    stem -1). A cruciform's (``legs_below``: the lower stem's fillets, by side as ``legs``): the
+    same stem and fillets on the bottom face, mirrored (y -> -y), their four toes after the upper
+    ones in the same order."""
     if not (base_thickness_mm > 0 and stem_thickness_mm > 0 and half_length_mm > 0 and stem_cut_mm > 0
             and radius_mm > 0 and step_mm > 0):
         raise ValueError("the T-joint's thicknesses, half length, stem cut, radius and step must be positive")
-    if set(legs) != {-1, 1} or min(min(v) for v in legs.values()) <= 0:
-        raise ValueError(f"legs must give both fillets' (base, stem) legs, positive, got {legs}")
+    for name, given in (("legs", legs), ("legs_below", legs_below)):
+        if given is not None and (set(given) != {-1, 1} or min(min(v) for v in given.values()) <= 0):
+            raise ValueError(f"{name} must give both fillets' (base, stem) legs, positive, got {given}")
     x0, z0 = stem_thickness_mm / 2, base_thickness_mm / 2
-    halves = {}
-    for side in (1, -1):
-        a, b = legs[side]
-        B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
-        face = (S - B) / np.linalg.norm(S - B)
-        path = np.concatenate([_rounded_corner(B, np.array([-1.0, 0.0]), face, radius_mm, step_mm),
-                               _rounded_corner(S, face, np.array([0.0, 1.0]), radius_mm, step_mm)])
-        halves[side] = np.r_[[[half_length_mm, z0]], path, [[x0, z0 + stem_cut_mm]]] * [side, 1.0]
-    right, left = halves[1], halves[-1][::-1]
-    # every straight stretch in points ``step_mm`` apart too (the mesher's splines through points
-    # spaced unevenly overshoot), the corners' places kept
-    bottom = _evenly(np.array([[-half_length_mm, -z0], [half_length_mm, -z0]]), step_mm)
-    right, left = _evenly(right, step_mm), _evenly(left, step_mm)
-    parts = [bottom, _evenly(np.r_[bottom[-1:], right[:1]], step_mm)[1:-1], right,
-             _evenly(np.r_[right[-1:], left[:1]], step_mm)[1:-1], left, _evenly(np.r_[left[-1:], bottom[:1]], step_mm)[1:-1]]
+
+    def stem_path(legs: dict[int, tuple[float, float]]) -> tuple[np.ndarray, np.ndarray]:
+        """The top face's path from (half_length, z0) up the stem, and from its other face down to
+        (-half_length, z0), each ``step_mm`` apart."""
+        halves = {}
+        for side in (1, -1):
+            a, b = legs[side]
+            B, S = np.array([x0 + a, z0]), np.array([x0, z0 + b])
+            face = (S - B) / np.linalg.norm(S - B)
+            path = np.concatenate([_rounded_corner(B, np.array([-1.0, 0.0]), face, radius_mm, step_mm),
+                                   _rounded_corner(S, face, np.array([0.0, 1.0]), radius_mm, step_mm)])
+            halves[side] = np.r_[[[half_length_mm, z0]], path, [[x0, z0 + stem_cut_mm]]] * [side, 1.0]
+        # every straight stretch in points ``step_mm`` apart too (the mesher's splines through points
+        # spaced unevenly overshoot), the corners' places kept
+        return _evenly(halves[1], step_mm), _evenly(halves[-1][::-1], step_mm)
+
+    def toes_of(legs: dict[int, tuple[float, float]], face: float) -> list[np.ndarray]:
+        return [np.array([side * (x0 + legs[side][0]), face * z0]) for side in (1, -1)] + \
+            [np.array([side * x0, face * (z0 + legs[side][1])]) for side in (1, -1)]
+
+    right, left = stem_path(legs)
+    if legs_below is None:
+        bottom = [_evenly(np.array([[-half_length_mm, -z0], [half_length_mm, -z0]]), step_mm)]
+    else:  # the upper path mirrored: from (-half_length, -z0) down the lower stem's x < 0 face, up its other
+        low_right, low_left = (p * [1.0, -1.0] for p in stem_path(legs_below))
+        bottom = [low_left[::-1], _evenly(np.r_[low_left[:1], low_right[-1:]], step_mm)[1:-1], low_right[::-1]]
+    parts = bottom + [_evenly(np.r_[bottom[-1][-1:], right[:1]], step_mm)[1:-1], right,
+                      _evenly(np.r_[right[-1:], left[:1]], step_mm)[1:-1], left,
+                      _evenly(np.r_[left[-1:], bottom[0][:1]], step_mm)[1:-1]]
     outline = np.concatenate(parts)
     starts = np.cumsum([0] + [len(p) for p in parts])
-    corners = tuple(int(k) for k in (0, starts[1] - 1, starts[2], starts[3] - 1, starts[4], starts[5] - 1))
-    toes = [np.array([side * (x0 + legs[side][0]), z0]) for side in (1, -1)] + \
-        [np.array([side * x0, z0 + legs[side][1]]) for side in (1, -1)]
+    if legs_below is None:
+        corners = tuple(int(k) for k in (0, starts[1] - 1, starts[2], starts[3] - 1, starts[4], starts[5] - 1))
+    else:
+        corners = tuple(int(k) for k in (0, starts[1] - 1, starts[2], starts[3] - 1, starts[4], starts[5] - 1,
+                                          starts[6], starts[7] - 1))
+    toes = toes_of(legs, 1.0) + ([] if legs_below is None else toes_of(legs_below, -1.0))
     return PlaneSection(outline, fine_mm=np.array(toes), corners=corners)

@@ -160,6 +160,20 @@ def tjoint_single_run(tjoint_single_sample, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def cruciform_sample(tmp_path_factory) -> Path:
+    return _made_once(tmp_path_factory, "cruciform-sample",
+                      lambda out: simulate(preset_config("cruciform"), out, previews=False))
+
+
+@pytest.fixture(scope="session")
+def cruciform_run(cruciform_sample, tmp_path_factory):
+    """The cruciform, both setups, reconstructed once with the ci settings up to the weld stage
+    (its four fillet welds measured; no mesh): (run folder, report as ``tjoint_run``'s)."""
+    return _reconstructed(cruciform_sample, tmp_path_factory.mktemp("recon-cruciform") / "run", stop_after="weld",
+                          lock=_SessionLock(tmp_path_factory, "cruciform-run"))
+
+
+@pytest.fixture(scope="session")
 def ci_run(ci_sample, tmp_path_factory):
     """The ``ci`` sample reconstructed once: (run folder, report)."""
     return _reconstructed(ci_sample, tmp_path_factory.mktemp("recon") / "run",
@@ -258,7 +272,7 @@ def _tier(item) -> int:
 
 # what the session makes once, by the first worker that needs it (the others wait for it)
 _MADE_ONCE = {"ci_sample", "no_pose_log_sample", "six_sample", "tjoint_sample", "tjoint_single_sample", "ci_run", "six_run",
-              "tjoint_run", "tjoint_single_run"}
+              "tjoint_run", "tjoint_single_run", "cruciform_sample", "cruciform_run"}
 
 
 def _order(item) -> tuple[int, bool]:

@@ -18,7 +18,7 @@ _DEMO_CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "configs" / "dem
 def add_simulate(sub) -> None:
     sim = sub.add_parser("simulate", help="simulate a scanning cell's output for one sample")
     sim.add_argument("out_dir", metavar="OUT_DIR", help="new folder for the sample (must not exist)")
-    sim.add_argument("--preset", default="demo", help="ci, demo, paper, tjoint or tjoint-single (default: demo)")
+    sim.add_argument("--preset", default="demo", help="ci, demo, paper, tjoint, tjoint-single or cruciform (default: demo)")
     sim.add_argument("--config", metavar="FILE", help="YAML file of fields that override the preset")
     sim.add_argument("--seed", type=int, help="override the preset's seed")
     sim.add_argument("--sample-id", help="override the preset's sample id")

@@ -17,8 +17,10 @@ half the size at the toes.
 Checks that cannot pass by accident, in ``stress.json``: the two ends' reactions (forces;
 moments) equal within 0.1 %, and the stress through each plate window (a line fitted through the
 thickness) the nominal one within 1 %: pulled, its mid-plane value the force over the thickness;
-bent, its surface value 6 M / t^2 and its mid-plane value ~0. A sample with no measured butt weld
-gets no model (said in ``stress.json``, not an error).
+bent, its surface value 6 M / t^2 and its mid-plane value ~0. A T-joint's fillet welds: the
+section through both fillets' roots, the stem cut ``stress.stem_cut_mm`` above the base; a
+cruciform's: the lower stem's roots and fillets too (``_tee``); the base plate loaded. A sample
+with no measured weld gets no model (said in ``stress.json``, not an error).
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ MODEL_BENDING = (_SECTIONS + "pure bending about the weld's axis, the top face s
 # what a T-joint's sections are (the load follows: pulled or bent, the base plate's ends held straight)
 TEE = ("; a T-joint: the base plate with the stem and its two fillets, the stem cut stress.stem_cut_mm above the "
        "base and free (the non-load-carrying fillet weld's test)")
+CRUCIFORM = ("; a cruciform joint: the base plate with both stems and their four fillets, each stem cut "
+             "stress.stem_cut_mm out from the base and free (the non-load-carrying cruciform's test)")
+_STEMMED = ("t-joint", "cruciform")  # the specimens whose fillet welds' sections are modelled
 
 _FINEST_MM = 0.02  # the smallest element the toes get (a measured radius of 0.08 mm or under)
 
@@ -170,10 +175,11 @@ def stress(ctx) -> dict[str, Any]:
     if not geometry.measured:
         return _not_made(ctx, f"the weld was not measured ({geometry.why_not}): no toes to load")
     fillet = any(isinstance(sec, FilletWeldSection) for sec in geometry.sections)
-    if fillet and getattr(ctx.manifest.specimen, "kind", None) != "t-joint":
-        return _not_made(ctx, f"fillet welds of a {getattr(ctx.manifest.specimen, 'kind', None)}: only a T-joint's "
-                              "sections (a stem on one face of the base plate) are modelled; the fillets' figures are "
-                              "in weld_geometry.json")
+    kind = getattr(ctx.manifest.specimen, "kind", None)
+    if fillet and kind not in _STEMMED:
+        return _not_made(ctx, f"fillet welds of a {kind}: only a T-joint's or a cruciform's sections (a stem on one or "
+                              "both faces of the base plate) are modelled; the fillets' figures are in "
+                              "weld_geometry.json")
     toes = _toe_lines(geometry)
     driving = next((line for line in geometry.lines if any(key[0] == line.name for key in toes)), None)
     if driving is None:
@@ -200,7 +206,7 @@ def stress(ctx) -> dict[str, Any]:
                                    growth=s.growth)
     models: list[_Model] = []
     for sec in chosen:
-        if fillet:  # the T-joint's section through both fillets' roots here
+        if fillet:  # the T-joint's (cruciform's) section through the fillets' roots here
             frame, profile = _tee(sec, geometry, points, normals, across, up, along, s)
         else:
             frame = SectionFrame(np.asarray(sec.centre_specimen_mm, np.float64), across, up, along)
@@ -312,7 +318,8 @@ def stress(ctx) -> dict[str, Any]:
     membrane = [x.membrane_error for x in sections if x.membrane_error is not None]
     radii = [t.toe_radius_mm for x in sections for t in x.toes if t.toe_radius_mm is not None]
     summary = StressSummary(
-        made=True, model=(MODEL_BENDING if bending else MODEL) + (TEE if fillet else ""), driving_line=driving.name,
+        made=True, model=(MODEL_BENDING if bending else MODEL) + ((CRUCIFORM if kind == "cruciform" else TEE) if fillet
+                                                                  else ""), driving_line=driving.name,
         sections=sections,
         hot_spots=hot_spots, hot_spot=hot,
         convergence=convergence, max_imbalance=imbalance, max_membrane_error=max(membrane, key=abs) if membrane else None,
@@ -331,8 +338,11 @@ def _tee(sec: FilletWeldSection, geometry: WeldGeometry, points: np.ndarray, nor
          up: np.ndarray, along: np.ndarray, s) -> tuple[SectionFrame, TeeProfile | None]:
     """A T-joint's section at ``sec`` (a fillet's section with both toes): its frame, centred between
     the two fillets' roots there, and its outline (``tasks.plate_section.tee_profile``); None when
-    the other fillet has no section with both toes within half a step of it."""
-    partner = min((o for o in geometry.sections if o.line != sec.line and o.toes.both()),
+    the other fillet has no section with both toes within half a step of it. A cruciform's (weld
+    lines on the base's other face too, their ``face_normal`` against ``up``): the lower stem's
+    roots from its two fillets' sections nearest, within half a step, as well."""
+    upper = {line.name for line in geometry.lines if np.dot(line.face_normal, up) > 0}
+    partner = min((o for o in geometry.sections if o.line != sec.line and o.line in upper and o.toes.both()),
                   key=lambda o: abs(o.position_mm - sec.position_mm), default=None)
     mine = np.asarray(sec.centre_specimen_mm, np.float64)
     if partner is None or abs(partner.position_mm - sec.position_mm) > s.section_step_mm / 2:
@@ -340,14 +350,34 @@ def _tee(sec: FilletWeldSection, geometry: WeldGeometry, points: np.ndarray, nor
     theirs = np.asarray(partner.centre_specimen_mm, np.float64)
     theirs = theirs - ((theirs - mine) @ along) * along  # the other root, in this section's plane
     frame = SectionFrame(0.5 * (mine + theirs), across, up, along)
-    roots = {}
-    for root in (mine, theirs):
-        rel = root - frame.origin
-        roots[1 if rel @ across > 0 else -1] = np.array([rel @ across, rel @ up])
+
+    def in_section(found: list[np.ndarray]) -> dict[int, np.ndarray]:
+        roots = {}
+        for root in found:
+            rel = root - frame.origin
+            roots[1 if rel @ across > 0 else -1] = np.array([rel @ across, rel @ up])
+        return roots
+
+    roots = in_section([mine, theirs])
     if len(roots) != 2:
         return frame, None
+    roots_below = None
+    lower = [line.name for line in geometry.lines if line.name not in upper]
+    if lower:
+        found = []
+        for name in lower:
+            near = min((o for o in geometry.sections if o.line == name and o.toes.both()),
+                       key=lambda o: abs(o.position_mm - sec.position_mm), default=None)
+            if near is None or abs(near.position_mm - sec.position_mm) > s.section_step_mm / 2:
+                return frame, None
+            root = np.asarray(near.centre_specimen_mm, np.float64)
+            found.append(root - ((root - mine) @ along) * along)
+        roots_below = in_section(found)
+        if len(roots_below) != 2:
+            return frame, None
     return frame, tee_profile(points, normals, frame, roots_mm=roots, stem_cut_mm=s.stem_cut_mm,
-                              half_width_mm=s.half_width_mm, bin_mm=s.bin_mm, smooth_mm=s.smooth_mm)
+                              half_width_mm=s.half_width_mm, bin_mm=s.bin_mm, smooth_mm=s.smooth_mm,
+                              roots_below_mm=roots_below)
 
 
 def _hot_spots(factors: dict[tuple[str, str], list[tuple[float, float, tuple]]]) -> list[ToeHotSpot]:
@@ -443,22 +473,27 @@ def _drawn(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray,
 def _drawn_tee(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndarray, s, bending: bool) -> DrawnStress:
     """A T-joint's drawn section (``tasks.plate_section.drawn_tee_section``): the manifest's base
     and stem, each fillet's face straight between the median legs measured along its line, the
-    toes rounded to ``s.notch_radius_mm``; pulled or bent as the measured sections are."""
+    toes rounded to ``s.notch_radius_mm``; pulled or bent as the measured sections are. A
+    cruciform's: its lower stem and fillets too (the lines on the base's other face)."""
     specimen = manifest.specimen
-    legs, names = {}, {}
+    cruciform = specimen.kind == "cruciform"
+    legs, names = {1: {}, -1: {}}, {1: {}, -1: {}}  # by face (+1: up's), then side
     for line in geometry.lines:
         rows = [sec for sec in geometry.sections if sec.line == line.name]
         base = np.median([v for sec in rows if (v := sec.leg_base_mm.value) is not None] or [np.nan])
         stem = np.median([v for sec in rows if (v := sec.leg_stem_mm.value) is not None] or [np.nan])
         if base > 0 and stem > 0:
             side = 1 if np.dot(line.across, across) > 0 else -1
-            legs[side], names[side] = (round(float(base), 4), round(float(stem), 4)), line.name
-    if set(legs) != {-1, 1}:
-        return DrawnStress(made=False, why="the drawn T-joint needs both fillets' legs measured")
-    half = max(s.plate_window_mm[1], specimen.stem_thickness_mm / 2 + max(v[0] for v in legs.values())) + 10.0
+            face = 1 if np.dot(line.face_normal, up) > 0 else -1
+            legs[face][side], names[face][side] = (round(float(base), 4), round(float(stem), 4)), line.name
+    if set(legs[1]) != {-1, 1} or (cruciform and set(legs[-1]) != {-1, 1}):
+        return DrawnStress(made=False, why="the drawn cruciform needs its four fillets' legs measured" if cruciform
+                           else "the drawn T-joint needs both fillets' legs measured")
+    every = [v[0] for face in legs.values() for v in face.values()]
+    half = max(s.plate_window_mm[1], specimen.stem_thickness_mm / 2 + max(every)) + 10.0
     plane = drawn_tee_section(base_thickness_mm=specimen.base_thickness_mm, stem_thickness_mm=specimen.stem_thickness_mm,
-                              legs=legs, half_length_mm=half, stem_cut_mm=s.stem_cut_mm, radius_mm=s.notch_radius_mm,
-                              step_mm=s.bin_mm / 2)
+                              legs=legs[1], half_length_mm=half, stem_cut_mm=s.stem_cut_mm, radius_mm=s.notch_radius_mm,
+                              step_mm=s.bin_mm / 2, legs_below=legs[-1] if cruciform else None)
     settings, reach = notch_mesh(s)
     try:
         (solution,) = _load_sections(mesh_sections([plane], settings, timeout_s=s.timeout_s), s, bending)
@@ -466,9 +501,12 @@ def _drawn_tee(manifest, geometry: WeldGeometry, up: np.ndarray, across: np.ndar
         return DrawnStress(made=False, why=f"the drawn T-joint's section did not solve: {exc}")
     nominal = _nominal_mpa(solution, specimen.base_thickness_mm, bending)
     peaks = peaks_near(solution, plane.fine_mm, reach)
-    where = [(names[1], "base"), (names[-1], "base"), (names[1], "stem"), (names[-1], "stem")]  # drawn_tee_section's toes
+    # drawn_tee_section's toes: each face's base +1, base -1, stem +1, stem -1
+    where = [(names[face][side], plate) for face in ((1, -1) if cruciform else (1,)) for plate in ("base", "stem")
+             for side in (1, -1)]
     return DrawnStress(made=True, thickness_mm=float(specimen.base_thickness_mm), notch_radius_mm=s.notch_radius_mm,
-                       legs={names[side]: legs[side] for side in (-1, 1)}, toes=[
+                       legs={names[face][side]: legs[face][side] for face in ((1, -1) if cruciform else (1,))
+                             for side in (-1, 1)}, toes=[
         DrawnToe(line=line, side=side, factor=round(peak / nominal, 4) if math.isfinite(peak) else None,
                  at_section_mm=(round(float(xy[0]), 4), round(float(xy[1]), 4)))
         for (line, side), (peak, _), xy in zip(where, peaks, plane.fine_mm)])

@@ -57,6 +57,5 @@ def without_pose_logs(sample: Path, dst: Path) -> Path:
     shutil.copytree(sample / "truth", dst / "truth")
     config = SimulationConfig.model_validate_json((sample / "truth" / "simulation.json").read_text())
     config = config.model_copy(update={"robot": config.robot.model_copy(update={"log_profile_poses": False})})
-    (dst / "truth" / "simulation.json").write_text(
-        config.model_dump_json(indent=2, exclude={"tjoint"} if config.tjoint is None else None) + "\n")
+    (dst / "truth" / "simulation.json").write_text(config.simulation_json())
     return dst
