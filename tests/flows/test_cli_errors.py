@@ -182,7 +182,7 @@ def test_an_unexpected_error_is_one_line_and_its_traceback_goes_to_a_log(tmp_pat
     assert "Traceback" in log.read_text() and "something the code did not expect" in log.read_text()
 
 
-def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recovers(ci_sample, tmp_path):
+def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recovers(ci_sample, six_run, tmp_path):
     """The run folder on an 8 MiB tmpfs: the denoise stage of some passes meets a full disk (its
     copy from the session's stage cache fails, then making it does). The terminal names the passes
     and the cause, the trail stays intact, and after space is freed the same command finishes,
@@ -190,7 +190,8 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
     folder) and reusing what was complete in the folder. Each run a process of its own, as a user
     runs it: run inside the test process, a build folder of the failed run was left at the end once
     in three suite runs (not pinned down; likely a pass's stage still running in its thread when
-    the run failed, which a process's exit ends)."""
+    the run failed, which a process's exit ends). The session's six-pass run is made first, so that
+    the stage cache holds every stage this sample's runs copy."""
     sample = copy_sample(ci_sample, tmp_path / "s", SIX)
     disk = tmp_path / "disk"
     _mount_tmpfs(disk, "8m")

@@ -130,7 +130,8 @@ def test_the_flow_run_links_its_report_in_prefect(ci_run):
     from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterFlowRunId
 
     out, report = ci_run
-    started = [e for e in read_trail(out) if e["kind"] == "run-started"][-1]
+    # the session run's own start (the shared run folder may hold later runs: another test's rerun)
+    started = [e for e in read_trail(out) if e["kind"] == "run-started" and e["seq"] <= report["trail_head"]["seq"]][-1]
     with get_client(sync_client=True) as client:
         artifacts = client.read_artifacts(artifact_filter=ArtifactFilter(
             flow_run_id=ArtifactFilterFlowRunId(any_=[uuid.UUID(started["flow_run_id"])])))

@@ -98,7 +98,7 @@ def test_a_toe_off_its_neighbours_is_fitted_again_from_theirs():
     line = find_weld_line(points, min_rise_mm=MeasureWeldConfig().min_rise_mm)
     t = np.subtract(line.end_mm, line.start_mm)
     along = (points - np.asarray(line.start_mm)) @ (t / np.linalg.norm(t))
-    stretch = (along > 11.0) & (along < 21.5)
+    stretch = (along > 12.5) & (along < 20.0)
     measured = measure_scan(points[stretch], line, settings=profile_settings(MeasureWeldConfig()), treated=False,
                             step_mm=None, half_width_mm=None, name="weld")
     fits = [s.toes[0].fit for s in measured.sections]
