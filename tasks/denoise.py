@@ -196,6 +196,15 @@ def mean_neighbour_distance(points_mm: np.ndarray, *, k: int) -> np.ndarray:
     """Each point's mean distance to its ``k`` nearest other points, for a cloud without a grid
     (an imported scan): ``points_mm`` (n, 3) finite, mm -> (n,) float64, mm; NaN for every point
     when the cloud has k points or fewer. One-worker k-d tree queries: the same bytes on every run."""
+    found = _nearest(points_mm, k)
+    if found is None:
+        return np.full(len(points_mm), np.nan)
+    return found[0].mean(axis=1)
+
+
+def _nearest(points_mm: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each point's distances to its ``k`` nearest other points and their indices, (n, k) each
+    (one-worker k-d tree queries); None when the cloud has k points or fewer."""
     from scipy.spatial import cKDTree
 
     from tasks.checks import check_points
@@ -204,9 +213,9 @@ def mean_neighbour_distance(points_mm: np.ndarray, *, k: int) -> np.ndarray:
     if not isinstance(k, (int, np.integer)) or k < 1:
         raise ValueError(f"k must be an integer >= 1, got {k!r}")
     if len(pts) <= k:
-        return np.full(len(pts), np.nan)
-    distances, _ = cKDTree(pts).query(pts, k=k + 1, workers=1)
-    return distances[:, 1:].mean(axis=1)
+        return None
+    distances, index = cKDTree(pts).query(pts, k=k + 1, workers=1)
+    return distances[:, 1:], index[:, 1:]
 
 
 def relative_neighbour_distance(points_mm: np.ndarray, *, k: int) -> np.ndarray:
@@ -217,16 +226,10 @@ def relative_neighbour_distance(points_mm: np.ndarray, *, k: int) -> np.ndarray:
     distance the flank is what lies beyond mean + alpha sigma (measured: 11 % of a 45 deg butt
     weld's points at 0.25 mm between profiles, its flank angle then read 7 deg low), on this ratio
     a point off the surface among its neighbours on it."""
-    from scipy.spatial import cKDTree
-
-    from tasks.checks import check_points
-
-    pts = check_points("points_mm", points_mm)
-    if not isinstance(k, (int, np.integer)) or k < 1:
-        raise ValueError(f"k must be an integer >= 1, got {k!r}")
-    if len(pts) <= k:
-        return np.full(len(pts), np.nan)
-    distances, index = cKDTree(pts).query(pts, k=k + 1, workers=1)
-    mean = distances[:, 1:].mean(axis=1)
-    around = np.median(mean[index[:, 1:]], axis=1)
+    found = _nearest(points_mm, k)
+    if found is None:
+        return np.full(len(points_mm), np.nan)
+    distances, index = found
+    mean = distances.mean(axis=1)
+    around = np.median(mean[index], axis=1)
     return mean / np.maximum(around, np.finfo(np.float64).tiny)

@@ -175,6 +175,14 @@ def _profiles(points: np.ndarray) -> np.ndarray | None:
     return None
 
 
+def _section_frame(origin: np.ndarray, t: np.ndarray, a: np.ndarray, n: np.ndarray, pos: float):
+    """``to_frame(u, h)`` of the section ``pos`` along the line: the scan-frame point of a profile
+    position (``t`` along the line, ``a`` across, ``n`` the plates' normal)."""
+    def to_frame(uu, hh):
+        return origin + pos * t + uu * a + hh * n
+    return to_frame
+
+
 _NEIGHBOURS = 3  # sections either side a toe is held against
 _OFF_MM = 0.25  # a toe further than this (or 4 of its and its neighbours' sigmas) from theirs is fitted again
 _STARTS_MM = (0.0, -0.05, 0.05, -0.1, 0.1, -0.15, 0.15, -0.2, 0.2)  # ... started this far from their toe
@@ -210,10 +218,7 @@ def _along_the_weld(sections: list, groups: list, u: np.ndarray, h: np.ndarray, 
         if not off:
             continue
         pos, sel = groups[i]
-
-        def to_frame(uu, hh, pos=pos):
-            return origin + pos * t + uu * a + hh * n
-
+        to_frame = _section_frame(origin, t, a, n, pos)
         best = None
         for shift in _STARTS_MM:  # started at and around their toe: the best fit that lands among them
             again = measure_profile(u[sel], h[sel], settings=settings, treated=treated, line=name, position_mm=pos,
@@ -269,11 +274,8 @@ def measure_scan(points: np.ndarray, line: WeldLine, *, settings: ProfileSetting
             groups.append((float(pos), np.abs(s - pos) <= half))
     sections = []
     for pos, sel in groups:
-        def to_frame(uu, hh, pos=pos):
-            return origin + pos * t + uu * a + hh * n
-
         sections.append(measure_profile(u[sel], h[sel], settings=settings, treated=treated, line=name, position_mm=pos,
-                                        to_frame=to_frame))
+                                        to_frame=_section_frame(origin, t, a, n, pos)))
     sections = _along_the_weld(sections, groups, u, h, settings=settings, treated=treated, name=name,
                                frame=(origin, t, a, n))
     for side, k in (("minus", 0), ("plus", 1)):

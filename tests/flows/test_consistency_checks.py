@@ -11,13 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 import zarr
 
 from data_catalog.hashing import sha256_tree
 from tests.flows.cli import weldrecon
 from tests.conftest import SIX
-from tests.flows.samples import copy_sample
+from tests.flows.samples import copy_sample, quick_config
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
@@ -109,11 +108,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     out = tmp_path / "out"
     # the ci settings with the weld and the stress read at fewer sections (what is checked here is
     # the chunk; its stages run once more than the session's, on this pass's data)
-    settings = yaml.safe_load(CI_CONFIG.read_text())
-    settings["weld"] = {"section_step_mm": 5.0}
-    settings["stress"] = {"section_step_mm": 40.0}
-    quick = tmp_path / "quick.yaml"
-    quick.write_text(yaml.safe_dump(settings))
+    quick = quick_config(CI_CONFIG, tmp_path)
     done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", str(quick))
     assert done.returncode == 0, done.stderr
     report = json.loads((out / "results" / "report.json").read_text())

@@ -10,22 +10,17 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import plyfile
 import pytest
+from scipy.spatial.transform import Rotation
 
 from flows.cli import main
 from schemas.manifest import SampleManifest
 from simulator.weld_profiles import REAL_SCAN_NOISE, butt_weld_views
 from tests.flows.cli import weldrecon
 from tests.flows.test_import_scans_cli import _conf
+from tests.flows.test_measure_fillet_cli import ALONG, ROOT, TRUTH, tjoint_corner, write_ply
 
 RADIUS_MM, ANGLE_DEG, LENGTH_MM = 1.0, 45.0, 12.0
-
-
-def _ply(path, points: np.ndarray) -> None:
-    vertex = np.zeros(len(points), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
-    vertex["x"], vertex["y"], vertex["z"] = points.T
-    plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")]).write(str(path))
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +34,7 @@ def scans(tmp_path_factory):
     files = []
     for k, view in enumerate(views):
         files.append(folder / f"view{k}.ply")
-        _ply(files[-1], view.points_mm)
+        write_ply(files[-1], view.points_mm)
     _conf(folder / "poses.conf", {f.name: v.T_world_scan for f, v in zip(files, views)}, unit_mm=1.0)
     return [str(f) for f in files], str(folder / "poses.conf"), half
 
@@ -101,10 +96,6 @@ def test_an_imported_fillet_weld_is_measured_with_its_plates_found_on_the_data(t
     by 6 mm, each in a frame of its own: its root found at import, the sample reconstructed up to
     the weld, every section with both toes, the figures within the bounds that command's test holds
     the same corner to (0.1 mm, 4 deg: the per-section errors of tests/tasks/test_fillet_section.py)."""
-    from scipy.spatial.transform import Rotation
-
-    from tests.flows.test_measure_fillet_cli import ALONG, ROOT, TRUTH, tjoint_corner
-
     world = tjoint_corner()
     s = (world - ROOT) @ ALONG
     folder = tmp_path / "scans"
@@ -115,7 +106,7 @@ def test_an_imported_fillet_weld_is_measured_with_its_plates_found_on_the_data(t
         T[:3, :3] = Rotation.from_euler("zx", [30.0 + 40.0 * k, 10.0], degrees=True).as_matrix()
         T[:3, 3] = [20.0 * k, -30.0, 5.0]
         files.append(folder / f"half{k}.ply")
-        _ply(files[-1], (half - T[:3, 3]) @ T[:3, :3])
+        write_ply(files[-1], (half - T[:3, 3]) @ T[:3, :3])
         poses[files[-1].name] = T
     _conf(folder / "poses.conf", poses, unit_mm=1.0)
     sample = tmp_path / "sample"
@@ -147,7 +138,7 @@ def test_an_imported_fillet_weld_is_measured_with_its_plates_found_on_the_data(t
 @pytest.fixture
 def flat(tmp_path):
     x, y = np.meshgrid(np.arange(0.0, 30.0, 0.2), np.arange(0.0, 20.0, 0.2))
-    _ply(tmp_path / "flat.ply", np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)]))
+    write_ply(tmp_path / "flat.ply", np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)]))
     return str(tmp_path / "flat.ply")
 
 

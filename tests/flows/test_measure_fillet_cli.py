@@ -29,7 +29,8 @@ ALONG, OUT, UP = R_FILE @ [0.0, 1.0, 0.0], R_FILE @ [1.0, 0.0, 0.0], R_FILE @ [0
 
 
 def write_ply(path: Path, points: np.ndarray) -> Path:
-    vertex = np.array([tuple(p) for p in points], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    vertex = np.zeros(len(points), dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    vertex["x"], vertex["y"], vertex["z"] = np.asarray(points, np.float64).T
     plyfile.PlyData([plyfile.PlyElement.describe(vertex, "vertex")]).write(str(path))
     return path
 

@@ -8,19 +8,11 @@ from __future__ import annotations
 import json
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from schemas.profile_weld import ScanWeld
 from tests.flows.cli import weldrecon
+from tests.flows.test_import_scans_cli import _conf, _pose
 from tests.flows.test_measure_fillet_cli import ALONG, ROOT, _check_figures, tjoint_corner, write_ply
-
-
-def _pose(seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
-    T[:3, 3] = rng.uniform(-200, 200, size=3)
-    return T
 
 
 def _halves_in_their_frames(folder):
@@ -33,11 +25,7 @@ def _halves_in_their_frames(folder):
         T = _pose(10 + k)  # T_world_scan
         files.append(write_ply(folder / f"half{k}.ply", (half - T[:3, 3]) @ T[:3, :3]))
         poses[files[-1].name] = T
-    lines = ["camera 0 0 0 0 0 0 1"]
-    for name, T in poses.items():  # scanalyze: p_world = R(q)^T p + t, q scalar last
-        q = Rotation.from_matrix(T[:3, :3].T).as_quat()
-        lines.append(f"bmesh {name} " + " ".join(f"{v:.17g}" for v in [*T[:3, 3], *q]))
-    (folder / "scans.conf").write_text("\n".join(lines) + "\n")
+    _conf(folder / "scans.conf", poses, unit_mm=1.0)
     return files, folder / "scans.conf"
 
 

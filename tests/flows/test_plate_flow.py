@@ -6,9 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import yaml
-
-from tests.flows.samples import as_published
+from tests.flows.samples import as_published, quick_config
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -31,11 +29,7 @@ def test_a_plate_reconstructs_with_the_dog_bones_weld_zone(six_sample, six_run, 
     # the ci settings with the weld and the stress read at fewer sections: the stages that read the
     # part's kind are made again for it; what is compared is the merge (the same key as the
     # dog-bone run's, whatever the settings of the stages after it)
-    settings = yaml.safe_load(Path(CI_CONFIG).read_text())
-    settings["weld"] = {"section_step_mm": 5.0}
-    settings["stress"] = {"section_step_mm": 40.0}
-    quick = tmp_path / "quick.yaml"
-    quick.write_text(yaml.safe_dump(settings))
+    quick = quick_config(CI_CONFIG, tmp_path)
     report = as_published(reconstruct_sample(str(sample), str(tmp_path / "run"), str(quick), started_by="pytest"))
     dog_merge, plate_merge = six_run[1]["stages"]["merge"], report["stages"]["merge"]
     assert plate_merge["weld_zone_points_out"] > 0

@@ -17,6 +17,7 @@ from schemas.simulation import SimulationConfig, TJointConfig, TrueMeshConfig, W
 from simulator.presets import preset_config
 from simulator.specimen import Face
 from simulator.tjoint import TJoint, build_tjoint, constant_fillet, plan_tjoint_passes, tjoint_sticker_candidates
+from tests.simulator.test_tjoint import assert_closed_and_oriented
 
 MESH = TrueMeshConfig(plate_dx_mm=2.0, weld_dx_mm=0.2, toe_dx_mm=0.1, wall_rows=5)
 CRUCIFORM = TJointConfig(along_weld_dx_mm=1.0, stems="both")
@@ -28,12 +29,7 @@ def part():
 
 
 def test_the_part_is_one_closed_cruciform_of_the_drawing_size(part):
-    t = part.mesh.triangles.astype(np.int64)
-    directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    n = len(part.mesh.vertices)
-    keys = directed[:, 0] * n + directed[:, 1]
-    assert len(np.unique(keys)) == len(keys)  # every directed edge once: consistently oriented ...
-    assert np.isin(directed[:, 1] * n + directed[:, 0], keys).all()  # ... and its reverse too: closed
+    assert_closed_and_oriented(part.mesh)
     lo, hi = part.mesh.vertices.min(axis=0), part.mesh.vertices.max(axis=0)
     np.testing.assert_allclose(lo, [-130, -60, -66], atol=1e-9)
     np.testing.assert_allclose(hi, [130, 60, 66], atol=1e-9)

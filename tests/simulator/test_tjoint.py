@@ -25,13 +25,18 @@ def part():
     return build_tjoint(TJointConfig(along_weld_dx_mm=1.0), WeldConfig(), MESH, np.random.default_rng(3))
 
 
-def test_the_part_is_one_closed_t_joint_of_the_drawing_size(part):
-    t = part.mesh.triangles.astype(np.int64)
+def assert_closed_and_oriented(mesh) -> None:
+    """Every directed edge of the triangles once (consistently oriented) and its reverse too (closed)."""
+    t = mesh.triangles.astype(np.int64)
     directed = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    n = len(part.mesh.vertices)
+    n = len(mesh.vertices)
     keys = directed[:, 0] * n + directed[:, 1]
     assert len(np.unique(keys)) == len(keys)  # every directed edge once: consistently oriented ...
     assert np.isin(directed[:, 1] * n + directed[:, 0], keys).all()  # ... and its reverse too: closed
+
+
+def test_the_part_is_one_closed_t_joint_of_the_drawing_size(part):
+    assert_closed_and_oriented(part.mesh)
     lo, hi = part.mesh.vertices.min(axis=0), part.mesh.vertices.max(axis=0)
     np.testing.assert_allclose(lo, [-130, -60, -6], atol=1e-9)
     np.testing.assert_allclose(hi, [130, 60, 66], atol=1e-9)
