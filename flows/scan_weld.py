@@ -7,8 +7,8 @@ the weld line given or found, the sections measured and put in the pipeline's we
   the joint and treatment).
 - A fillet weld: its root line given or found where the scan's two plates meet, the plates' sides
   from where the points lie (``tasks.scan_fillet``), the sections measured as stage weld measures
-  a T-joint's (``tasks.fillet_section.measure_fillet_line``, the settings ``config.fillet``); not
-  judged (no acceptance rule for fillet welds yet), as in the stage."""
+  a T-joint's (``tasks.fillet_section.measure_fillet_line``, the settings ``config.fillet``), and
+  judged as in the stage (the catalog's rule for "fillet" and the treatment)."""
 
 from __future__ import annotations
 
@@ -115,11 +115,7 @@ def measure_scan_weld(path: str | Path, *, units: str, line, joint: str, treatme
                                 toe_radius_below_mm=toe.radius_below_mm, reason=toe.reason or None))
             if toe.fit is None:
                 problems.append(f"{where}, {side} toe: not measured: {toe.reason}")
-    for f in failing + uncertain:
-        kind = "fails" if f in failing else "uncertain"
-        sd = "" if f.sigma is None else f" ± {f.sigma:g}"
-        problems.append(f"{name} at {f.position_mm:.2f} mm{', ' + f.toe + ' toe' if f.toe else ''}: {f.figure} "
-                        f"{f.value}{sd} {kind} ({f.limit})")
+    problems += _finding_lines(name, failing, uncertain)
     spacing = [r.spacing_mm for r in scan.sections if math.isfinite(r.spacing_mm)]
     source = ScanSource(file=str(path), kind=scan_points.kind, files=scan_points.files, points=len(points),
                         profile_scan=scan.profile_scan,
@@ -155,10 +151,12 @@ def _fillet(scan_points: ScanPoints, *, line, treatment: str, config: MeasureWel
         raise ValueError(f"{path}: no fillet section along the root line {_xyz(root.start_mm)}:{_xyz(root.end_mm)}: "
                          f"the points within {s.reach_mm:g} mm of it span less than twice the end margin "
                          f"({s.end_margin_mm:g} mm) along it")
-    sections, lines, summary, statistics = fillet_weld_figures([found])
+    rule = load_acceptance_limits(None).rule_for(FILLET_JOINT, treatment)
+    sections, lines, summary, statistics, failing, uncertain = fillet_weld_figures([found], rule)
     geometry = WeldGeometry(measured=True, joint=FILLET_JOINT, treatment=treatment, frame=f"the scan's own ({name})",
-                            acceptance=None, acceptance_source=None, lines=lines, summary=summary,
-                            statistics=statistics, sections=sections)
+                            acceptance=rule, acceptance_source=None if rule is None else "data_catalog/weld_acceptance.yaml",
+                            lines=lines, summary=summary, statistics=statistics, failing=failing, uncertain=uncertain,
+                            sections=sections)
     toes, problems = [], []
     for position, sec in found.sections:
         for side, fit in (("base", sec.base_toe), ("stem", sec.stem_toe)):
@@ -166,6 +164,7 @@ def _fillet(scan_points: ScanPoints, *, line, treatment: str, config: MeasureWel
                                 reason=None if fit is not None else (_reason(sec.note, side) or "not measured")))
         if sec.note:
             problems.append(f"{name} at {position:.2f} mm: {sec.note}")
+    problems += _finding_lines(name, failing, uncertain)
     source = ScanSource(file=str(path), kind=scan_points.kind, files=scan_points.files, points=len(points),
                         profile_scan=False, profile_pitch_mm=None, point_spacing_mm=None, spikes_dropped=0)
     weld_line = ScanWeldLine(start_mm=tuple(round(v, 4) for v in root.start_mm),
@@ -174,6 +173,17 @@ def _fillet(scan_points: ScanPoints, *, line, treatment: str, config: MeasureWel
                              across=tuple(round(v, 6) for v in root.out), found=root.found)
     document = ScanWeld(source=source, config=config, weld_line=weld_line, geometry=geometry, toes=toes)
     return MeasuredScan(document, problems, points, s.section_half_width_mm, s.reach_mm)
+
+
+def _finding_lines(name: str, failing: list, uncertain: list) -> list[str]:
+    """A line for each failing or uncertain figure (the document's findings)."""
+    lines = []
+    for f in failing + uncertain:
+        kind = "fails" if f in failing else "uncertain"
+        sd = "" if f.sigma is None else f" ± {f.sigma:g}"
+        lines.append(f"{name} at {f.position_mm:.2f} mm{', ' + f.toe + ' toe' if f.toe else ''}: {f.figure} "
+                     f"{f.value}{sd} {kind} ({f.limit})")
+    return lines
 
 
 def _reason(note: str, side: str) -> str:

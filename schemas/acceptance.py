@@ -12,7 +12,7 @@ from pydantic import Field, field_validator, model_validator
 
 from schemas.common import StrictModel
 
-__all__ = ["FigureLimits", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES"]
+__all__ = ["FigureLimits", "Allowance", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES", "FILLET_LIMITED_FIGURES"]
 
 Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
 
@@ -21,6 +21,9 @@ Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
 LIMITED_FIGURES = ("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "groove_depth_mm", "groove_width_mm",
                    "groove_radius_mm", "reinforcement_height_mm", "reinforcement_width_mm", "axial_misalignment_mm",
                    "angular_misalignment_deg")
+# a fillet weld's section figures a rule may limit (its toes' as above): each leg, the throat, the
+# face's convexity, the legs' difference (by magnitude)
+FILLET_LIMITED_FIGURES = ("leg_length_mm", "throat_mm", "convexity_mm", "leg_asymmetry_mm")
 
 
 class FigureLimits(StrictModel):
@@ -34,6 +37,17 @@ class FigureLimits(StrictModel):
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueError(f"min {self.min} is above max {self.max}")
         return self
+
+
+class Allowance(StrictModel):
+    """A limit that grows with the weld's size, as ISO 5817 writes many: ``base_mm`` + ``per_mm`` x
+    a size of the section (mm)."""
+
+    base_mm: float = Field(ge=0)
+    per_mm: float = Field(ge=0)
+
+    def at(self, size_mm: float) -> float:
+        return self.base_mm + self.per_mm * size_mm
 
 
 class AcceptanceRule(StrictModel):
@@ -50,6 +64,14 @@ class AcceptanceRule(StrictModel):
     reinforcement_width_mm: FigureLimits = FigureLimits()
     axial_misalignment_mm: FigureLimits = FigureLimits()
     angular_misalignment_deg: FigureLimits = FigureLimits()
+    leg_length_mm: FigureLimits = FigureLimits()  # fillet welds: each leg
+    throat_mm: FigureLimits = FigureLimits()
+    convexity_mm: FigureLimits = FigureLimits()
+    leg_asymmetry_mm: FigureLimits = FigureLimits()  # |base leg - stem leg|
+    convexity_allowance: Allowance | None = Field(default=None, description=(
+        "a fillet's convexity at most this x the section's face width b (between its toes), within convexity_mm"))
+    leg_asymmetry_allowance: Allowance | None = Field(default=None, description=(
+        "a fillet's legs' difference at most this x the section's measured throat a, within leg_asymmetry_mm"))
     toe_within_groove: bool = Field(default=False, description="every toe must lie fully within its groove")
     groove_required: bool = Field(default=False, description="a toe without a measured groove fails")
     max_failing_fraction: float = Field(default=0.0, ge=0, le=1, description=(

@@ -1,5 +1,6 @@
-"""The measured weld judged against its acceptance limits (``schemas.acceptance``): each section
-passes, fails or is uncertain, failing and uncertain sections located (weld line, toe, position
+"""The measured weld judged against its acceptance limits (``schemas.acceptance``), a butt weld's
+sections (``judge_weld``) or a fillet weld's (``judge_fillet_weld``): each section passes, fails or
+is uncertain, failing and uncertain sections located (weld line, toe, position
 along the line), the weld as a whole. A figure is judged on its measured value and its 1-sigma:
 
 - outside a limit by more than ``uncertain_sigmas`` of its sigma: a violation (the section fails);
@@ -18,11 +19,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from schemas.acceptance import AcceptanceRule, FigureLimits
-from tasks.weld_fits import Measured
+from schemas.acceptance import AcceptanceRule, Allowance, FigureLimits
+from tasks.fillet_section import FilletSection
+from tasks.weld_fits import Measured, ToeFit
 from tasks.weld_geometry import SectionMeasurement
 
-__all__ = ["Violation", "SectionVerdict", "WeldVerdict", "judge_weld", "check_figure"]
+__all__ = ["Violation", "SectionVerdict", "WeldVerdict", "judge_weld", "judge_fillet_weld", "check_figure"]
 
 
 @dataclass(frozen=True)
@@ -85,43 +87,45 @@ def check_figure(limits: FigureLimits, value: Measured, *, magnitude: bool = Fal
     return None, True
 
 
-def judge_weld(sections: list[SectionMeasurement], rule: AcceptanceRule) -> WeldVerdict:
-    verdicts = []
-    for sec in sections:
-        found: list[Violation] = []
-        unsure: list[Violation] = []
+class _Findings:
+    """A section's violations and uncertain figures as they are judged (``check_figure``)."""
 
-        def add(toe, figure, value: Measured, limits: FigureLimits, magnitude=False):
-            why, certain = check_figure(limits, value, magnitude=magnitude, sigmas=rule.uncertain_sigmas)
-            if why:
-                sd = value.sigma if math.isfinite(value.sigma) else None
-                (found if certain else unsure).append(Violation(
-                    sec.line, sec.position_mm, toe, figure,
-                    round(float(value.value), 4) if math.isfinite(value.value) else None,
-                    why + (" (magnitude)" if magnitude else ""), None if sd is None else round(float(sd), 4)))
+    def __init__(self, line: str, position_mm: float, sigmas: float):
+        self.line, self.position_mm, self.sigmas = line, position_mm, sigmas
+        self.found: list[Violation] = []
+        self.unsure: list[Violation] = []
 
-        measured = all(t is not None for t in sec.toes) and math.isfinite(sec.height.value)
-        if measured:
-            add(None, "reinforcement_height_mm", sec.height, rule.reinforcement_height_mm)
-            add(None, "reinforcement_width_mm", sec.width, rule.reinforcement_width_mm)
-            add(None, "axial_misalignment_mm", sec.axial_misalignment, rule.axial_misalignment_mm, True)
-            add(None, "angular_misalignment_deg", sec.angular_misalignment_deg, rule.angular_misalignment_deg, True)
-            for toe in sec.toes:
-                add(toe.side, "toe_radius_mm", toe.notch_radius, rule.toe_radius_mm)
-                add(toe.side, "flank_angle_deg", toe.flank_angle_deg, rule.flank_angle_deg)
-                add(toe.side, "undercut_depth_mm", toe.undercut_depth, rule.undercut_depth_mm)
-                if toe.groove is None:
-                    if rule.groove_required:
-                        found.append(Violation(sec.line, sec.position_mm, toe.side, "groove", None, "groove required"))
-                    continue
-                add(toe.side, "groove_depth_mm", toe.groove.depth, rule.groove_depth_mm)
-                add(toe.side, "groove_width_mm", toe.groove.width, rule.groove_width_mm)
-                add(toe.side, "groove_radius_mm", toe.groove.radius, rule.groove_radius_mm)
-                if rule.toe_within_groove and not toe.groove.toe_within:
-                    found.append(Violation(sec.line, sec.position_mm, toe.side, "toe_within_groove", None,
-                                           "toe fully within the groove"))
-        verdicts.append(SectionVerdict(sec.line, sec.position_mm, measured, measured and not found, found,
-                                       unsure if measured else []))
+    def add(self, toe, figure: str, value: Measured, limits: FigureLimits, magnitude: bool = False) -> None:
+        why, certain = check_figure(limits, value, magnitude=magnitude, sigmas=self.sigmas)
+        if why:
+            sd = value.sigma if math.isfinite(value.sigma) else None
+            (self.found if certain else self.unsure).append(Violation(
+                self.line, self.position_mm, toe, figure,
+                round(float(value.value), 4) if math.isfinite(value.value) else None,
+                why + (" (magnitude)" if magnitude else ""), None if sd is None else round(float(sd), 4)))
+
+    def toe(self, toe: ToeFit, side: str, rule: AcceptanceRule) -> None:
+        """A toe's figures: radius, flank angle, undercut, and a treated toe's groove."""
+        self.add(side, "toe_radius_mm", toe.notch_radius, rule.toe_radius_mm)
+        self.add(side, "flank_angle_deg", toe.flank_angle_deg, rule.flank_angle_deg)
+        self.add(side, "undercut_depth_mm", toe.undercut_depth, rule.undercut_depth_mm)
+        if toe.groove is None:
+            if rule.groove_required:
+                self.found.append(Violation(self.line, self.position_mm, side, "groove", None, "groove required"))
+            return
+        self.add(side, "groove_depth_mm", toe.groove.depth, rule.groove_depth_mm)
+        self.add(side, "groove_width_mm", toe.groove.width, rule.groove_width_mm)
+        self.add(side, "groove_radius_mm", toe.groove.radius, rule.groove_radius_mm)
+        if rule.toe_within_groove and not toe.groove.toe_within:
+            self.found.append(Violation(self.line, self.position_mm, side, "toe_within_groove", None,
+                                        "toe fully within the groove"))
+
+    def verdict(self, measured: bool) -> SectionVerdict:
+        return SectionVerdict(self.line, self.position_mm, measured, measured and not self.found, self.found,
+                              self.unsure if measured else [])
+
+
+def _weld_verdict(verdicts: list[SectionVerdict], rule: AcceptanceRule) -> WeldVerdict:
     n_measured = sum(v.measured for v in verdicts)
     n_failing = sum(v.measured and not v.passed for v in verdicts)
     fraction = n_failing / n_measured if n_measured else 1.0
@@ -129,3 +133,56 @@ def judge_weld(sections: list[SectionMeasurement], rule: AcceptanceRule) -> Weld
                        n_measured=n_measured, n_failing=n_failing, n_not_measured=len(verdicts) - n_measured,
                        failing_fraction=fraction, max_failing_fraction=rule.max_failing_fraction,
                        n_uncertain=sum(v.verdict == "uncertain" for v in verdicts))
+
+
+def judge_weld(sections: list[SectionMeasurement], rule: AcceptanceRule) -> WeldVerdict:
+    """A butt weld's sections judged by ``rule`` (module description)."""
+    verdicts = []
+    for sec in sections:
+        f = _Findings(sec.line, sec.position_mm, rule.uncertain_sigmas)
+        measured = all(t is not None for t in sec.toes) and math.isfinite(sec.height.value)
+        if measured:
+            f.add(None, "reinforcement_height_mm", sec.height, rule.reinforcement_height_mm)
+            f.add(None, "reinforcement_width_mm", sec.width, rule.reinforcement_width_mm)
+            f.add(None, "axial_misalignment_mm", sec.axial_misalignment, rule.axial_misalignment_mm, True)
+            f.add(None, "angular_misalignment_deg", sec.angular_misalignment_deg, rule.angular_misalignment_deg, True)
+            for toe in sec.toes:
+                f.toe(toe, toe.side, rule)
+        verdicts.append(f.verdict(measured))
+    return _weld_verdict(verdicts, rule)
+
+
+def _grown(limits: FigureLimits, allowance: Allowance | None, size_mm: float) -> FigureLimits:
+    """``limits`` with its maximum lowered to ``allowance`` at ``size_mm`` where that is smaller
+    (no allowance, or a size not measured: ``limits`` as they are)."""
+    if allowance is None or not math.isfinite(size_mm):
+        return limits
+    grown = round(allowance.at(size_mm), 3)
+    return FigureLimits(min=limits.min, max=grown if limits.max is None else min(limits.max, grown))
+
+
+def judge_fillet_weld(sections: list[tuple[str, float, FilletSection]], rule: AcceptanceRule) -> WeldVerdict:
+    """A fillet weld's sections ((line, position along it, section)) judged by ``rule``: each leg,
+    the throat, the convexity (its limit grown with the face's width between the toes where the
+    rule says so), the legs' difference (its 1-sigma from theirs; its limit grown with the measured
+    throat), and both toes ("base", "stem") as a butt weld's. A section without both toes and its legs is not measured."""
+    verdicts = []
+    for line, position, sec in sections:
+        f = _Findings(line, position, rule.uncertain_sigmas)
+        measured = (sec.base_toe is not None and sec.stem_toe is not None
+                    and math.isfinite(sec.leg_base.value) and math.isfinite(sec.leg_stem.value))
+        if measured:
+            f.add(None, "leg_base_mm", sec.leg_base, rule.leg_length_mm)  # the document's figures, one limit
+            f.add(None, "leg_stem_mm", sec.leg_stem, rule.leg_length_mm)
+            f.add(None, "throat_mm", sec.throat, rule.throat_mm)
+            base, stem = sec.toe_ab_mm("base"), sec.toe_ab_mm("stem")
+            face_width = math.hypot(base[0] - stem[0], base[1] - stem[1])
+            f.add(None, "convexity_mm", sec.convexity, _grown(rule.convexity_mm, rule.convexity_allowance, face_width))
+            difference = Measured(sec.leg_base.value - sec.leg_stem.value,
+                                  math.hypot(sec.leg_base.sigma, sec.leg_stem.sigma))
+            f.add(None, "leg_asymmetry_mm", difference,
+                  _grown(rule.leg_asymmetry_mm, rule.leg_asymmetry_allowance, sec.throat.value), True)
+            f.toe(sec.base_toe, "base", rule)
+            f.toe(sec.stem_toe, "stem", rule)
+        verdicts.append(f.verdict(measured))
+    return _weld_verdict(verdicts, rule)

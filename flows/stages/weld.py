@@ -10,8 +10,9 @@ surface. A fillet weld (a T-joint's or a cruciform's) is measured in sections ac
 line (``tasks.fillet_section``: toes on the base plate and on the stem, legs, throat, convexity),
 the plates' sides known from the specimen (the root on the stem's ``out`` side, the stem ``up``
 from the base's face), or, where the manifest gives no specimen (imported scans), found on the
-points around the root line (``tasks.scan_fillet``); it is not judged (no acceptance rule for fillet welds yet). A sample whose
-setups state no nominal placement, or whose joint is neither, is not measured (said in the file,
+points around the root line (``tasks.scan_fillet``); it is judged as a butt weld is, on its legs,
+throat, convexity, the legs' difference and both toes (``tasks.weld_acceptance.judge_fillet_weld``,
+the catalog's rule for the joint and treatment). A sample whose setups state no nominal placement, or whose joint is neither, is not measured (said in the file,
 not an error).
 
 Each section's ``verdict`` is "pass", "fail", "uncertain" (a figure within its 1-sigma of a limit,
@@ -35,7 +36,7 @@ from schemas.weld_document import (FILLET_SECTION_FIGURES, TOE_FIGURES, FilletTo
 from tasks.fillet_section import FilletLine, measure_fillet_line
 from tasks.frames import apply, invert, rotate
 from tasks.scan_fillet import find_fillet_root
-from tasks.weld_acceptance import judge_weld
+from tasks.weld_acceptance import judge_fillet_weld, judge_weld
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
@@ -87,11 +88,16 @@ def section_document(sec: SectionMeasurement, verdict) -> WeldSection:
 def judged(sections: list[SectionMeasurement], rule):
     """The sections judged by ``rule`` (None: no rule): the verdict (None without a rule), the
     summary, the failing findings and the uncertain ones of passing sections."""
-    verdict = judge_weld(sections, rule) if rule is not None else None
+    return verdict_parts(judge_weld(sections, rule) if rule is not None else None, len(sections))
+
+
+def verdict_parts(verdict, n_sections: int):
+    """A weld's verdict (``tasks.weld_acceptance``; None: no rule) as the document has it: the
+    verdict, the summary, the failing findings and the uncertain ones of passing sections."""
     failing = [] if verdict is None else [finding_document(v) for sv in verdict.sections for v in sv.violations]
     uncertain = [] if verdict is None else [finding_document(v) for sv in verdict.sections if sv.passed
                                             for v in sv.uncertain]
-    summary = WeldSummary(sections=len(sections),
+    summary = WeldSummary(sections=n_sections,
                           sections_measured=None if verdict is None else verdict.n_measured,
                           sections_not_measured=None if verdict is None else verdict.n_not_measured,
                           failing=None if verdict is None else verdict.n_failing,
@@ -167,8 +173,9 @@ def _fillet_sides(manifest, line) -> tuple[np.ndarray, np.ndarray] | str:
     return np.array([math.copysign(1.0, side), 0.0, 0.0]), np.array([0.0, 0.0, math.copysign(1.0, face)])
 
 
-def fillet_section_document(line: FilletLine, position: float, sec) -> FilletWeldSection:
-    """A fillet section (``tasks.fillet_section``) at ``position`` along ``line`` as the document's."""
+def fillet_section_document(line: FilletLine, position: float, sec, verdict=None) -> FilletWeldSection:
+    """A fillet section (``tasks.fillet_section``) at ``position`` along ``line`` as the document's,
+    with its verdict (``tasks.weld_acceptance.SectionVerdict``; None: no rule)."""
     ok = math.isfinite(sec.root_ab_mm[0])
     root = line.to_frame(position, sec.root_ab_mm) if ok else line.to_frame(position, (0.0, 0.0))
     return FilletWeldSection(
@@ -179,14 +186,23 @@ def fillet_section_document(line: FilletLine, position: float, sec) -> FilletWel
         leg_base_mm=_figure(sec.leg_base), leg_stem_mm=_figure(sec.leg_stem), throat_mm=_figure(sec.throat),
         convexity_mm=_figure(sec.convexity),
         toes=FilletToes(base=_toe_figures(sec.base_toe), stem=_toe_figures(sec.stem_toe)),
-        passed=None, verdict=None, violations=[], uncertain=[], note=sec.note or None)
+        passed=None if verdict is None else verdict.passed,
+        verdict=None if verdict is None else verdict.verdict,
+        violations=[] if verdict is None else [finding_document(v) for v in verdict.violations],
+        uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain], note=sec.note or None)
 
 
-def fillet_weld_figures(found: list[FilletLine]) -> tuple[list[FilletWeldSection], list[WeldLineFound], WeldSummary,
-                                                         dict[str, FigureStatistics]]:
-    """The document's parts of a fillet weld measured along its root lines (``found``): its
-    sections, its lines, the summary (measured, not judged) and the statistics along it."""
-    sections = [fillet_section_document(line, position, sec) for line in found for position, sec in line.sections]
+def fillet_weld_figures(found: list[FilletLine], rule) -> tuple[list[FilletWeldSection], list[WeldLineFound],
+                                                               WeldSummary, dict[str, FigureStatistics], list, list]:
+    """The document's parts of a fillet weld measured along its root lines (``found``) and judged
+    by ``rule`` (None: not judged): its sections, its lines, the summary, the statistics along it,
+    the failing findings and the uncertain ones."""
+    along = [(line, position, sec) for line in found for position, sec in line.sections]
+    rows = [(line.name, position, sec) for line, position, sec in along]
+    verdict, summary, failing, uncertain = verdict_parts(
+        judge_fillet_weld(rows, rule) if rule is not None else None, len(rows))
+    sections = [fillet_section_document(line, position, sec, None if verdict is None else verdict.sections[k])
+                for k, (line, position, sec) in enumerate(along)]
     lines = []
     for line in found:
         roots = [sec.root_ab_mm for _, sec in line.sections if math.isfinite(sec.root_ab_mm[0])]
@@ -195,16 +211,10 @@ def fillet_weld_figures(found: list[FilletLine]) -> tuple[list[FilletWeldSection
             offset_mm=round(float(np.median([r[0] for r in roots])), 4) if roots else 0.0, turn_deg=0.0,
             face_normal=tuple(float(v) for v in line.up), across=tuple(float(v) for v in line.out),
             measured_extent_mm=tuple(round(v, 3) for v in line.extent_mm)))
-    measured = sum(sec.toes.both() for sec in sections)
-    summary = WeldSummary(sections=len(sections), sections_measured=None, sections_not_measured=None, failing=None,
-                          sections_uncertain=None, passed=None,
-                          verdict=f"fillet welds are measured, not judged (no acceptance rule for them yet): "
-                                  f"{measured} of {len(sections)} sections with both toes")
-    rows = [(line.name, position, sec) for line in found for position, sec in line.sections]
     statistics = _along(rows, dict(zip(FILLET_SECTION_FIGURES, (
         lambda r: r[2].leg_base.value, lambda r: r[2].leg_stem.value, lambda r: r[2].throat.value,
         lambda r: r[2].convexity.value))), lambda r: (r[0], r[1], (r[2].base_toe, r[2].stem_toe)))
-    return sections, lines, summary, statistics
+    return sections, lines, summary, statistics, failing, uncertain
 
 
 def _fillet_sides_on_data(points: np.ndarray, line, reach_mm: float) -> tuple[np.ndarray, np.ndarray] | str:
@@ -239,9 +249,9 @@ def _fillet_weld(ctx, points: np.ndarray, T: np.ndarray, head: dict) -> dict[str
                                  reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, settings=section_settings(s),
                                  treated=treated)
              for line in manifest.weld_lines()]
-    sections, lines, summary, statistics = fillet_weld_figures(found)
+    sections, lines, summary, statistics, failing, uncertain = fillet_weld_figures(found, head["acceptance"])
     WELD_GEOMETRY.write(ctx.out, WeldGeometry(measured=True, lines=lines, summary=summary, statistics=statistics,
-                                              sections=sections, **head))
+                                              failing=failing, uncertain=uncertain, sections=sections, **head))
     # the toes as polylines in the common frame (the FE model grades its elements toward them)
     polylines = []
     for line in found:
@@ -270,7 +280,7 @@ def weld(ctx) -> dict[str, Any]:
     joint = getattr(manifest.weld, "joint", "double-sided butt")
     treatment = manifest.weld.treatment
     limits = s.acceptance if s.acceptance is not None else load_acceptance_limits(None)
-    rule = None if joint in FILLET_JOINTS else limits.rule_for(joint, treatment)
+    rule = limits.rule_for(joint, treatment)
     frame = ("the scans' (their weld lines given or found at import; lines refined on the data)"
              if manifest.surfaces and manifest.specimen is None else "specimen (nominal placement, lines refined on the data)")
     head = dict(joint=joint, treatment=treatment, frame=frame,

@@ -35,10 +35,10 @@ def write_ply(path: Path, points: np.ndarray) -> Path:
     return path
 
 
-def tjoint_corner(*, stem: bool = True, noise_mm: float = 0.01, seed: int = 1) -> np.ndarray:
+def tjoint_corner(*, stem: bool = True, noise_mm: float = 0.01, seed: int = 1, fillet=FILLET) -> np.ndarray:
     """The drawn fillet's section (0.05 mm apart, 30 mm of each plate from the root) every 0.5 mm
     along 40 mm of weld, 10 um of noise, in the file's frame; ``stem`` False: the base plate alone."""
-    ab = fillet_profile(TJ, FILLET, 0.0, 0.05)
+    ab = fillet_profile(TJ, fillet, 0.0, 0.05)
     ab = ab[(ab[:, 0] <= 30.0) & (ab[:, 1] <= 30.0)]
     if not stem:
         ab = np.stack([np.arange(-30.0, 30.0, 0.05), np.zeros(1200)], 1)
@@ -54,8 +54,10 @@ def _angle_deg(u, v) -> float:
 
 def _check_figures(doc: ScanWeld) -> None:
     g = doc.geometry
-    assert g.joint == "fillet" and g.acceptance is None and g.summary.passed is None
-    assert g.summary.verdict.startswith("fillet welds are measured, not judged")
+    # judged by the catalog's fillet rule: the drawn weld (legs 7 and 6 mm, convexity 0.8 mm, toes
+    # at 45-60 deg) is within every limit
+    assert g.joint == "fillet" and g.acceptance is not None and g.acceptance.joint == "fillet"
+    assert g.summary.passed is True and g.summary.verdict == "pass" and not g.failing
     # 40 mm of weld, 2 mm end margins, a section at each whole mm along the line: 36 or 37 (the
     # noise moves the scan's ends by hundredths), every toe measured
     assert g.summary.sections in (36, 37) and all(t.measured for t in doc.toes)
@@ -113,6 +115,29 @@ def test_a_drawn_fillet_along_a_given_root_line(tmp_path):
     doc = ScanWeld.model_validate_json((tmp_path / "tee.ply.weld.json").read_text())
     assert doc.weld_line.found == "given"
     _check_figures(doc)
+
+
+def test_a_fillet_past_its_limits_fails_with_a_line_per_finding(tmp_path):
+    # 2 mm of convexity on legs of 7 and 6 mm: the face meets the stem at 92 deg (drawn), past the
+    # catalog's 80 deg (ISO 5817 level C: toe angle >= 100 deg); measured 82 (the fit's flank stops
+    # at 85), the base's 79 (drawn 81: the face past the rounding, tests/tasks/test_fillet_section.py);
+    # the convexity itself within 1 mm + 0.15 b (b ~9.5 mm between the toes: 2.4 mm)
+    bulging = constant_fillet(leg_base=7.0, leg_stem=6.0, convexity=2.0, toe_radius_base=1.0, toe_radius_stem=0.6)
+    scan = write_ply(tmp_path / "tee.ply", tjoint_corner(fillet=bulging))
+    done = weldrecon("measure-weld", str(scan), "--joint", "fillet", "--out", str(tmp_path))
+    assert done.returncode == 1, done.stderr
+    doc = ScanWeld.model_validate_json((tmp_path / "tee.ply.weld.json").read_text())
+    g = doc.geometry
+    assert g.summary.verdict == "fail" and g.summary.failing == g.summary.sections
+    stem = [f for f in g.failing if (f.figure, f.toe) == ("flank_angle_deg", "stem")]
+    # all but one: at 32 mm the stem's toe fit lands on a false 1.1 mm undercut (RMS 0.13 mm against
+    # the 0.01 mm noise), which fails that section instead (a fit to look at again, noted in issue 27)
+    assert len(stem) >= g.summary.sections - 1 and all(f.limit == "<= 80" and f.value > 80 for f in stem)
+    assert not any(f.figure == "convexity_mm" for f in g.failing + g.uncertain)
+    lines = (done.stdout + done.stderr).splitlines()
+    for f in g.failing:  # each finding one line: where, which toe, the figure, its value and limit
+        assert sum(f"at {f.position_mm:.2f} mm, {f.toe} toe: {f.figure} {f.value}" in line and f"fails ({f.limit})" in line
+                   for line in lines) == 1, f
 
 
 @pytest.mark.parametrize("case, says", [

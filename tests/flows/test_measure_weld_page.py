@@ -48,7 +48,7 @@ def test_a_fillet_welds_page_shows_its_sections_and_figures(tmp_path):
         assert figure.replace("37", str(doc.geometry.summary.sections)).replace(
             "74", str(2 * doc.geometry.summary.sections)) in text
     # each drawn section's caption: its legs, throat and both toes' radius and angle
-    assert text.count("not judged. legs ") == 4 and text.count("; base: r ") == 4 and text.count("; stem: r ") == 4
+    assert text.count("within the limits. legs ") == 4 and text.count("; base: r ") == 4 and text.count("; stem: r ") == 4
     assert "None: every toe measured" in text
     # the same scan measured again: the same page, byte for byte
     assert weldrecon("measure-weld", str(scan), "--joint", "fillet", "--out", str(tmp_path / "again")).returncode == 0
