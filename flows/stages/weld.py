@@ -12,8 +12,8 @@ the plates' sides known from the specimen (the root on the stem's ``out`` side, 
 from the base's face), or, where the manifest gives no specimen (imported scans), found on the
 points around the root line (``tasks.scan_fillet``); it is judged as a butt weld is, on its legs,
 throat, convexity, the legs' difference and both toes (``tasks.weld_acceptance.judge_fillet_weld``,
-the catalog's rule for the joint and treatment). A sample whose setups state no nominal placement, or whose joint is neither, is not measured (said in the file,
-not an error).
+the catalog's rule for the joint and treatment). A sample whose setups state no nominal placement,
+or whose joint is neither, is not measured (said in the file, not an error).
 
 Each section's ``verdict`` is "pass", "fail", "uncertain" (a figure within its 1-sigma of a limit,
 or a limited figure not measured: listed in its ``uncertain``, and all of them in the file's
@@ -78,11 +78,15 @@ def section_document(sec: SectionMeasurement, verdict) -> WeldSection:
                        axial_misalignment_mm=_figure(sec.axial_misalignment),
                        angular_misalignment_deg=_figure(sec.angular_misalignment_deg),
                        toes=SectionToes(minus=_toe_figures(sec.toes[0]), plus=_toe_figures(sec.toes[1])),
-                       passed=None if verdict is None else verdict.passed,
-                       violations=[] if verdict is None else [finding_document(v) for v in verdict.violations],
-                       verdict=None if verdict is None else verdict.verdict,
-                       uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain],
-                       note=sec.note or None)
+                       note=sec.note or None, **_verdict_fields(verdict))
+
+
+def _verdict_fields(verdict) -> dict[str, Any]:
+    """A section's verdict (``tasks.weld_acceptance.SectionVerdict``; None: no rule) as its document's fields."""
+    return dict(passed=None if verdict is None else verdict.passed,
+                verdict=None if verdict is None else verdict.verdict,
+                violations=[] if verdict is None else [finding_document(v) for v in verdict.violations],
+                uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain])
 
 
 def judged(sections: list[SectionMeasurement], rule):
@@ -186,10 +190,7 @@ def fillet_section_document(line: FilletLine, position: float, sec, verdict=None
         leg_base_mm=_figure(sec.leg_base), leg_stem_mm=_figure(sec.leg_stem), throat_mm=_figure(sec.throat),
         convexity_mm=_figure(sec.convexity),
         toes=FilletToes(base=_toe_figures(sec.base_toe), stem=_toe_figures(sec.stem_toe)),
-        passed=None if verdict is None else verdict.passed,
-        verdict=None if verdict is None else verdict.verdict,
-        violations=[] if verdict is None else [finding_document(v) for v in verdict.violations],
-        uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain], note=sec.note or None)
+        note=sec.note or None, **_verdict_fields(verdict))
 
 
 def fillet_weld_figures(found: list[FilletLine], rule) -> tuple[list[FilletWeldSection], list[WeldLineFound],
