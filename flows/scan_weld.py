@@ -177,13 +177,9 @@ def _fillet(scan_points: ScanPoints, *, line, treatment: str, config: MeasureWel
 
 def _finding_lines(name: str, failing: list, uncertain: list) -> list[str]:
     """A line for each failing or uncertain figure (the document's findings)."""
-    lines = []
-    for f in failing + uncertain:
-        kind = "fails" if f in failing else "uncertain"
-        sd = "" if f.sigma is None else f" ± {f.sigma:g}"
-        lines.append(f"{name} at {f.position_mm:.2f} mm{', ' + f.toe + ' toe' if f.toe else ''}: {f.figure} "
-                     f"{f.value}{sd} {kind} ({f.limit})")
-    return lines
+    return [f"{name} at {f.position_mm:.2f} mm{', ' + f.toe + ' toe' if f.toe else ''}: {f.figure} "
+            f"{f.value}{'' if f.sigma is None else f' ± {f.sigma:g}'} {kind} ({f.limit})"
+            for kind, findings in (("fails", failing), ("uncertain", uncertain)) for f in findings]
 
 
 def _reason(note: str, side: str) -> str:

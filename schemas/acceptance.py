@@ -12,7 +12,7 @@ from pydantic import Field, field_validator, model_validator
 
 from schemas.common import StrictModel
 
-__all__ = ["FigureLimits", "Allowance", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES", "FILLET_LIMITED_FIGURES"]
+__all__ = ["FigureLimits", "Allowance", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES"]
 
 Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
 
@@ -21,9 +21,8 @@ Treatment = Literal["as-welded", "hfmi-treated", "burr-ground"]
 LIMITED_FIGURES = ("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "groove_depth_mm", "groove_width_mm",
                    "groove_radius_mm", "reinforcement_height_mm", "reinforcement_width_mm", "axial_misalignment_mm",
                    "angular_misalignment_deg")
-# a fillet weld's section figures a rule may limit (its toes' as above): each leg, the throat, the
-# face's convexity, the legs' difference (by magnitude)
-FILLET_LIMITED_FIGURES = ("leg_length_mm", "throat_mm", "convexity_mm", "leg_asymmetry_mm")
+# a fillet weld's document figures whose limit is a field of another name: both legs, one limit
+_RULE_FIELD = {"leg_base_mm": "leg_length_mm", "leg_stem_mm": "leg_length_mm"}
 
 
 class FigureLimits(StrictModel):
@@ -80,6 +79,10 @@ class AcceptanceRule(StrictModel):
         "a figure whose measured value lies within this many of its 1-sigma of a limit (on either "
         "side) is 'uncertain' there: listed for a person to look at, neither failed nor passed "
         "silently; the weld passes when no section fails for certain (0: the value alone decides)"))
+
+    def limits(self, figure: str) -> FigureLimits:
+        """The limits of a weld document's figure (a toe's, a section's or a fillet's, by its name)."""
+        return getattr(self, _RULE_FIELD.get(figure, figure))
 
     @field_validator("flank_angle_deg", "angular_misalignment_deg")
     @classmethod

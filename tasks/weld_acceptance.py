@@ -172,8 +172,8 @@ def judge_fillet_weld(sections: list[tuple[str, float, FilletSection]], rule: Ac
         measured = (sec.base_toe is not None and sec.stem_toe is not None
                     and math.isfinite(sec.leg_base.value) and math.isfinite(sec.leg_stem.value))
         if measured:
-            f.add(None, "leg_base_mm", sec.leg_base, rule.leg_length_mm)  # the document's figures, one limit
-            f.add(None, "leg_stem_mm", sec.leg_stem, rule.leg_length_mm)
+            f.add(None, "leg_base_mm", sec.leg_base, rule.limits("leg_base_mm"))  # the document's figures
+            f.add(None, "leg_stem_mm", sec.leg_stem, rule.limits("leg_stem_mm"))
             f.add(None, "throat_mm", sec.throat, rule.throat_mm)
             base, stem = sec.toe_ab_mm("base"), sec.toe_ab_mm("stem")
             face_width = math.hypot(base[0] - stem[0], base[1] - stem[1])

@@ -39,11 +39,8 @@ def figure_value(m: Figure | None) -> tuple[float, float]:
     return float(m.value), math.nan if m.sigma is None else float(m.sigma)
 
 
-_RULE_FIGURE = {"leg_base_mm": "leg_length_mm", "leg_stem_mm": "leg_length_mm"}  # a fillet's legs: one limit
-
-
 def _limits(rule: AcceptanceRule | None, figure: str) -> tuple[float | None, float | None]:
-    limits = None if rule is None else getattr(rule, _RULE_FIGURE.get(figure, figure))
+    limits = None if rule is None else rule.limits(figure)
     return (None, None) if limits is None else (limits.min, limits.max)
 
 
