@@ -30,6 +30,7 @@ from data_catalog.atomic import atomic_directory
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import INTENSITY_MAX, PassWriter
+from data_catalog.paths import not_a_file_reason, path_inside
 from data_catalog.textfiles import read_yaml_mapping
 from schemas.cell import (CellDescription, CellPass, PoseLogFormat, ProfileFormat, orientation_columns,
                           scipy_euler_sequence)
@@ -101,8 +102,9 @@ def load_cell_description(path: str | Path) -> CellDescription:
 def _check_file(path: Path, what: str) -> None:
     """Refuse a missing or empty file, a ``.gz`` that is not gzip, a gzip file or binary data
     under another name, before reading it."""
-    if not path.is_file():
-        raise CellLogError(f"{path}: no such file, expected {what}")
+    reason = not_a_file_reason(path)
+    if reason is not None:
+        raise CellLogError(f"{path}: {reason}, expected {what} as a regular file")
     with open(path, "rb") as handle:
         head = handle.read(4096)
     if not head:
@@ -402,12 +404,11 @@ def import_cell(cell_yaml: str | Path, out_sample: str | Path) -> CellImportSumm
         raise CellLogError(f"{out}: already exists; expected a new folder for the sample (nothing was written)")
     cell = load_cell_description(cell_yaml)
     root = cell_yaml.parent
-    for setup in cell.setups:  # every named file, before any work
-        for cp in setup.passes:
-            for name, kind in ((cp.profiles, "profile file"), (cp.poses, "pose log")):
-                if not (root / name).is_file():
-                    raise CellLogError(f"{root / name}: no such file, expected the {kind} of pass {cp.pass_id} "
-                                       f"(named in {cell_yaml})")
+    for s, setup in enumerate(cell.setups):  # every named file, before any work: inside the folder, regular
+        for p, cp in enumerate(setup.passes):
+            for name, field, kind in ((cp.profiles, "profiles", "profile file"), (cp.poses, "poses", "pose log")):
+                path_inside(root, name, where=f"{cell_yaml}: setups.{s}.passes.{p}.{field}",
+                            what=f"the {kind} of pass {cp.pass_id}", error=CellLogError)
     setups, n_profiles = [], 0
     with atomic_directory(out) as tmp:
         (tmp / "passes").mkdir()

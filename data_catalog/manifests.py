@@ -9,6 +9,7 @@ from pydantic import ValidationError
 
 from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_file
+from data_catalog.paths import path_inside
 from data_catalog.textfiles import read_text_file
 from schemas.manifest import DrawingSpecimen, SampleManifest, ScanEntry
 
@@ -76,15 +77,13 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
         check_drawing_file(root, manifest.specimen)
 
 
-def _refuse_links(root: Path, file: str, where: str, what: str) -> None:
-    """ManifestError when a component of ``root / file`` is a symbolic link."""
-    real_root = root.resolve()
-    for part in [root / Path(*Path(file).parts[:k]) for k in range(1, len(Path(file).parts) + 1)]:
-        if part.is_symlink():
-            target = part.resolve()
-            leaves = real_root not in target.parents and target != real_root
-            raise ManifestError(f"{where}: {part} is a symbolic link{' leading out of the sample folder' if leaves else ''} "
-                                f"(to {target}); a sample must hold its own {what}")
+def _gate(root: Path, file: str, where: str, what: str, *, folder: bool) -> None:
+    """ManifestError (``data_catalog.paths.path_inside``'s line) when ``root / file`` climbs out, goes
+    through a symbolic link or is not a regular file (``folder``: a folder). A missing path is
+    left to the caller."""
+    if not (root / file).exists() and not (root / file).is_symlink():
+        return
+    path_inside(root, file, where=f"{root / MANIFEST_NAME}: {where}", what=what, folder=folder, error=ManifestError)
 
 
 def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entry) -> None:
@@ -92,7 +91,7 @@ def check_pass_file(sample_dir: Path, manifest: SampleManifest, setup: str, entr
     root = Path(sample_dir)
     path = root / entry.file
     where = f"pass {entry.pass_id} (setup {setup})"
-    _refuse_links(root, entry.file, where, "pass files")
+    _gate(root, entry.file, where, f"pass {entry.pass_id}'s store, held in the sample folder itself", folder=True)
     scan = isinstance(entry, ScanEntry)
     meta = path / ("points_mm" if scan else "x_mm") / "zarr.json"
     if meta.is_file() and scan:
@@ -120,10 +119,10 @@ def check_drawing_file(sample_dir: Path, specimen: DrawingSpecimen) -> None:
     root = Path(sample_dir)
     path = root / specimen.file
     where = f"specimen.file {specimen.file}"
-    _refuse_links(root, specimen.file, where, "drawing")
+    _gate(root, specimen.file, where, "the part's drawing (STL or PLY), held in the sample folder itself", folder=False)
     if not path.is_file():
-        raise ManifestError(f"{where}: {path} {'is not a file' if path.exists() else 'does not exist'}; expected the "
-                            "part's drawing (STL or PLY) the manifest names, inside the sample folder")
+        raise ManifestError(f"{where}: {path} does not exist; expected the part's drawing (STL or PLY) the manifest "
+                            "names, inside the sample folder")
     digest = sha256_file(path)
     if digest != specimen.sha256:
         raise ManifestError(f"{where}: {path} has sha256 {digest}, the manifest states specimen.sha256 "

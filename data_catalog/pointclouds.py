@@ -27,6 +27,8 @@ import pye57
 import pypcd4
 from pye57.utils import convert_spherical_to_cartesian
 
+from data_catalog.paths import not_a_file_reason
+
 __all__ = ["UNITS_TO_MM", "POINT_CLOUD_SUFFIXES", "PointCloudFormatError", "ScanCloud", "read_point_clouds",
            "read_point_cloud", "read_conf_poses"]
 
@@ -99,8 +101,11 @@ def read_point_clouds(path: str | Path, *, units: str | None = None) -> list[Sca
         raise ValueError(f"{path}: E57 coordinates are metres by the standard; pass units=None or 'm', not {units!r}")
     if fmt != "e57" and units is None:
         raise ValueError(f"{path}: a .{fmt} file does not say its length unit; pass units='mm', 'cm', 'm' or 'in'")
-    if not path.is_file():
+    reason = not_a_file_reason(path)
+    if reason == "no such file":
         raise FileNotFoundError(f"{path}: no such file")
+    if reason is not None:
+        raise PointCloudFormatError(f"{path}: {reason}, expected a .{fmt} point cloud as a regular file")
     if path.stat().st_size == 0:
         raise PointCloudFormatError(f"{path}: empty file (0 bytes), expected a .{fmt} point cloud")
     gzipped = path.name.lower().endswith(".gz")

@@ -19,6 +19,7 @@ import numpy as np
 
 from data_catalog.atomic import atomic_directory
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
+from data_catalog.paths import not_a_file_reason
 from data_catalog.pointclouds import POINT_CLOUD_SUFFIXES, UNITS_TO_MM, PointCloudFormatError, ScanCloud, read_conf_poses, read_point_clouds
 from data_catalog.scans import write_scan
 from schemas.manifest import MANIFEST_SCHEMA_VERSION, SampleManifest, ScanEntry, Setup, WeldDescription
@@ -159,9 +160,9 @@ def read_scans(files: list[str | Path], out_sample: str | Path, *, units: str | 
     if twice:
         raise ScanImportError(f"{', '.join(twice)}: given twice; expected each scan file once")
     for path in paths:  # every named file, before any work
-        if not path.is_file():
-            raise ScanImportError(f"{path}: {'not a file' if path.exists() else 'no such file'}, expected a point "
-                                  "cloud to import")
+        reason = not_a_file_reason(path)
+        if reason is not None:
+            raise ScanImportError(f"{path}: {reason}, expected a point cloud to import (a regular file)")
     read = [(path, scan) for path in paths for scan in _read(path, units)]
     ids = [_pass_id(_stem(path) if len([1 for p, _ in read if p == path]) == 1 else f"{_stem(path)}-{scan.scan_name}")
            for path, scan in read]
@@ -172,8 +173,9 @@ def read_scans(files: list[str | Path], out_sample: str | Path, *, units: str | 
     T: list[np.ndarray | None] = [None] * len(read)
     if poses is not None:
         conf = Path(poses)
-        if not conf.is_file():
-            raise ScanImportError(f"{conf}: no such file, expected the scans' poses (.conf)")
+        reason = not_a_file_reason(conf)
+        if reason is not None:
+            raise ScanImportError(f"{conf}: {reason}, expected the scans' poses (.conf) as a regular file")
         if units is None:
             raise ScanImportError(f"{conf}: the .conf does not say its length unit; give --units (that of the scans)")
         try:

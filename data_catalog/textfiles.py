@@ -9,6 +9,8 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from data_catalog.paths import not_a_file_reason
+
 __all__ = ["read_text_file", "read_yaml_mapping", "read_yaml_model"]
 
 M = TypeVar("M", bound=BaseModel)
@@ -18,6 +20,9 @@ def read_text_file(path: str | Path, expected: str, error: type[Exception] = Val
                    missing: str | None = None) -> str:
     """The UTF-8 text of ``path``; ``error`` naming the file and ``expected`` (what it should be)
     when it is missing (``missing``: the words for that), a folder, not UTF-8 or unreadable."""
+    reason = not_a_file_reason(path)
+    if reason not in (None, "no such file", "a folder"):  # a FIFO or a device would block or never end
+        raise error(f"{path}: {reason}, expected {expected} as a regular file")
     try:
         return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:

@@ -76,8 +76,10 @@ def _check_orientation(value: str) -> str:
 
 
 def _check_relative(value: str) -> str:
-    if not value or PurePosixPath(value).is_absolute() or "\\" in value:
+    if not value or PurePosixPath(value).is_absolute() or "\\" in value or value.startswith("~"):
         raise ValueError(f"{value!r}: expected a relative POSIX path (resolved against the CELL.yaml's folder)")
+    if ".." in PurePosixPath(value).parts:
+        raise ValueError(f"{value!r} climbs out of the CELL.yaml's folder ('..'); expected a path inside it")
     return value
 
 

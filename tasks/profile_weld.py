@@ -19,7 +19,10 @@ any order. Per profile:
 - the toe radius is resolved when the radii the points allow (the profile likelihood,
   ``tasks.weld_fits.toe_radius_range``, at ``bound_sigmas``) exclude both a sharp corner and the
   fit's 10 mm ceiling, and the fitted radius is at least the point spacing and above its 1-sigma;
-  otherwise it is reported as "below X", X the largest radius the points allow, never as a number;
+  otherwise it is reported as "below X", X the largest radius the points allow, never as a number,
+  and the toe is fitted again with its radius held at the smallest the points allow (a sharp corner
+  where they allow one): its position, angle and undercut are that fit's
+  (``tasks.weld_fits.toe_at_radius``), so that a radius the points cannot tell is not what sets them;
 - reinforcement height over the line between the toes on their plates
   (``tasks.weld_geometry.peak_rise``), width between the toes, misalignment of the plates at the
   weld's centre.
@@ -33,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe,
+from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, toe_at_radius,
                              toe_radius_range)
 from tasks.weld_geometry import SectionMeasurement, peak_rise
 
@@ -214,6 +217,8 @@ def measure_profile(u: np.ndarray, h: np.ndarray, *, settings: ProfileSettings, 
         if not (lowest > _R_FLOOR_MM * 1.05 and highest < _R_CEILING_MM * 0.95 and raw.value >= spacing
                 and raw.sigma < raw.value):
             below, radius = round(float(max(highest, spacing)), 4), none
+            if math.isfinite(lowest):
+                fit = toe_at_radius(v, rel, settings=fitting, toe_guess_v=guess, fit=fit, radius_mm=lowest)
         fit = ToeFit(side=side, position_u_mm=centre + sign * fit.position_u_mm,
                      position_sigma_mm=fit.position_sigma_mm * factor,
                      flank_angle_deg=_scaled(fit.flank_angle_deg, factor), notch_radius=radius,

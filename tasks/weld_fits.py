@@ -29,7 +29,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 __all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
-           "fit_groove", "propagate", "toe_radius_range", "running_median"]
+           "fit_groove", "propagate", "toe_radius_range", "toe_at_radius", "running_median"]
 
 _NAN = float("nan")
 _R_MIN_MM, _R_MAX_MM = 0.02, 10.0  # the toe fillet's radius is fitted between these
@@ -315,17 +315,14 @@ def fit_toe(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, side: st
                   groove=None, rms_mm=rms, n_points=len(w))
 
 
-def toe_radius_range(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, toe_guess_v: float, fit: ToeFit,
-                     threshold_mm2: float) -> tuple[float, float]:
-    """The toe radii the points allow (mm): those whose best fit, the other parameters refitted,
-    has a sum of squared residuals at most ``threshold_mm2`` over the best fit's (a profile
-    likelihood; ``threshold_mm2`` = sigmas^2 x the residuals' variance). ``v``, ``h``,
-    ``settings``, ``toe_guess_v`` as given to ``fit_toe``, ``fit`` its result. A lowest radius of
-    0.02 mm (the fit's bound): the points cannot tell the toe from a sharp corner; the highest is
-    then the radius they cannot exclude."""
+def _fixed_radius_fit(v: np.ndarray, h: np.ndarray, settings: SectionSettings, toe_guess_v: float, fit: ToeFit):
+    """``fit_toe``'s model with the radius held: (the fitted points' w, z, whether an undercut is
+    fitted, fit(r) -> the least_squares result with every other parameter refitted at radius r
+    (its x the whole parameter vector)); None: too few points. Starts at ``fit``, the flank's
+    curvature at the flank points' own parabola."""
     found = _toe_window(v, h, settings, toe_guess_v)
     if found is None:
-        return _NAN, _NAN
+        return None
     w, z, undercut = found
     flank, plate_v = (w < fit.position_u_mm), w > fit.position_u_mm + 0.2
     k0 = 0.0 if flank.sum() < 3 else max(0.0, -float(np.polyfit(w[flank], z[flank], 2)[0]))
@@ -335,15 +332,40 @@ def toe_radius_range(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings,
     if undercut and plate_v.any():
         start[4] = min(max(fit.undercut_depth.value, 0.0), 1.99)
     free = [i for i in range(len(start)) if i != 2]
+    lo_free, hi_free = np.take(lo, free), np.take(hi, free)
 
-    def rss(r: float) -> float:
+    def at(r: float):
         def resid(q):
             p = start.copy()
             p[free] = q
             p[2] = r
             return _toe_model(p, w, undercut) - z
-        q0 = np.clip(start[free], np.add(np.take(lo, free), 1e-9), np.subtract(np.take(hi, free), 1e-9))
-        res = least_squares(resid, q0, bounds=(np.take(lo, free), np.take(hi, free)), x_scale="jac")
+        res = least_squares(resid, np.clip(start[free], lo_free + 1e-9, hi_free - 1e-9), bounds=(lo_free, hi_free),
+                            x_scale="jac")
+        x = start.copy()
+        x[free] = res.x
+        x[2] = r
+        res.x = x
+        return res
+
+    return w, z, undercut, start, at
+
+
+def toe_radius_range(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, toe_guess_v: float, fit: ToeFit,
+                     threshold_mm2: float) -> tuple[float, float]:
+    """The toe radii the points allow (mm): those whose best fit, the other parameters refitted,
+    has a sum of squared residuals at most ``threshold_mm2`` over the best fit's (a profile
+    likelihood; ``threshold_mm2`` = sigmas^2 x the residuals' variance). ``v``, ``h``,
+    ``settings``, ``toe_guess_v`` as given to ``fit_toe``, ``fit`` its result. A lowest radius of
+    0.02 mm (the fit's bound): the points cannot tell the toe from a sharp corner; the highest is
+    then the radius they cannot exclude."""
+    held = _fixed_radius_fit(v, h, settings, toe_guess_v, fit)
+    if held is None:
+        return _NAN, _NAN
+    w, z, undercut, start, at = held
+
+    def rss(r: float) -> float:
+        res = at(r)
         return float(res.fun @ res.fun)
 
     r_hat = float(np.clip(fit.notch_radius.value, _R_MIN_MM, _R_MAX_MM))
@@ -362,6 +384,26 @@ def toe_radius_range(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings,
         return inside
 
     return edge(r_hat, _R_MIN_MM), edge(r_hat, _R_MAX_MM)
+
+
+def toe_at_radius(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, toe_guess_v: float, fit: ToeFit,
+                  radius_mm: float) -> ToeFit:
+    """``fit`` (``fit_toe``'s result on ``v``, ``h``, ``settings``, ``toe_guess_v``) refitted with
+    its radius held at ``radius_mm``: its position, flank angle and undercut are the held fit's, their
+    1-sigma ``fit``'s (which hold the radius's own spread). For a toe whose radius the points do not
+    resolve: a radius they cannot tell apart otherwise must not steer its angle (at a 10 deg flank
+    the fillet's radius is free from a sharp corner to several mm, and a wider fillet is fitted with
+    a steeper flank: the free fit's angle runs 1-2 deg high under the real scans' noise)."""
+    held = _fixed_radius_fit(v, h, settings, toe_guess_v, fit)
+    if held is None:
+        return fit
+    w, z, undercut, _, at = held
+    p = at(float(np.clip(radius_mm, _R_MIN_MM, _R_MAX_MM))).x
+    return ToeFit(side=fit.side, position_u_mm=float(p[0]), position_sigma_mm=fit.position_sigma_mm,
+                  flank_angle_deg=Measured(math.degrees(p[1]), fit.flank_angle_deg.sigma),
+                  notch_radius=fit.notch_radius,
+                  undercut_depth=Measured(float(p[4]), fit.undercut_depth.sigma) if undercut else fit.undercut_depth,
+                  groove=None, rms_mm=fit.rms_mm, n_points=fit.n_points, note=fit.note)
 
 
 def _circle_residuals(p: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:

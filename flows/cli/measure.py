@@ -68,13 +68,13 @@ def _cmd_measure_weld(args: argparse.Namespace) -> int:
             raise ValueError(f"--step-mm {args.step_mm:g}: {exc.errors()[0]['msg']}") from None
         config = config.model_copy(update={"step_mm": step})
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     failed = []
     for scan in args.scans:
         measured = measure_scan_weld(scan, units=args.units, line=line, joint=_JOINTS[args.joint],
                                      treatment=_TREATMENTS[args.treatment], config=config)
         document, problems = measured.document, measured.problems
         path = out / f"{Path(scan).name}.weld.json"
+        out.mkdir(parents=True, exist_ok=True)  # only once a scan is measured: a refused one leaves nothing
         atomic_write_text(path, document.model_dump_json(indent=1))
         atomic_write_text(path.with_suffix(".html"), scan_weld_page(measured))
         g, toes = document.geometry, document.toes

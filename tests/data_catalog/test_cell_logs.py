@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 import shutil
+import socket
 from pathlib import Path
 
 import numpy as np
@@ -305,6 +307,40 @@ def _bad_cases():
     def yaml_problems(cell):
         _edit_yaml(cell, lambda raw: (raw.pop("sample_id"), raw.update(colour="red"),
                                       raw["scanner"].update(points_per_profile=-1)))
+    def _profiles_named(name):
+        def change(raw):
+            raw["setups"][0]["passes"][0]["profiles"] = name
+        return change
+    def climbing_profiles(cell):  # a file beside the cell folder, named through '..'
+        (cell.parent / "secret.csv").write_text("SECRET-LINE-1,2,3\n")
+        _edit_yaml(cell, _profiles_named("../secret.csv"))
+    def climbing_to_passwd(cell):
+        _edit_yaml(cell, _profiles_named("profiles/../../../../../../../../etc/passwd"))
+    def absolute_profiles(cell):
+        _edit_yaml(cell, _profiles_named("/etc/passwd"))
+    def home_profiles(cell):
+        _edit_yaml(cell, _profiles_named("~/profiles.csv"))
+    def linked_profiles(cell):  # a link inside the folder to a file outside it
+        (cell.parent / "secret.csv").write_text("SECRET-LINE-1,2,3\n")
+        (cell / A).unlink()
+        (cell / A).symlink_to(cell.parent / "secret.csv")
+    def linked_folder(cell):  # the profiles' folder itself a link (to a copy of itself, outside)
+        shutil.copytree(cell / "profiles", cell.parent / "elsewhere")
+        shutil.rmtree(cell / "profiles")
+        (cell / "profiles").symlink_to(cell.parent / "elsewhere")
+    def fifo_profiles(cell):
+        (cell / A).unlink()
+        os.mkfifo(cell / A)
+    def folder_as_poses(cell):
+        (cell / B).unlink()
+        (cell / B).mkdir()
+    def socket_poses(cell):
+        (cell / B).unlink()
+        sock = socket.socket(socket.AF_UNIX)
+        sock.bind(str(cell / B))
+        sock.close()
+    def file_as_folder(cell):
+        _edit_yaml(cell, _profiles_named("profiles/top-A.csv/inner.csv"))
     return {
         "wrong column count": (drop_last_field, f"{{cell}}/{A}: line 3: 24 columns (csv-separated), expected 25: the "
                                "time, then X, Z, intensity for each of the scanner's 8 points"),
@@ -364,8 +400,38 @@ def _bad_cases():
                                         "expected a linear sweep"),
         "an impossible sweep": (micrometres, f"{{cell}}/{B}: pass top-A's sweep, from its poses and times, is not a "
                                 "scan's: speed_mm_s: Input should be less than or equal to 1000"),
-        "a missing pose log": (missing_pose_log, f"{{cell}}/{B}: no such file, expected the pose log of pass top-A "
-                               "(named in {cell}/CELL.yaml)"),
+        "a missing pose log": (missing_pose_log, "{cell}/CELL.yaml: setups.0.passes.0.poses: "
+                               f"'{B}': no such file in {{cell}}; expected the pose log of pass top-A"),
+        "a profile path climbing out of the folder": (
+            climbing_profiles, "{cell}/CELL.yaml: setups.0.passes.0.profiles: '../secret.csv' climbs out of the "
+            "CELL.yaml's folder ('..'); expected a path inside it (found '../secret.csv')"),
+        "a profile path climbing to /etc/passwd": (
+            climbing_to_passwd, "{cell}/CELL.yaml: setups.0.passes.0.profiles: 'profiles/../../../../../../../../etc/"
+            "passwd' climbs out of the CELL.yaml's folder ('..'); expected a path inside it (found "
+            "'profiles/../../../../../../../../etc/passwd')"),
+        "an absolute profile path": (absolute_profiles, "{cell}/CELL.yaml: setups.0.passes.0.profiles: '/etc/passwd': "
+                                     "expected a relative POSIX path (resolved against the CELL.yaml's folder) "
+                                     "(found '/etc/passwd')"),
+        "a profile path in the home folder": (home_profiles, "{cell}/CELL.yaml: setups.0.passes.0.profiles: "
+                                              "'~/profiles.csv': expected a relative POSIX path (resolved against the "
+                                              "CELL.yaml's folder) (found '~/profiles.csv')"),
+        "a profile file that is a link out of the folder": (
+            linked_profiles, f"{{cell}}/CELL.yaml: setups.0.passes.0.profiles: '{A}': {A} is a symbolic link; expected "
+            "the profile file of pass top-A held in {cell} itself (a link may lead anywhere; it is not followed)"),
+        "a profiles folder that is a link": (
+            linked_folder, f"{{cell}}/CELL.yaml: setups.0.passes.0.profiles: '{A}': profiles is a symbolic link; "
+            "expected the profile file of pass top-A held in {cell} itself (a link may lead anywhere; it is not "
+            "followed)"),
+        "a profile file that is a FIFO": (fifo_profiles, f"{{cell}}/CELL.yaml: setups.0.passes.0.profiles: '{A}' is "
+                                          "a named pipe (FIFO); expected the profile file of pass top-A as a regular "
+                                          "file"),
+        "a pose log that is a folder": (folder_as_poses, f"{{cell}}/CELL.yaml: setups.0.passes.0.poses: '{B}' is a "
+                                        "folder; expected the pose log of pass top-A as a regular file"),
+        "a pose log that is a socket": (socket_poses, f"{{cell}}/CELL.yaml: setups.0.passes.0.poses: '{B}' is a "
+                                        "socket; expected the pose log of pass top-A as a regular file"),
+        "a path through a file": (file_as_folder, "{cell}/CELL.yaml: setups.0.passes.0.profiles: "
+                                  f"'{A}/inner.csv': {A} is a regular file, not a folder; expected the profile file "
+                                  "of pass top-A"),
         "CELL.yaml problems": (yaml_problems, "{cell}/CELL.yaml: sample_id: Field required\n"
                                "{cell}/CELL.yaml: scanner.points_per_profile: Input should be greater than 0 (found -1)\n"
                                "{cell}/CELL.yaml: colour: Extra inputs are not permitted (found 'red')"),
@@ -391,6 +457,7 @@ def test_bad_input_is_refused_in_one_line_and_nothing_is_written(case, tmp_path)
         assert "\n" not in message
     else:
         assert message == expected
+    assert "SECRET" not in message and "root:" not in message  # nothing read from outside the folder
     assert list((tmp_path / "out").iterdir()) == []  # neither the sample nor a temporary folder
 
 

@@ -133,11 +133,11 @@ def test_bad_sample_folders_are_refused_before_any_work(ci_sample, tmp_path, cas
         first = sample / _first_pass(json.loads((sample / "manifest.json").read_text()))["file"]
         shutil.move(first, outside)
         first.symlink_to(outside)
-        expect = "symbolic link leading out of the sample folder"
+        expect = "is a symbolic link; expected pass "
     elif case == "symlink-dir":
         shutil.move(sample / "passes", outside)
         (sample / "passes").symlink_to(outside)
-        expect = "symbolic link leading out of the sample folder"
+        expect = "is a symbolic link; expected pass "
     elif case == "absurd-size":
         _edit_manifest(sample, lambda m: [p.update(n_profiles=9_000_000) for s in m["setups"] for p in s["passes"]])
         expect = "that is not a scan of one specimen"
