@@ -31,6 +31,7 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import INTENSITY_MAX, PassWriter
 from data_catalog.paths import not_a_file_reason, path_inside
+from data_catalog.pointclouds import MAX_POSE_REACH_MM
 from data_catalog.textfiles import read_yaml_mapping
 from schemas.cell import (CellDescription, CellPass, PoseLogFormat, ProfileFormat, orientation_columns,
                           scipy_euler_sequence)
@@ -243,6 +244,13 @@ def _check_position_units(path: Path, fmt: PoseLogFormat, lines: np.ndarray, pos
         raise CellLogError(f"{path}: lines {lines[0]}-{lines[-1]}, columns {x + 1}, {y + 1}, {z + 1} (x, y, z): "
                            f"positions up to {reach:.4g} m from the robot's origin; expected metres as "
                            "pose_format.units says (no cell is 50 m across: are they mm?)")
+    scale = 1000.0 if fmt.units == "m" else 1.0
+    far = np.abs(position).max(axis=1) * scale > MAX_POSE_REACH_MM
+    if far.any():  # one wild line among sane ones: a typo or a corrupted log, never a pose
+        k = int(np.argmax(far))
+        raise CellLogError(f"{path}: line {lines[k]}, columns {x + 1}, {y + 1}, {z + 1} (x, y, z): a position "
+                           f"{float(np.abs(position[k]).max()):.4g} {fmt.units} from the robot's origin; expected "
+                           f"within {MAX_POSE_REACH_MM / 1000:g} m of it (no cell is larger)")
 
 
 def _rotations(path: Path, fmt: PoseLogFormat, lines: np.ndarray, table: np.ndarray,
@@ -446,13 +454,18 @@ def _import_pass(cell: CellDescription, root: Path, cp: CellPass, sample: Path) 
     store = sample / "passes" / f"{cp.pass_id}.zarr"
     writer = PassWriter(store, pass_id=cp.pass_id, n_profiles=len(lines), n_columns=cell.scanner.points_per_profile,
                         chunk_profiles=CHUNK_PROFILES, with_poses=True)
-    start = 0
+    start, returns = 0, 0
     for x_mm, z_mm, intensity in profiles.blocks(cell.scanner.z_range_mm):
         stop = start + len(x_mm)
+        returns += int(np.count_nonzero(np.isfinite(z_mm)))
         writer.write(start, x_mm=x_mm, z_mm=z_mm, intensity=intensity, timestamp_s=timestamp_s[start:stop],
                      T_world_flange=T_world_flange[start:stop])
         start = stop
     writer.close()
+    if returns == 0:
+        raise CellLogError(f"{profiles.path}: pass {cp.pass_id}: every point of its {len(lines)} profiles is a no-return "
+                           f"(profile_format.no_return {cell.profile_format.no_return!r}); expected a pass that saw "
+                           "the part")
     try:
         return PassEntry(pass_id=cp.pass_id, file=f"passes/{cp.pass_id}.zarr", direction=cp.direction,
                          n_profiles=len(lines), duration_s=float(timestamp_s[-1]),

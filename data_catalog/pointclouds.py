@@ -29,7 +29,9 @@ from pye57.utils import convert_spherical_to_cartesian
 
 from data_catalog.paths import not_a_file_reason
 
-__all__ = ["UNITS_TO_MM", "POINT_CLOUD_SUFFIXES", "PointCloudFormatError", "ScanCloud", "read_point_clouds",
+MAX_POSE_REACH_MM = 50_000.0  # a scan's pose: no scanning set-up is 50 m across
+
+__all__ = ["UNITS_TO_MM", "MAX_POSE_REACH_MM", "POINT_CLOUD_SUFFIXES", "PointCloudFormatError", "ScanCloud", "read_point_clouds",
            "read_point_cloud", "read_conf_poses"]
 
 UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
@@ -444,6 +446,11 @@ def read_conf_poses(path: str | Path, *, units: str) -> dict[str, np.ndarray]:
         T = np.eye(4)
         T[:3, :3] = R.T
         T[:3, 3] = values[:3] * UNITS_TO_MM[units]
+        far = float(np.abs(T[:3, 3]).max())
+        if far > MAX_POSE_REACH_MM:
+            raise PointCloudFormatError(f"{path}: line {number}: {fields[1]}'s translation reaches {far:.4g} mm from the "
+                                        f"origin (read in {units}); expected a pose within {MAX_POSE_REACH_MM / 1000:g} m "
+                                        "of it (no scanning set-up is larger)")
         poses[fields[1]] = T
     if not poses:
         raise PointCloudFormatError(f"{path}: no 'bmesh FILE tx ty tz qx qy qz qw' line, expected one per scan")

@@ -10,7 +10,7 @@ from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from schemas.common import StrictModel
+from schemas.common import InputModel
 
 __all__ = ["FigureLimits", "Allowance", "AcceptanceRule", "AcceptanceLimits", "LIMITED_FIGURES"]
 
@@ -25,7 +25,7 @@ LIMITED_FIGURES = ("toe_radius_mm", "flank_angle_deg", "undercut_depth_mm", "gro
 _RULE_FIELD = {"leg_base_mm": "leg_length_mm", "leg_stem_mm": "leg_length_mm"}
 
 
-class FigureLimits(StrictModel):
+class FigureLimits(InputModel):
     """Inclusive bounds of one figure, in its unit; None: not limited on that side."""
 
     min: float | None = Field(default=None, ge=0)
@@ -38,7 +38,7 @@ class FigureLimits(StrictModel):
         return self
 
 
-class Allowance(StrictModel):
+class Allowance(InputModel):
     """A limit that grows with the weld's size, as ISO 5817 writes many: ``base_mm`` + ``per_mm`` x
     a size of the section (mm)."""
 
@@ -49,7 +49,7 @@ class Allowance(StrictModel):
         return self.base_mm + self.per_mm * size_mm
 
 
-class AcceptanceRule(StrictModel):
+class AcceptanceRule(InputModel):
     joint: str = Field(min_length=1, description="the manifest's weld.joint, e.g. 'double-sided butt'")
     treatment: Treatment
     source: str = Field(min_length=1, description="where the limits come from, in words")
@@ -93,7 +93,7 @@ class AcceptanceRule(StrictModel):
         return value
 
 
-class AcceptanceLimits(StrictModel):
+class AcceptanceLimits(InputModel):
     schema_version: Literal["1.0"] = "1.0"
     rules: list[AcceptanceRule] = Field(min_length=1)
 

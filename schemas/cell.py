@@ -16,7 +16,7 @@ from typing import Literal
 from pydantic import AfterValidator, Field, model_validator
 from typing_extensions import Annotated
 
-from schemas.common import AwareDatetime, Pose4x4, StrictModel
+from schemas.common import AwareDatetime, InputModel, Pose4x4
 from schemas.manifest import _ID_PATTERN, ScannerSettings, SpecimenGeometry, WeldDescription
 
 __all__ = ["ROTATION_CONVENTIONS", "EULER_PATTERN", "orientation_columns", "scipy_euler_sequence", "XGrid",
@@ -86,7 +86,7 @@ def _check_relative(value: str) -> str:
 LogFile = Annotated[str, AfterValidator(_check_relative)]
 
 
-class XGrid(StrictModel):
+class XGrid(InputModel):
     """The fixed X positions of a ``z_grid`` profile, mm, sensor frame S: point i at
     ``x0_mm + i * spacing_mm``; without ``x0_mm`` the grid is centred on S's z axis
     (``x0_mm = -(points_per_profile - 1) / 2 * spacing_mm``)."""
@@ -95,7 +95,7 @@ class XGrid(StrictModel):
     x0_mm: float | None = None
 
 
-class ProfileFormat(StrictModel):
+class ProfileFormat(InputModel):
     """How the scanner's profile file is written: one profile per line.
 
     ``xzi``: the profile's time, then X, Z, intensity for each of the scanner's
@@ -127,7 +127,7 @@ class ProfileFormat(StrictModel):
         return self
 
 
-class PoseLogFormat(StrictModel):
+class PoseLogFormat(InputModel):
     """How the robot's pose log is written: one pose per line, ``columns`` naming each column
     in the file's order: ``time``, ``x``, ``y``, ``z`` (the position) and the rotation's columns
     (``orientation_columns``); ``pose_of`` says whether the pose is the flange's or the TCP's."""
@@ -156,14 +156,14 @@ class PoseLogFormat(StrictModel):
         return self
 
 
-class CellPass(StrictModel):
+class CellPass(InputModel):
     pass_id: str = Field(pattern=_ID_PATTERN)
     profiles: LogFile
     poses: LogFile
     direction: str = Field(min_length=1, max_length=64, pattern=r"\S")
 
 
-class CellSetup(StrictModel):
+class CellSetup(InputModel):
     """One placement of the specimen (as in ``schemas.manifest.Setup``), its passes' log files."""
 
     name: str = Field(pattern=_ID_PATTERN)
@@ -173,7 +173,7 @@ class CellSetup(StrictModel):
     placement_tolerance_mm: float = Field(default=0.0, ge=0, le=1000)
 
 
-class CellDescription(StrictModel):
+class CellDescription(InputModel):
     """``CELL.yaml``: the sample and how its cell wrote its logs. ``time_offset_s``: added to a
     profile's time (the scanner's clock, s) to give the robot clock's time of the same instant.
     ``T_flange_tcp``: the TCP in the flange frame, required when the pose log gives the TCP's
@@ -203,4 +203,12 @@ class CellDescription(StrictModel):
         names = [s.name for s in self.setups]
         if len(set(names)) != len(names):
             raise ValueError(f"setup names must be unique, got {names}")
+        first: dict[str, str] = {}
+        for s in self.setups:
+            for p in s.passes:
+                key = str(PurePosixPath(p.profiles))
+                if key in first:  # one sweep's profiles read twice, as two passes: never a scan
+                    raise ValueError(f"pass {p.pass_id} names the profile file {p.profiles!r} of pass {first[key]}; "
+                                     "expected each pass its own profile file")
+                first[key] = p.pass_id
         return self

@@ -8,7 +8,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict
 
-__all__ = ["StrictModel", "Pose4x4", "Vector3", "FloatRange", "AwareDatetime", "check_rigid_pose"]
+__all__ = ["StrictModel", "InputModel", "Pose4x4", "Vector3", "FloatRange", "AwareDatetime", "check_rigid_pose"]
 
 _ROTATION_TOLERANCE = 1e-6
 
@@ -17,6 +17,14 @@ class StrictModel(BaseModel):
     """Base of every weldrecon schema: unknown fields are errors, instances are immutable."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class InputModel(StrictModel):
+    """A StrictModel a person writes (settings, acceptance limits, a cell's description): no NaN or
+    infinity in any number (a limit of ``.inf`` or a time offset of ``.nan`` is a typo, never a
+    setting; pydantic names the field)."""
+
+    model_config = ConfigDict(allow_inf_nan=False)
 
 
 def check_rigid_pose(value: list[list[float]]) -> list[list[float]]:

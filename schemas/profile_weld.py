@@ -11,14 +11,14 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from schemas.common import StrictModel
+from schemas.common import InputModel, StrictModel
 from schemas.reconstruction import WeldGeometryConfig
 from schemas.weld_document import WeldGeometry
 
 __all__ = ["MeasureWeldConfig", "ScanSource", "ScanWeldLine", "ScanToe", "ScanWeld"]
 
 
-class MeasureWeldConfig(StrictModel):
+class MeasureWeldConfig(InputModel):
     """How a scan's weld is read (``tasks.profile_weld``, ``tasks.scan_weld``), mm."""
 
     min_rise_mm: float = Field(default=0.3, gt=0, le=50, description=(

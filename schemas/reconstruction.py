@@ -8,13 +8,13 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from schemas.acceptance import AcceptanceLimits
-from schemas.common import StrictModel, Vector3
+from schemas.common import InputModel, Vector3
 
 __all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
            "MergeConfig", "SegmentConfig", "PoissonConfig", "WeldGeometryConfig", "VolumeConfig", "QaReportConfig", "ReconstructionConfig"]
 
 
-class DenoiseConfig(StrictModel):
+class DenoiseConfig(InputModel):
     """Statistical outlier removal on the organized pass (Rusu 2008), then each kept point's
     normal from its grid neighbours (the normals travel through the merge to the mesh)."""
 
@@ -31,13 +31,13 @@ class DenoiseConfig(StrictModel):
         "from this many nearest points, turned toward the scan's view direction"))
 
 
-class TargetsConfig(StrictModel):
+class TargetsConfig(InputModel):
     max_rms_mm: float = Field(default=0.08, gt=0, le=1)
     min_rim_coverage: float = Field(default=0.85, gt=0, le=1)
     radius_tolerance: float = Field(default=0.1, gt=0, lt=1)
 
 
-class RegistrationConfig(StrictModel):
+class RegistrationConfig(InputModel):
     min_common_targets: int = Field(default=3, ge=3)
     max_offset_mm: float = Field(default=3.0, gt=0, le=100, description="coarse alignment error bound")
     tolerance_mm: float = Field(default=0.3, gt=0, le=5)
@@ -46,7 +46,7 @@ class RegistrationConfig(StrictModel):
         "distances agree fit some rigid motion, so 3 is no evidence"))
 
 
-class SurfaceRegistrationConfig(StrictModel):
+class SurfaceRegistrationConfig(InputModel):
     """Registration of imported scans on their surfaces alone (``registration: surfaces``;
     ``tasks.surface_registration``). Given poses: refined together, coarse to fine, one level per
     gate of ``gates_given_mm`` (the first above the poses' worst error at a point). No poses:
@@ -89,7 +89,7 @@ class SurfaceRegistrationConfig(StrictModel):
         return self
 
 
-class RefineConfig(StrictModel):
+class RefineConfig(InputModel):
     """Joint refinement of the pass poses on targets and overlapping surfaces (tasks.refine).
     Off, the poses are the paper's: targets alone."""
 
@@ -126,7 +126,7 @@ class RefineConfig(StrictModel):
         return self
 
 
-class MergeConfig(StrictModel):
+class MergeConfig(InputModel):
     """Box-grid merge at ``cell_mm`` where the surface bends, at ``coarse_factor`` times that where
     it is flat (non-uniform resolution; 1: uniform, the paper's)."""
 
@@ -145,7 +145,7 @@ class MergeConfig(StrictModel):
         "(needs the setups' T_world_specimen_nominal, else curvature alone decides)"))
 
 
-class SegmentConfig(StrictModel):
+class SegmentConfig(InputModel):
     """Two setups: the components holding the stickers seen in both are the part. One setup: the
     fixture's plane, the part's drawing box where the setup puts it, one body of its size
     (``tasks.single_setup``); the fields below ``link_mm`` are for that case."""
@@ -167,7 +167,7 @@ class SegmentConfig(StrictModel):
         "out to its bounding cube: no watertight mesh)"))
 
 
-class PoissonConfig(StrictModel):
+class PoissonConfig(InputModel):
     poisson_depth: int = Field(default=12, ge=4, le=14, description="octree depth (paper: 12)")
     samples_per_node: float = Field(default=1.5, gt=0, le=50)
     point_weight: float = Field(default=4.0, ge=0, le=100)
@@ -176,7 +176,7 @@ class PoissonConfig(StrictModel):
         "specimen's ends) close inside it instead of being cut open"))
 
 
-class WeldGeometryConfig(StrictModel):
+class WeldGeometryConfig(InputModel):
     """The weld measured on the specimen's merged points (``tasks.weld_geometry``): sections
     across each of the manifest's weld lines, fits per toe, judged against ``acceptance``."""
 
@@ -220,7 +220,7 @@ class WeldGeometryConfig(StrictModel):
         return self
 
 
-class VolumeConfig(StrictModel):
+class VolumeConfig(InputModel):
     """The FE model: tetrahedra filling the mesh (gmsh), graded toward the weld (``tasks.volume_mesh``).
     Surface elements of ``weld_size_mm`` within ``weld_zone_mm`` of the weld lines (the cap, its
     toes and an HFMI groove), growing by ``growth`` mm per mm beyond, ``size_mm`` at most; inside,
@@ -256,7 +256,7 @@ class VolumeConfig(StrictModel):
         "volume.json and the report; the run publishes the rest)"))
 
 
-class StressConfig(StrictModel):
+class StressConfig(InputModel):
     """The stress at the weld toes (``flows.stages.stress``): 2-D plane-strain models of the part's
     cross-sections across the weld, pulled along their length as the fatigue test pulls the part
     (``tasks.section_model``), made from the measured points (``tasks.plate_section``)."""
@@ -313,7 +313,7 @@ class StressConfig(StrictModel):
         return self
 
 
-class QaReportConfig(StrictModel):
+class QaReportConfig(InputModel):
     """The sample's QA report (``report.html``, ``flows.stages.qa_report``): how finely its maps
     are gridded and how much of the data its pictures show."""
 
@@ -328,7 +328,7 @@ class QaReportConfig(StrictModel):
         "the mesh is simplified to at most this many triangles for its renderings (quadric edge collapse)"))
 
 
-class ReconstructionConfig(StrictModel):
+class ReconstructionConfig(InputModel):
     schema_version: Literal["1.0"] = "1.0"
     denoise: DenoiseConfig = DenoiseConfig()
     targets: TargetsConfig = TargetsConfig()

@@ -301,7 +301,7 @@ def _bad_cases():
         _edit_line(cell / B, 4, _set_field(1, "100.000"))
     def micrometres(cell):
         for k in (2, 3, 4):
-            _edit_line(cell / B, k, _set_field(1, f"{1e5 + 1e3 * (k - 2):.3f}"))
+            _edit_line(cell / B, k, _set_field(1, f"{1e4 + 1e3 * (k - 2):.3f}"))
     def missing_pose_log(cell):
         (cell / B).unlink()
     def yaml_problems(cell):
@@ -341,6 +341,17 @@ def _bad_cases():
         sock.close()
     def file_as_folder(cell):
         _edit_yaml(cell, _profiles_named("profiles/top-A.csv/inner.csv"))
+    def pose_far_away(cell):
+        _edit_line(cell / B, 3, _set_field(1, "1e300"))
+    def nan_time_offset(cell):
+        _edit_yaml(cell, lambda raw: raw.update(time_offset_s=float("nan")))
+    def inf_time_offset(cell):
+        _edit_yaml(cell, lambda raw: raw.update(time_offset_s=float("inf")))
+    def one_profile_file_twice(cell):
+        _edit_yaml(cell, lambda raw: raw["setups"][0]["passes"][1].update(profiles=A))
+    def no_return_at_all(cell):
+        rows = [line.split(",")[0] + ",0,0,0" * 8 for line in (cell / A).read_text().splitlines()]
+        (cell / A).write_text("\n".join(rows) + "\n")
     return {
         "wrong column count": (drop_last_field, f"{{cell}}/{A}: line 3: 24 columns (csv-separated), expected 25: the "
                                "time, then X, Z, intensity for each of the scanner's 8 points"),
@@ -429,6 +440,18 @@ def _bad_cases():
                                         "folder; expected the pose log of pass top-A as a regular file"),
         "a pose log that is a socket": (socket_poses, f"{{cell}}/CELL.yaml: setups.0.passes.0.poses: '{B}' is a "
                                         "socket; expected the pose log of pass top-A as a regular file"),
+        "a pose 1e300 mm away": (pose_far_away, f"{{cell}}/{B}: line 3, columns 2, 3, 4 (x, y, z): a position 1e+300 mm "
+                                 "from the robot's origin; expected within 50 m of it (no cell is larger)"),
+        "a NaN time offset": (nan_time_offset, "{cell}/CELL.yaml: time_offset_s: Input should be a finite number "
+                              "(found nan)"),
+        "an infinite time offset": (inf_time_offset, "{cell}/CELL.yaml: time_offset_s: Input should be a finite "
+                                    "number (found inf)"),
+        "one profile file for two passes": (
+            one_profile_file_twice, "{cell}/CELL.yaml: (top level): pass top-B names the profile file "
+            f"'{A}' of pass top-A; expected each pass its own profile file"),
+        "a pass that never saw the part": (
+            no_return_at_all, f"{{cell}}/{A}: pass top-A: every point of its 5 profiles is a no-return "
+            "(profile_format.no_return 0.0); expected a pass that saw the part"),
         "a path through a file": (file_as_folder, "{cell}/CELL.yaml: setups.0.passes.0.profiles: "
                                   f"'{A}/inner.csv': {A} is a regular file, not a folder; expected the profile file "
                                   "of pass top-A"),

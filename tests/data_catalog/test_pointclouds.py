@@ -375,6 +375,10 @@ def test_conf_poses_follow_scanalyzes_convention(tmp_path):
     ("bmesh a.ply 0 0 zero 0 0 0 1", "expected 'bmesh FILE tx ty tz qx qy qz qw'"),
     ("bmesh a.ply 0 0 0 0 0 0 2", "with a unit quaternion"),
     ("bmesh a.ply 0 0 0 0 0 0 nan", "with a unit quaternion"),
+    ("bmesh a.ply 1e30 0 0 0 0 0 1", r"a.ply's translation reaches 1e\+33 mm from the origin \(read in m\); expected a "
+                                     "pose within 50 m of it"),
+    ("bmesh a.ply 0 0 60 0 0 0 1", r"a.ply's translation reaches 6e\+04 mm"),
+    ("bmesh a.ply 0 inf 0 0 0 0 1", "expected 'bmesh FILE tx ty tz qx qy qz qw'"),
 ])
 def test_a_malformed_conf_line_is_named(tmp_path, line, problem):
     conf = tmp_path / "scans.conf"
