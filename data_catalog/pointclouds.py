@@ -193,6 +193,7 @@ def _read_ply(path: Path, fmt: str, scale: float) -> ScanCloud:
             ply = plyfile.PlyData.read(str(path))
     except Exception as exc:  # plyfile raises PlyParseError, but also ValueError/UnicodeDecodeError
         raise PointCloudFormatError(f"{path}: not a readable PLY file: {_library_text(exc)}") from exc
+    _check_ply_counts(path, ply)
     elements = [e.name for e in ply.elements]
     if "vertex" not in elements:
         raise PointCloudFormatError(f"{path}: no 'vertex' element (it has {elements}), expected one")
@@ -204,6 +205,54 @@ def _read_ply(path: Path, fmt: str, scale: float) -> ScanCloud:
     grid_shape, grid_index = _ply_range_grid(path, ply, len(vertex)) if "range_grid" in elements else (None, None)
     return _scan(path, fmt, _fields(path, vertex, ("x", "y", "z"), "element 'vertex'"), scale,
                  intensity=intensity, normals=normals, grid_shape=grid_shape, grid_index=grid_index)
+
+
+def _header_end(path: Path, marker: bytes) -> int:
+    """The byte offset just after the header line starting with ``marker`` (b"end_header",
+    b"DATA"); -1 when not within the first 1 MiB."""
+    with open(path, "rb") as handle:
+        head = handle.read(1 << 20)
+    at = head.find(b"\n" + marker)
+    if at < 0:
+        return -1
+    end = head.find(b"\n", at + 1)
+    return -1 if end < 0 else end + 1
+
+
+def _data_lines_after(path: Path, offset: int) -> int:
+    """Non-blank lines from byte ``offset`` to the end (streamed)."""
+    with open(path, "rb") as handle:
+        handle.seek(offset)
+        return sum(1 for line in handle if line.strip())
+
+
+def _check_ply_counts(path: Path, ply) -> None:
+    """Refuse a PLY whose header declares fewer rows than its data holds (plyfile stops at the
+    declared count and drops the rest without a word; more rows than the data holds it refuses)."""
+    start = _header_end(path, b"end_header")
+    if start < 0:
+        return
+    declared = ", ".join(f"element {e.name} {e.count}" for e in ply.elements)
+    if ply.text:
+        rows = sum(e.count for e in ply.elements)
+        found = _data_lines_after(path, start)
+        if found != rows:
+            raise PointCloudFormatError(f"{path}: {found:,} data lines after the header, which declares {rows:,} "
+                                        f"rows ({declared}); expected the header's counts to be the file's")
+        return
+    size = 0
+    for element in ply.elements:
+        data = element.data
+        for prop in element.properties:
+            if isinstance(prop, plyfile.PlyListProperty):
+                lengths = np.fromiter(map(len, data[prop.name]), dtype=np.int64, count=len(data))
+                size += len(data) * np.dtype(prop.len_dtype).itemsize + int(lengths.sum()) * np.dtype(prop.val_dtype).itemsize
+            else:
+                size += len(data) * np.dtype(prop.dtype()).itemsize
+    extra = path.stat().st_size - start - size
+    if extra > 0:
+        raise PointCloudFormatError(f"{path}: {extra:,} bytes after the data its header declares ({declared}); "
+                                    "expected the header's counts to be the file's")
 
 
 def _ply_range_grid(path: Path, ply, n_vertices: int) -> tuple[tuple[int, int], np.ndarray]:
@@ -248,6 +297,7 @@ def _read_pcd(path: Path, fmt: str, scale: float) -> ScanCloud:
         raise PointCloudFormatError(f"{path}: not a readable PCD file (expected a VERSION/FIELDS/SIZE/TYPE/COUNT/"
                                     f"WIDTH/HEIGHT/POINTS/DATA header): {_library_text(exc)}") from exc
     points = _fields(path, table, ("x", "y", "z"), "FIELDS")
+    _check_pcd_counts(path, cloud.metadata, len(points))
     names = table.dtype.names
     intensity = next((table[n] for n in _INTENSITY_NAMES if n in names), None)
     normals = (_fields(path, table, ("normal_x", "normal_y", "normal_z"), "FIELDS")
@@ -263,6 +313,27 @@ def _read_pcd(path: Path, fmt: str, scale: float) -> ScanCloud:
                  intensity=None if intensity is None else intensity[keep],
                  normals=None if normals is None else normals[keep],
                  grid_shape=(int(height), int(width)), grid_index=np.flatnonzero(keep).astype(np.int64))
+
+
+def _check_pcd_counts(path: Path, meta, n_read: int) -> None:
+    """Refuse a PCD whose POINTS (and WIDTH x HEIGHT) disagree with the data it holds (pypcd4
+    reads what is there, more or fewer, without a word)."""
+    declared = int(meta.points)
+    if meta.width * meta.height != declared:
+        raise PointCloudFormatError(f"{path}: WIDTH x HEIGHT = {meta.width} x {meta.height} = "
+                                    f"{meta.width * meta.height}, POINTS {declared}; expected them equal")
+    start = _header_end(path, b"DATA")
+    if meta.data == "ascii" and start >= 0:
+        found = _data_lines_after(path, start)
+    elif meta.data == "binary" and start >= 0:
+        row = sum(s * c for s, c in zip(meta.size, meta.count))
+        found = (path.stat().st_size - start) / row if row else n_read
+    else:  # binary_compressed states its own sizes
+        found = n_read
+    if found != declared or n_read != declared:
+        shown = f"{found:,.0f}" if float(found).is_integer() else f"{found:,.2f}"
+        raise PointCloudFormatError(f"{path}: POINTS {declared:,} in the header, {shown} points of data; expected the "
+                                    "header's count to be the file's")
 
 
 def _read_las(path: Path, fmt: str, scale: float) -> ScanCloud:

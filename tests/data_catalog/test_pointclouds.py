@@ -397,3 +397,47 @@ def test_a_conf_without_poses_or_with_a_scan_twice_is_refused(tmp_path):
         read_conf_poses(conf, units="m")
     with pytest.raises(ValueError, match="units must be one of"):
         read_conf_poses(conf, units="furlong")
+
+
+# -- what a header claims against the data --------------------------------------------------------
+
+def _claim(path, old: bytes, new: bytes):
+    data = path.read_bytes()
+    assert old in data[:400]
+    path.write_bytes(data.replace(old, new, 1))
+    return path
+
+
+@pytest.mark.parametrize("text", [False, True], ids=["binary", "ascii"])
+def test_a_ply_header_counting_fewer_points_than_its_data_is_refused(tmp_path, text):
+    """plyfile stops at the declared count and drops the rest without a word: refused, with both counts."""
+    path = _claim(_write_ply(tmp_path / "scan.ply", text=text), b"element vertex 200", b"element vertex 150")
+    if text:
+        _refused(path, "200 data lines after the header, which declares 150 rows (element vertex 150)",
+                 "expected the header's counts to be the file's")
+    else:
+        _refused(path, "600 bytes after the data its header declares (element vertex 150)")
+
+
+@pytest.mark.parametrize("text", [False, True], ids=["binary", "ascii"])
+def test_a_ply_header_counting_more_points_than_its_data_is_refused(tmp_path, text):
+    path = _claim(_write_ply(tmp_path / "scan.ply", text=text), b"element vertex 200", b"element vertex 250")
+    _refused(path, "not a readable PLY file", "early end-of-file")
+
+
+@pytest.mark.parametrize("encoding", [pypcd4.Encoding.ASCII, pypcd4.Encoding.BINARY], ids=["ascii", "binary"])
+@pytest.mark.parametrize("claim", [150, 250])
+def test_a_pcd_header_disagreeing_with_its_data_is_refused(tmp_path, encoding, claim):
+    """pypcd4 reads what is there, more or fewer than POINTS, without a word: refused."""
+    cloud = pypcd4.PointCloud.from_xyz_points(POINTS_M.astype(np.float32))
+    cloud.save(tmp_path / "scan.pcd", encoding=encoding)
+    path = _claim(tmp_path / "scan.pcd", b"POINTS 200", f"POINTS {claim}".encode())
+    _claim(path, b"WIDTH 200", f"WIDTH {claim}".encode())
+    _refused(path, f"POINTS {claim} in the header, 200 points of data", "expected the header's count to be the file's")
+
+
+def test_a_pcd_whose_width_and_height_disagree_with_points_is_refused(tmp_path):
+    cloud = pypcd4.PointCloud.from_xyz_points(POINTS_M.astype(np.float32))
+    cloud.save(tmp_path / "scan.pcd", encoding=pypcd4.Encoding.BINARY)
+    path = _claim(tmp_path / "scan.pcd", b"WIDTH 200", b"WIDTH 100")
+    _refused(path, "WIDTH x HEIGHT = 100 x 1 = 100, POINTS 200; expected them equal")
