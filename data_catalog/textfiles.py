@@ -42,6 +42,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
     def construct_mapping(self, node, deep=False):  # noqa: ANN001, ANN201 - PyYAML's signature
         seen: set = set()
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # <<: *name: its keys may be overridden here
+                continue
             key = self.construct_object(key_node, deep=deep)
             if key in seen:
                 raise yaml.constructor.ConstructorError(None, None, f"{key!r} given twice in one mapping",
@@ -50,13 +52,46 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+MAX_YAML_BYTES = 4 << 20  # a settings or description file: never megabytes
+MAX_YAML_VALUES = 100_000  # scalars, sequences and mappings once every alias is expanded
+
+
+def _expanded_size(node: yaml.Node, memo: dict[int, int]) -> int:
+    """How many values ``node`` stands for with every alias expanded (an alias is the node it names,
+    so shared nodes are counted each time they are used; ``memo`` keeps it linear in the text)."""
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    memo[key] = 1  # a node reaching itself (a recursive alias) counts once
+    if isinstance(node, yaml.MappingNode):
+        size = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+    elif isinstance(node, yaml.SequenceNode):
+        size = 1 + sum(_expanded_size(v, memo) for v in node.value)
+    else:
+        size = 1
+    memo[key] = min(size, 1 << 62)
+    return memo[key]
+
+
 def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
     """The mapping of fields in the YAML file ``path`` (empty file: no fields), read safely (no
     tags that build objects). ValueError in one line naming the file, ``what`` it should hold and,
     for bad YAML, the line and column."""
     text = read_text_file(path, f"a {what} file (YAML)")
+    if len(text) > MAX_YAML_BYTES:
+        raise ValueError(f"{path}: {len(text):,} characters; expected a {what} file of at most {MAX_YAML_BYTES:,}")
     try:
-        raw = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader
+        loader = _UniqueKeyLoader(text)
+        try:
+            node = loader.get_single_node()
+            if node is not None:
+                values = _expanded_size(node, {})
+                if values > MAX_YAML_VALUES:
+                    raise ValueError(f"{path}: the {what} expands to {values:,} values through its aliases (*name); "
+                                     f"expected at most {MAX_YAML_VALUES:,} (nested aliases multiply)")
+            raw = loader.construct_document(node) if node is not None else None
+        finally:
+            loader.dispose()
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
