@@ -49,6 +49,8 @@ _QUATERNION_TOLERANCE = 1e-3
 _UNITS_TO_MM = {"mm": 1.0, "m": 1000.0}
 _TIME_TO_S = {"s": 1.0, "ms": 1e-3}
 _GZIP_MAGIC = b"\x1f\x8b"
+MAX_LINE_BYTES = 1 << 20  # a profile of 4096 points is ~150 kB of text
+MAX_LINES = 10_000_000  # a pass's profiles or poses: 2.8 hours at 1 kHz
 _EMPTY_FIELD = re.compile(r"(?<![^,])(?![^,])")  # where a CSV line has an empty field
 _POSE_BLOCK = 4096
 
@@ -130,7 +132,15 @@ def _data_lines(path: Path, header_lines: int, what: str) -> Iterator[tuple[int,
     number = 0
     try:
         with (gzip.open(path, "rb") if gzipped else open(path, "rb")) as handle:
-            for number, raw in enumerate(handle, start=1):
+            while raw := handle.readline(MAX_LINE_BYTES + 1):
+                number += 1
+                if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
+                    raise CellLogError(f"{path}: line {number} is longer than {MAX_LINE_BYTES:,} bytes"
+                                       f"{' decompressed' if gzipped else ''}; expected {what} (a line a profile "
+                                       "or a pose)")
+                if number > MAX_LINES:
+                    raise CellLogError(f"{path}: more than {MAX_LINES:,} lines{' decompressed' if gzipped else ''}; "
+                                       f"expected {what} of one pass (at 1 kHz, {MAX_LINES / 3.6e6:.1f} hours)")
                 text = raw.decode("utf-8").strip()
                 if number > header_lines and text:
                     yield number, text

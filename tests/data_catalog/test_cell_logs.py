@@ -547,3 +547,35 @@ def test_a_gzipped_profile_file_reads_as_its_text(tmp_path):
     import_cell(EXAMPLE / "CELL.yaml", tmp_path / "plain")
     assert sha256_tree(tmp_path / "gz" / "passes" / "top-A.zarr") == sha256_tree(tmp_path / "plain" / "passes" / "top-A.zarr")
     assert open_pass(tmp_path / "gz" / "passes" / "top-A.zarr").n_profiles == 5
+
+
+def test_a_decompression_bomb_is_refused_by_its_line_length(tmp_path):
+    """A .gz of zeros: one 'line' of many megabytes, refused at the first MiB, never held whole."""
+    cell = _example_copy(tmp_path)
+    with gzip.open(cell / "profiles/top-B.csv.gz", "wb", compresslevel=1) as handle:
+        for _ in range(16):
+            handle.write(b"\0" * (1 << 20))
+    (tmp_path / "out").mkdir()
+    with pytest.raises(CellLogError) as caught:
+        import_cell(cell / "CELL.yaml", tmp_path / "out" / "sample")
+    assert str(caught.value).startswith(f"{cell}/profiles/top-B.csv.gz: line 1 is longer than 1,048,576 bytes "
+                                        "decompressed; expected a profile file")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_a_file_of_endless_lines_is_refused_by_its_line_count(tmp_path, monkeypatch):
+    """98 million identical lines took minutes and gigabytes before; the cap (10 million lines, lowered here
+    to 50 to keep the test small) stops it at the first line past it."""
+    import data_catalog.cell_logs as cell_logs
+    monkeypatch.setattr(cell_logs, "MAX_LINES", 50)
+    cell = _example_copy(tmp_path)
+    line = (cell / "profiles/top-A.csv").read_text().splitlines()[0]
+    with gzip.open(cell / "profiles/top-B.csv.gz", "wt") as handle:
+        for _ in range(200):
+            handle.write(line + "\n")
+    (tmp_path / "out").mkdir()
+    with pytest.raises(CellLogError) as caught:
+        import_cell(cell / "CELL.yaml", tmp_path / "out" / "sample")
+    assert str(caught.value).startswith(f"{cell}/profiles/top-B.csv.gz: more than 50 lines decompressed; expected a "
+                                        "profile file")
+    assert list((tmp_path / "out").iterdir()) == []
