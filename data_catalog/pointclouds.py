@@ -406,9 +406,41 @@ def _data_lines(path: Path, skip: int):
                 yield number, line.strip()
 
 
+MAX_TEXT_LINE_BYTES = 1 << 20  # a line of x y z [intensity] is tens of bytes
+MAX_GZIP_RATIO = 100  # scanned points as text compress 3-5 times; zeros or one line repeated, a thousand
+_RATIO_FROM_BYTES = 64 << 20  # ... judged once this much is decompressed
+
+
+def _check_text_limits(path: Path) -> None:
+    """Stream ``path`` (decompressed if .gz) once before it is parsed, refusing a line longer than
+    MAX_TEXT_LINE_BYTES (a .gz of zeros is one endless line, held whole by any line reader) and a
+    .gz that decompresses to more than MAX_GZIP_RATIO times its size (a decompression bomb)."""
+    gzipped = path.name.lower().endswith(".gz")
+    packed = path.stat().st_size
+    total, run = 0, 0
+    with (gzip.open(path, "rb") if gzipped else open(path, "rb")) as handle:
+        while block := handle.read(1 << 20):
+            total += len(block)
+            last = block.rfind(b"\n")
+            longest = max(run + (block.find(b"\n") if last >= 0 else len(block)),
+                          max((len(x) for x in block[:last].split(b"\n")), default=0) if last >= 0 else 0)
+            run = len(block) - last - 1 if last >= 0 else run + len(block)
+            if max(longest, run) > MAX_TEXT_LINE_BYTES:
+                raise PointCloudFormatError(f"{path}: a line longer than {MAX_TEXT_LINE_BYTES:,} bytes"
+                                            f"{' decompressed' if gzipped else ''}; expected lines of x y z [intensity]")
+            if gzipped and total > _RATIO_FROM_BYTES and total > MAX_GZIP_RATIO * packed:
+                raise PointCloudFormatError(f"{path}: decompresses to more than {MAX_GZIP_RATIO} times its "
+                                            f"{packed:,} bytes (a decompression bomb, or one line repeated); "
+                                            "expected scanned points, which compress 3-5 times")
+
+
 def _read_ascii(path: Path, fmt: str, scale: float) -> ScanCloud:
     """x y z [intensity] per line, separated by commas or whitespace; one header line allowed."""
     skip, delimiter = 0, None
+    try:
+        _check_text_limits(path)
+    except _TEXT_ERRORS as exc:
+        raise _unreadable_text(path, exc) from exc
     try:
         head = list(itertools.islice(_data_lines(path, 0), 2))
         if head:

@@ -10,6 +10,7 @@ from the origin, so the offset must be applied).
 
 from __future__ import annotations
 
+import gzip
 from pathlib import Path
 
 import laspy
@@ -441,3 +442,21 @@ def test_a_pcd_whose_width_and_height_disagree_with_points_is_refused(tmp_path):
     cloud.save(tmp_path / "scan.pcd", encoding=pypcd4.Encoding.BINARY)
     path = _claim(tmp_path / "scan.pcd", b"WIDTH 200", b"WIDTH 100")
     _refused(path, "WIDTH x HEIGHT = 100 x 1 = 100, POINTS 200; expected them equal")
+
+
+def test_a_gzip_of_zeros_is_refused_at_its_first_megabyte(tmp_path):
+    path = tmp_path / "scan.xyz.gz"
+    with gzip.open(path, "wb", compresslevel=1) as handle:
+        for _ in range(16):
+            handle.write(b"\0" * (1 << 20))
+    _refused(path, "a line longer than 1,048,576 bytes decompressed; expected lines of x y z [intensity]")
+
+
+def test_one_line_repeated_millions_of_times_is_refused_as_a_bomb(tmp_path):
+    """98 million identical lines ran past 300 s before; a ratio over 100 is refused once 64 MiB are out."""
+    path = tmp_path / "scan.xyz.gz"
+    block = b"1.000 2.000 3.000\n" * 100_000
+    with gzip.open(path, "wb") as handle:
+        for _ in range(40):  # 72 MB of text
+            handle.write(block)
+    _refused(path, "decompresses to more than 100 times its", "expected scanned points, which compress 3-5 times")
