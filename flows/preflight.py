@@ -93,6 +93,41 @@ def check_dask_scheduler(address: str, timeout_s: float = 5.0) -> None:
     except OSError as exc:
         raise ValueError(f"dask {address!r}: no Dask scheduler answers at {host}:{port} ({exc.strerror or exc}); "
                          "start one (dask scheduler) or give local:N for worker processes here") from None
+    why = _dask_identity(f"tcp://{host}:{port}", timeout_s)
+    if why is not None:  # something listens there, but not a scheduler: a client would hang or read garbage
+        raise ValueError(f"dask {address!r}: something answers at {host}:{port}, but not a Dask scheduler ({why}); "
+                         "expected the address of one (dask scheduler prints it) or local:N")
+
+
+def _dask_identity(address: str, timeout_s: float) -> str | None:
+    """None when a Dask scheduler at ``address`` answers its handshake and an identity request
+    within ``timeout_s`` (each step), else why not, in words. A server of another protocol is
+    never read as Dask's (its first bytes, taken for a frame length, asked for exabytes)."""
+    import asyncio
+    import concurrent.futures
+
+    from distributed.comm import connect
+
+    async def probe():
+        comm = await asyncio.wait_for(connect(address, timeout=timeout_s), timeout_s + 1)
+        try:
+            await asyncio.wait_for(comm.write({"op": "identity", "reply": True}), timeout_s)
+            return await asyncio.wait_for(comm.read(), timeout_s)
+        finally:
+            comm.abort()
+
+    try:  # in a thread of its own: the caller may be inside a running event loop (a flow)
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            reply = pool.submit(asyncio.run, probe()).result()
+    except (TimeoutError, asyncio.TimeoutError):
+        return f"no Dask handshake within {timeout_s:g} s"
+    except (MemoryError, OverflowError, ValueError):
+        return "its reply is not Dask's protocol"
+    except Exception as exc:  # distributed's CommClosedError and the like: the other side hung up
+        return f"{type(exc).__name__}: {exc}"[:200]
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        return f"it says it is {reply.get('type') if isinstance(reply, dict) else type(reply).__name__}, not a Scheduler"
+    return None
 
 
 def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s: float = 0.5) -> None:

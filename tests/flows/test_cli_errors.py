@@ -119,6 +119,47 @@ def test_unreachable_dask_scheduler_is_named_before_any_work(ci_sample, tmp_path
     assert not (tmp_path / "run").exists()
 
 
+def test_a_server_that_is_not_a_dask_scheduler_is_named_before_any_work(ci_sample, tmp_path):
+    """Something listens at the address (here a server that answers every connection with an HTTP
+    error), but not Dask: a client would hang, or take its first bytes for a frame length of exabytes."""
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+
+    def answer():
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(b"HTTP/1.0 400 Bad Request\r\n\r\n")
+            conn.close()
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01"])
+        done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--dask", f"tcp://127.0.0.1:{port}")
+    finally:
+        server.close()
+    assert done.returncode == 2
+    [line] = _problems(done.stderr)
+    assert line.startswith(f"weldrecon reconstruct: error: dask 'tcp://127.0.0.1:{port}': something answers at "
+                           f"127.0.0.1:{port}, but not a Dask scheduler ("), line
+    assert line.endswith("expected the address of one (dask scheduler prints it) or local:N"), line
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_dask_scheduler_passes_the_check():
+    from distributed import LocalCluster
+
+    from flows.preflight import check_dask_scheduler
+
+    with LocalCluster(n_workers=1, processes=False, protocol="tcp://", dashboard_address=None) as cluster:
+        check_dask_scheduler(cluster.scheduler_address)
+
+
 @pytest.mark.parametrize("edit, message", [
     ("int32", r"pass top-L02: .*top-L02\.zarr/x_mm has dtype int32, expected float32 \(mm\)"),
     ("intensity", r"pass top-L02: .*top-L02\.zarr/intensity is 2000 at profile 3, column 7; expected 0\.\.1023"),
