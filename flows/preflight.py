@@ -15,9 +15,12 @@ from data_catalog.textfiles import read_yaml_model
 from schemas.reconstruction import ReconstructionConfig
 
 __all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
-           "wait_for_file", "trail_problems"]
+           "check_model_size", "wait_for_file", "trail_problems"]
 
 RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
+MAX_TETRAHEDRA = 30_000_000  # gmsh's HXT on 2 cores: the demo's 0.7 M take ~1 min; 30 M, most of an hour
+_FILLED = 0.1  # the least of its bounding box a part fills (a T-joint's stem and base: ~0.2)
+_TET_VOLUME = 1 / (6 * 2 ** 0.5)  # a regular tetrahedron's volume over its edge cubed
 
 
 def load_config(path: str | Path | None) -> ReconstructionConfig:
@@ -138,3 +141,19 @@ def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s
         if time.monotonic() > deadline:
             raise TimeoutError(f"{what}: {path} did not appear (complete) within {timeout_s:g} s")
         time.sleep(poll_s)
+
+
+def check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
+    """Refuse, before any work, a volume.size_mm that would fill the part with more tetrahedra
+    than ``MAX_TETRAHEDRA``, counted low (the part filling a tenth of its bounding box
+    ``bounds_mm``, (min corner, max corner) mm, every element at size_mm, the largest it may be):
+    such a run would mesh for hours and then not fit in memory. ValueError naming the field."""
+    extent = [hi - lo for lo, hi in zip(*bounds_mm)]
+    size = config.volume.size_mm
+    count = _FILLED * extent[0] * extent[1] * extent[2] / (_TET_VOLUME * size ** 3)
+    if count > MAX_TETRAHEDRA:
+        box = " x ".join(f"{e:g}" for e in extent)
+        raise ValueError(f"volume.size_mm {size:g}: the part ({box} mm) would take at least {count:.2g} tetrahedra "
+                         f"at that size; expected a size giving at most {MAX_TETRAHEDRA:,} (the weld and its toes "
+                         "are graded finer by weld_size_mm and toe_size_mm on their own)")
+

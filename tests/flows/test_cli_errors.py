@@ -151,6 +151,20 @@ def test_a_server_that_is_not_a_dask_scheduler_is_named_before_any_work(ci_sampl
     assert not (tmp_path / "run").exists()
 
 
+def test_a_volume_size_that_would_take_hours_is_refused_before_any_work(ci_sample, tmp_path):
+    """volume.size_mm 0.01 passed validation and meshed for minutes (issue 28): refused up front, with the
+    least count of tetrahedra it asks for."""
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01"])
+    config = tmp_path / "fine.yaml"
+    config.write_text("volume:\n  size_mm: 0.01\n")
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", str(config))
+    assert done.returncode == 2
+    [line] = _problems(done.stderr)
+    assert line.startswith("weldrecon reconstruct: error: volume.size_mm 0.01: the part (") and "tetrahedra" in line, line
+    assert line.endswith("are graded finer by weld_size_mm and toe_size_mm on their own)"), line
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_dask_scheduler_passes_the_check():
     from distributed import LocalCluster
 
