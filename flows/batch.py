@@ -19,6 +19,7 @@ from prefect.task_runners import ThreadPoolTaskRunner
 
 from data_catalog import audit
 from data_catalog.catalog import Catalog, SampleRecord
+from flows import stopping
 from flows.qa_index import write_index
 from flows.reconstruct import reconstruct_sample
 
@@ -94,6 +95,7 @@ def reconstruct_batch(workspace: str, samples_root: str | None = None, config_pa
                       max_concurrent: int = 1, started_by: str | None = None) -> dict[str, Any]:
     """Register the sample folders under ``samples_root`` (when given) in ``workspace``'s catalog,
     then reconstruct every sample that is due. ``max_concurrent`` samples run at once."""
+    stopping.reassert()  # Prefect's engine put its SIGTERM handler in place: the command's stops the batch
     log = get_run_logger()
     # every path absolute before any sample runs: MeshLab's Poisson changes the process's working
     # directory while it meshes one sample, and the others go on meanwhile

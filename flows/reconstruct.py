@@ -25,6 +25,7 @@ from data_catalog.atomic import folder_lock, sweep_leftovers
 from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_files, load_manifest
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
+from flows import stopping
 from flows.preflight import (check_dask_scheduler, check_model_size, check_out_dir, check_run_folder, load_config,
                              trail_problems, wait_for_file)
 from flows.stages import (STAGE_NAMES, STAGES, Stage, StageFailed, StageRef, code_version, needed_for,
@@ -315,6 +316,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
             sample_dir, out_dir, config_path, started_by, dask, follow_timeout_s, sample_id, trail_head, stop_after)
     if stop_after is not None and stop_after not in STAGE_NAMES:
         raise ValueError(f"stop after {stop_after!r}: no such stage; the stages are {', '.join(STAGE_NAMES)}")
+    stopping.reassert()  # Prefect's engine put its SIGTERM handler in place: the command's stops the run
     log = get_run_logger()
     for stage in STAGES:  # import and hash the code now: an edit during a long run is not credited to it
         stage.load()

@@ -54,6 +54,10 @@ def main(argv: list[str] | None = None) -> int:
 
         signal.signal(signal.SIGPIPE, signal.SIG_DFL)
     args = _parser().parse_args(argv)
+    if argv is None:  # the program itself: a signal stops it with its children, in one line
+        from flows import stopping
+
+        stopping.install(args.command)
     try:
         return args.func(args)
     except KeyboardInterrupt:
