@@ -15,7 +15,7 @@ from data_catalog.textfiles import read_yaml_model
 from schemas.reconstruction import ReconstructionConfig
 
 __all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
-           "check_model_size", "wait_for_file", "trail_problems"]
+           "check_model_size", "check_weld_steps", "wait_for_file", "trail_problems"]
 
 RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
 MAX_TETRAHEDRA = 30_000_000  # gmsh's HXT on 2 cores: the demo's 0.7 M take ~1 min; 30 M, most of an hour
@@ -156,4 +156,24 @@ def check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
         raise ValueError(f"volume.size_mm {size:g}: the part ({box} mm) would take at least {count:.2g} tetrahedra "
                          f"at that size; expected a size giving at most {MAX_TETRAHEDRA:,} (the weld and its toes "
                          "are graded finer by weld_size_mm and toe_size_mm on their own)")
+
+
+def check_weld_steps(weld_lines, config: ReconstructionConfig) -> None:
+    """Refuse, before any work, a weld.section_step_mm that leaves a weld line (``weld_lines``,
+    the manifest's, polylines in mm) without a section: longer than the line less its end margins
+    (the run said "0 of 0 sections measured, fail"). ValueError naming the field and the lines."""
+    import numpy as np
+
+    w = config.weld
+    short = []
+    for line in weld_lines:
+        pts = np.asarray(line.points_mm, np.float64)
+        length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+        if w.section_step_mm > length - 2 * w.end_margin_mm:
+            short.append(f"{line.name} {length:g} mm")
+    if short:
+        lines = "s" if len(short) > 1 else ""
+        raise ValueError(f"weld.section_step_mm {w.section_step_mm:g}: longer than the weld line{lines} less the end "
+                         f"margins (weld.end_margin_mm {w.end_margin_mm:g} at each end): {', '.join(short)}; expected a "
+                         "step that gives every line its sections")
 

@@ -97,7 +97,7 @@ def measure_scan_weld(path: str | Path, *, units: str, line, joint: str, treatme
         raise ValueError(f"{path}: {exc}") from exc
     sections = [r.section for r in scan.sections]
     rule = load_acceptance_limits(None).rule_for(joint, treatment)
-    verdict, summary, failing, uncertain = judged(sections, rule)
+    verdict, summary, failing, uncertain = judged(sections, rule, {"weld": len(sections)})
     length = float(np.linalg.norm(np.subtract(found.end_mm, found.start_mm)))
     geometry = WeldGeometry(
         measured=True, joint=joint, treatment=treatment, frame=f"the scan's own ({name})", acceptance=rule,

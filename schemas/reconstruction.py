@@ -194,6 +194,9 @@ class WeldGeometryConfig(InputModel):
     toe_window_mm: tuple[float, float] = Field(default=(1.5, 1.5), description=(
         "a toe is fitted on this much flank and this much plate around where the weld starts"))
     toe_threshold_mm: float = Field(default=0.1, gt=0, le=5, description="height over the plate where the weld starts")
+    min_height_mm: float = Field(default=0.25, ge=0, le=10, description=(
+        "a cap lower than this over its plates is no evidence of a weld (a sticker's paper is 0.1 mm; a weld line "
+        "placed beside the weld read one as a cap): the section is not measured"))
     groove_min_depth_mm: float = Field(default=0.05, gt=0, le=5, description=(
         "a treated toe's dip below the plate deeper than this is fitted as a groove"))
     groove_plate_gap_mm: float = Field(default=0.5, gt=0, le=10, description=(

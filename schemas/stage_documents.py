@@ -297,6 +297,7 @@ class WeldReport(StrictModel):
     sections_uncertain: int | None = None
     passed: bool | None = None
     verdict: str | None = None
+    lines_without_sections: list[str] = []
     failing_sections: list[Finding] = []
     uncertain_sections: list[Finding] = []
     lines: list[WeldLineFound] = []

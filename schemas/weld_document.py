@@ -204,12 +204,13 @@ class FigureStatistics(StrictModel):
 
 class WeldSummary(StrictModel):
     sections: int
-    sections_measured: int | None  # None: no acceptance rule for the joint and treatment
+    sections_measured: int | None  # None only in documents written before 2026-11-27 without a rule
     sections_not_measured: int | None
-    failing: int | None
+    failing: int | None  # None: no acceptance rule for the joint and treatment
     sections_uncertain: int | None
     passed: bool | None
-    verdict: str  # "pass", "fail", or why there is no verdict
+    verdict: str  # "pass", "fail", or why there is no verdict (no rule; no weld found; a line not measured)
+    lines_without_sections: list[str] = []  # weld lines that gave no measured section (not scanned, no weld there)
 
 
 class WeldGeometry(StrictModel):

@@ -36,14 +36,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import median_filter
 
-from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_toe, toe_at_radius,
-                             toe_radius_range)
+from tasks.weld_fits import (TOE_RADIUS_BOUNDS_MM, Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line,
+                             fit_toe, toe_at_radius, toe_radius_range)
 from tasks.weld_geometry import SectionMeasurement, peak_rise
 
 __all__ = ["ProfileSettings", "ToeResult", "ProfileResult", "drop_spikes", "measure_profile"]
 
 _NAN = float("nan")
-_R_FLOOR_MM, _R_CEILING_MM = 0.02, 10.0  # tasks.weld_fits fits the toe radius between these
+_R_FLOOR_MM, _R_CEILING_MM = TOE_RADIUS_BOUNDS_MM  # tasks.weld_fits fits the toe radius between these
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,8 @@ from tasks.fillet_section import FilletSection
 from tasks.weld_fits import Measured, ToeFit
 from tasks.weld_geometry import SectionMeasurement
 
-__all__ = ["Violation", "SectionVerdict", "WeldVerdict", "judge_weld", "judge_fillet_weld", "check_figure"]
+__all__ = ["Violation", "SectionVerdict", "WeldVerdict", "judge_weld", "judge_fillet_weld", "check_figure", "section_measured",
+           "fillet_section_measured"]
 
 
 @dataclass(frozen=True)
@@ -135,12 +136,23 @@ def _weld_verdict(verdicts: list[SectionVerdict], rule: AcceptanceRule) -> WeldV
                        n_uncertain=sum(v.verdict == "uncertain" for v in verdicts))
 
 
+def section_measured(sec: SectionMeasurement) -> bool:
+    """A butt section is measured when both its toes and its height are."""
+    return all(t is not None for t in sec.toes) and math.isfinite(sec.height.value)
+
+
+def fillet_section_measured(sec: FilletSection) -> bool:
+    """A fillet section is measured when both its toes and both its legs are."""
+    return (sec.base_toe is not None and sec.stem_toe is not None
+            and math.isfinite(sec.leg_base.value) and math.isfinite(sec.leg_stem.value))
+
+
 def judge_weld(sections: list[SectionMeasurement], rule: AcceptanceRule) -> WeldVerdict:
     """A butt weld's sections judged by ``rule`` (module description)."""
     verdicts = []
     for sec in sections:
         f = _Findings(sec.line, sec.position_mm, rule.uncertain_sigmas)
-        measured = all(t is not None for t in sec.toes) and math.isfinite(sec.height.value)
+        measured = section_measured(sec)
         if measured:
             f.add(None, "reinforcement_height_mm", sec.height, rule.reinforcement_height_mm)
             f.add(None, "reinforcement_width_mm", sec.width, rule.reinforcement_width_mm)
@@ -169,8 +181,7 @@ def judge_fillet_weld(sections: list[tuple[str, float, FilletSection]], rule: Ac
     verdicts = []
     for line, position, sec in sections:
         f = _Findings(line, position, rule.uncertain_sigmas)
-        measured = (sec.base_toe is not None and sec.stem_toe is not None
-                    and math.isfinite(sec.leg_base.value) and math.isfinite(sec.leg_stem.value))
+        measured = fillet_section_measured(sec)
         if measured:
             f.add(None, "leg_base_mm", sec.leg_base, rule.limits("leg_base_mm"))  # the document's figures
             f.add(None, "leg_stem_mm", sec.leg_stem, rule.limits("leg_stem_mm"))

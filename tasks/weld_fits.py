@@ -28,11 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
+__all__ = ["TOE_RADIUS_BOUNDS_MM", "Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
            "fit_groove", "propagate", "toe_radius_range", "toe_at_radius", "running_median"]
 
 _NAN = float("nan")
 _R_MIN_MM, _R_MAX_MM = 0.02, 10.0  # the toe fillet's radius is fitted between these
+TOE_RADIUS_BOUNDS_MM = (_R_MIN_MM, _R_MAX_MM)
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,7 @@ class SectionSettings:
     undercut_min_depth_mm: float  # a dip deeper than this beside an as-welded toe is fitted as undercut
     height_half_width_mm: float  # the peak is read on the points this close to the section
     min_points: int  # fewer points in a fit: not measured
+    min_height_mm: float = 0.0  # a butt cap lower than this (tasks.weld_geometry) is no evidence of a weld
 
 
 @dataclass(frozen=True)

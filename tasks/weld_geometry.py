@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tasks.weld_fits import (Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line, fit_robust_line, fit_toe,
-                             propagate)
+from tasks.weld_fits import (TOE_RADIUS_BOUNDS_MM, Measured, SectionSettings, ToeFit, fit_groove, fit_plate_line,
+                             fit_robust_line, fit_toe, propagate)
 
 __all__ = ["SectionMeasurement", "WeldLineMeasurement", "measure_section", "measure_weld_line",
            "along_weld_statistics", "toe_polylines", "peak_rise", "TOE_SIDES"]
@@ -92,6 +92,25 @@ def _centre_guess(u: np.ndarray, h: np.ndarray) -> float | None:
     return float((ub[lo] + ub[hi] + 1) * 0.25)
 
 
+MAX_TOE_SIGMA_MM = 1.0  # a toe placed no better than this is not a toe (the ci preset's 0.3 mm points: 0.19 at most)
+
+
+def _not_a_toe(fit: ToeFit, settings: SectionSettings) -> str | None:
+    """Why a toe fit (``v`` outward from the weld's centre) is no evidence of a weld toe, or None:
+    its position not determined (1-sigma over MAX_TOE_SIGMA_MM, or not finite), its fillet run to
+    the fit's ceiling (a plate's edge or a sticker's, not a fillet), or the toe out where the
+    plates are fitted (``plate_window_mm[0]`` from the centre: then the "plate" held the weld)."""
+    sd = fit.position_sigma_mm
+    if not math.isfinite(sd) or sd > MAX_TOE_SIGMA_MM:
+        return f"places it to {sd:.3g} mm (1-sigma; a toe is placed within {MAX_TOE_SIGMA_MM:g} mm)"
+    if fit.groove is None and fit.notch_radius.value >= TOE_RADIUS_BOUNDS_MM[1] * 0.999:
+        return f"ran to its largest fillet radius ({TOE_RADIUS_BOUNDS_MM[1]:g} mm): no toe between flank and plate"
+    if fit.position_u_mm > settings.plate_window_mm[0]:
+        return (f"lies {fit.position_u_mm:.2f} mm from the weld's centre, beyond where the plates are fitted "
+                f"({settings.plate_window_mm[0]:g} mm)")
+    return None
+
+
 def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: SectionSettings, treated: bool,
                     line: str, position_mm: float, to_frame) -> SectionMeasurement:
     """One section: ``u`` across (mm), ``h`` along the face normal (mm), ``s`` along the line
@@ -133,6 +152,9 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         if fit is None:
             fit = fit_toe(v, rel, settings=settings, side=side, toe_guess_v=guess)
         if fit is not None:
+            why = _not_a_toe(fit, settings)
+            if why is not None:
+                return failed(f"no weld found at the line here: the {side} toe's fit {why}")
             fit = ToeFit(**{**fit.__dict__, "position_u_mm": c + sign * fit.position_u_mm})
         toes.append(fit)
     # misalignment at the weld's centre
@@ -159,6 +181,9 @@ def measure_section(u: np.ndarray, h: np.ndarray, s: np.ndarray, *, settings: Se
         between &= np.abs(s) <= reach
         rise = h[between] - (z0 + (z1 - z0) * (u[between] - u0) / max(u1 - u0, 1e-9))
         height = peak_rise(u[between], rise)
+        if math.isfinite(height.value) and height.value < settings.min_height_mm:
+            return failed(f"no weld found at the line here: the cap rises {height.value:.3f} mm over its plates, "
+                          f"less than {settings.min_height_mm:g} mm (a sticker's paper, the plates' waviness)")
     axis = None
     if toes[0] is not None and toes[1] is not None and toes[0].groove is not None and toes[1].groove is not None:
         mid = c + (toes[1].groove.centre_v_mm - toes[0].groove.centre_v_mm) / 2

@@ -44,7 +44,9 @@ def print_run_summary(run, out: Path) -> None:
           + (f"; target residual median {residual * 1000:.0f} um, max {refined['target_residual_max_mm'] * 1000:.0f} um"
              if residual is not None else ""))
     weld = report.weld
-    if weld.measured:
+    if weld.measured and weld.verdict not in ("pass", "fail"):  # no rule, no weld found, a line without sections
+        print(f"weld: {weld.sections_measured} of {weld.sections} sections measured; {weld.verdict}")
+    elif weld.measured:
         failing = weld.failing_sections
         print(f"weld: {weld.sections_measured} of {weld.sections} sections measured, {weld.verdict} against "
               f"the acceptance limits" + (f" ({len(failing)} findings in {weld.failing} sections: report.json, "

@@ -96,6 +96,26 @@ def weld_summary(geometry: WeldGeometry) -> WeldReport:
                       uncertain_sections=geometry.uncertain, lines=geometry.lines, statistics=geometry.statistics)
 
 
+def weld_check(geometry: WeldGeometry) -> Check:
+    """The weld's evidence: measured at every weld line the manifest names, and judged by a rule;
+    flagged otherwise, saying what is missing (the verdict itself, pass or fail, is the weld's part
+    of the report; this says whether there is one to trust)."""
+    if not geometry.measured:
+        return Check(check="weld measured", pass_="all", result="flagged", what=f"not measured: {geometry.why_not}",
+                     measured={})
+    summary = geometry.summary
+    measured = {"sections": summary.sections, "sections_measured": summary.sections_measured}
+    if summary.sections_measured == 0 or summary.lines_without_sections:
+        return Check(check="weld measured", pass_="all", result="flagged", what=summary.verdict, measured=measured)
+    if geometry.acceptance is None:
+        return Check(check="weld measured", pass_="all", result="flagged",
+                     what=f"{summary.sections_measured} of {summary.sections} sections measured, not judged: "
+                          f"{summary.verdict}", measured=measured)
+    return Check(check="weld measured", pass_="all", result="ok",
+                 what=f"{summary.sections_measured} of {summary.sections} sections measured at every weld line, "
+                      f"judged: {summary.verdict}", measured=measured)
+
+
 ELEMENT_LIMITS = {"min_dihedral_deg": MIN_DIHEDRAL_DEG, "aspect_ratio": MAX_ASPECT_RATIO}
 
 
@@ -177,7 +197,7 @@ def report(ctx) -> dict[str, Any]:
         stress=stress_summary(stress),
         weld=weld_summary(weld),
         # the stress is checked where the weld was measured (elsewhere the weld's part says why not)
-        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"]) + [fe_model_check(volume)]
+        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"]) + [weld_check(weld), fe_model_check(volume)]
                 + ([stress_check(stress)] if weld.measured else [])),
         deliverables={name: inputs[stage].outputs[source]
                       for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()

@@ -36,7 +36,7 @@ from schemas.weld_document import (FILLET_SECTION_FIGURES, TOE_FIGURES, FilletTo
 from tasks.fillet_section import FilletLine, measure_fillet_line
 from tasks.frames import apply, invert, rotate
 from tasks.scan_fillet import find_fillet_root
-from tasks.weld_acceptance import judge_fillet_weld, judge_weld
+from tasks.weld_acceptance import fillet_section_measured, judge_fillet_weld, judge_weld, section_measured
 from tasks.weld_fits import Measured, SectionSettings
 from tasks.weld_geometry import SectionMeasurement, along_weld_statistics, measure_weld_line, toe_polylines
 
@@ -89,26 +89,51 @@ def _verdict_fields(verdict) -> dict[str, Any]:
                 uncertain=[] if verdict is None else [finding_document(v) for v in verdict.uncertain])
 
 
-def judged(sections: list[SectionMeasurement], rule):
+def judged(sections: list[SectionMeasurement], rule, lines: dict[str, int]):
     """The sections judged by ``rule`` (None: no rule): the verdict (None without a rule), the
-    summary, the failing findings and the uncertain ones of passing sections."""
-    return verdict_parts(judge_weld(sections, rule) if rule is not None else None, len(sections))
+    summary, the failing findings and the uncertain ones of passing sections. ``lines``: each weld
+    line's name and how many of the sections are its."""
+    return verdict_parts(judge_weld(sections, rule) if rule is not None else None,
+                         [section_measured(s) for s in sections], lines_measured(lines, sections, section_measured))
 
 
-def verdict_parts(verdict, n_sections: int):
+def lines_measured(lines: dict[str, int], sections: list, measured) -> dict[str, int]:
+    """Each weld line's count of measured sections (``measured(section)``; a section's ``line``
+    names its line), every line of ``lines`` present."""
+    count = dict.fromkeys(lines, 0)
+    for sec in sections:
+        count[sec.line] = count.get(sec.line, 0) + bool(measured(sec))
+    return count
+
+
+def verdict_parts(verdict, measured: list[bool], per_line: dict[str, int]):
     """A weld's verdict (``tasks.weld_acceptance``; None: no rule) as the document has it: the
-    verdict, the summary, the failing findings and the uncertain ones of passing sections."""
+    verdict, the summary, the failing findings and the uncertain ones of passing sections.
+    ``measured``: per section, whether it was; ``per_line``: each weld line's measured sections.
+    Every section's evidence counts whether or not a rule judges it: the summary counts the measured
+    sections always; a weld with none measured, or with a line that has none, does not pass, and its
+    verdict says which (no weld found at the lines; the lines without a section)."""
     failing = [] if verdict is None else [finding_document(v) for sv in verdict.sections for v in sv.violations]
     uncertain = [] if verdict is None else [finding_document(v) for sv in verdict.sections if sv.passed
                                             for v in sv.uncertain]
-    summary = WeldSummary(sections=n_sections,
-                          sections_measured=None if verdict is None else verdict.n_measured,
-                          sections_not_measured=None if verdict is None else verdict.n_not_measured,
+    n, n_measured = len(measured), sum(measured)
+    empty = sorted(name for name, k in per_line.items() if k == 0)
+    if n_measured == 0:
+        said = (f"not measured: no weld found at the weld line{'s' if len(per_line) != 1 else ''} "
+                f"({', '.join(sorted(per_line)) or 'none'})")
+        passed = None if verdict is None else False
+    elif empty:
+        said = (f"incomplete: weld line{'s' if len(empty) > 1 else ''} {', '.join(empty)} without a measured section "
+                f"(not scanned there, or no weld found at {'them' if len(empty) > 1 else 'it'})")
+        passed = None if verdict is None else False
+    elif verdict is None:
+        said, passed = "no acceptance rule for this joint and treatment", None
+    else:
+        said, passed = ("pass" if verdict.passed else "fail"), verdict.passed
+    summary = WeldSummary(sections=n, sections_measured=n_measured, sections_not_measured=n - n_measured,
                           failing=None if verdict is None else verdict.n_failing,
                           sections_uncertain=None if verdict is None else verdict.n_uncertain,
-                          passed=None if verdict is None else verdict.passed,
-                          verdict=("no acceptance rule for this joint and treatment" if verdict is None
-                                   else "pass" if verdict.passed else "fail"))
+                          passed=passed, verdict=said, lines_without_sections=empty)
     return verdict, summary, failing, uncertain
 
 
@@ -159,7 +184,8 @@ def section_settings(s) -> SectionSettings:
     return SectionSettings(plate_window_mm=tuple(s.plate_window_mm), toe_window_mm=tuple(s.toe_window_mm),
                            toe_threshold_mm=s.toe_threshold_mm, groove_min_depth_mm=s.groove_min_depth_mm,
                            groove_plate_gap_mm=s.groove_plate_gap_mm, undercut_min_depth_mm=s.undercut_min_depth_mm,
-                           height_half_width_mm=s.height_half_width_mm, min_points=s.min_points)
+                           height_half_width_mm=s.height_half_width_mm, min_points=s.min_points,
+                           min_height_mm=s.min_height_mm)
 
 
 def _fillet_sides(manifest, line) -> tuple[np.ndarray, np.ndarray] | str:
@@ -200,8 +226,12 @@ def fillet_weld_figures(found: list[FilletLine], rule) -> tuple[list[FilletWeldS
     the failing findings and the uncertain ones."""
     along = [(line, position, sec) for line in found for position, sec in line.sections]
     rows = [(line.name, position, sec) for line, position, sec in along]
+    measured = [fillet_section_measured(sec) for _, _, sec in rows]
+    per_line = dict.fromkeys((line.name for line in found), 0)
+    for (name, _, _), ok in zip(rows, measured):
+        per_line[name] += ok
     verdict, summary, failing, uncertain = verdict_parts(
-        judge_fillet_weld(rows, rule) if rule is not None else None, len(rows))
+        judge_fillet_weld(rows, rule) if rule is not None else None, measured, per_line)
     sections = [fillet_section_document(line, position, sec, None if verdict is None else verdict.sections[k])
                 for k, (line, position, sec) in enumerate(along)]
     lines = []
@@ -315,7 +345,7 @@ def weld(ctx) -> dict[str, Any]:
                            across=tuple(round(v, 5) for v in f.across),
                            measured_extent_mm=tuple(round(v, 3) for v in f.extent_mm)) for f in found_lines]
     sections = [sec for f in found_lines for sec in f.sections]
-    verdict, summary, failing, uncertain = judged(sections, rule)
+    verdict, summary, failing, uncertain = judged(sections, rule, {f.line: len(f.sections) for f in found_lines})
     statistics = section_statistics(sections)
     WELD_GEOMETRY.write(ctx.out, WeldGeometry(
         measured=True, lines=lines, summary=summary, statistics=statistics, failing=failing, uncertain=uncertain,

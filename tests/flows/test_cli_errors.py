@@ -165,6 +165,33 @@ def test_a_volume_size_that_would_take_hours_is_refused_before_any_work(ci_sampl
     assert not (tmp_path / "run").exists()
 
 
+def test_a_weld_section_step_longer_than_the_weld_is_refused_before_any_work(ci_sample, tmp_path):
+    """It gave "0 of 0 sections measured, fail" after the whole run (issue 28)."""
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01"])
+    config = tmp_path / "step.yaml"
+    config.write_text("weld:\n  section_step_mm: 80\n")
+    done = run_cli("reconstruct", str(sample), "--out", str(tmp_path / "run"), "--config", str(config))
+    assert done.returncode == 2
+    assert _problems(done.stderr) == [
+        "weldrecon reconstruct: error: weld.section_step_mm 80: longer than the weld lines less the end margins "
+        "(weld.end_margin_mm 2 at each end): top 60 mm, bottom 60 mm; expected a step that gives every line its sections"]
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("value", [".inf", ".nan", "-.inf"])
+def test_a_non_finite_acceptance_limit_is_refused_naming_the_field(tmp_path, value):
+    """A limit of .inf passed and was written into report.json as Infinity, which JSON parsers reject."""
+    config = tmp_path / "limits.yaml"
+    config.write_text("weld:\n  acceptance:\n    rules:\n      - {joint: double-sided butt, treatment: as-welded, "
+                      f"source: mine, toe_radius_mm: {{min: 0.0, max: {value}}}}}\n")
+    from flows.preflight import load_config
+
+    with pytest.raises(ValueError) as caught:
+        load_config(config)
+    assert str(caught.value) == (f"{config}: invalid reconstruction config:\n"
+                                 "  weld.acceptance.rules.0.toe_radius_mm.max: Input should be a finite number")
+
+
 def test_a_dask_scheduler_passes_the_check():
     from distributed import LocalCluster
 
