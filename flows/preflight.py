@@ -147,7 +147,10 @@ def check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
     """Refuse, before any work, a volume.size_mm that would fill the part with more tetrahedra
     than ``MAX_TETRAHEDRA``, counted low (the part filling a tenth of its bounding box
     ``bounds_mm``, (min corner, max corner) mm, every element at size_mm, the largest it may be):
-    such a run would mesh for hours and then not fit in memory. ValueError naming the field."""
+    such a run would mesh for hours and then not fit in memory. ValueError naming the field.
+    ``bounds_mm`` None (a sample of imported scans declares no part): nothing to check against."""
+    if bounds_mm is None:
+        return
     extent = [hi - lo for lo, hi in zip(*bounds_mm)]
     size = config.volume.size_mm
     count = _FILLED * extent[0] * extent[1] * extent[2] / (_TET_VOLUME * size ** 3)

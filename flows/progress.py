@@ -112,6 +112,9 @@ class TrailProgress:
             count.failed.append(item or str(entry["stage"]))
             self._say(f"{entry['stage']}{' ' + item if item else ''} FAILED: {entry.get('error', '')}")
             return
+        if entry.get("kind") == "stage-recomputed":  # what the run did about damage or tampering: said here
+            self._say(f"{entry['stage']}{' ' + item if item else ''}: {entry.get('reason', 'recomputed')}", final=True)
+            return
         if entry.get("kind") != "stage":
             return
         cached = bool(entry.get("cached"))

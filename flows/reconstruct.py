@@ -332,7 +332,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                          "(renamed, or the folder reused for another sample)")
     check_sample_files(sample, manifest)
     config = load_config(config_path)
-    check_model_size(manifest.specimen.bounds_mm(), config)
+    check_model_size(None if manifest.specimen is None else manifest.specimen.bounds_mm(), config)
     check_weld_steps(manifest.weld_lines(), config)
     check_run_folder(out, manifest.sample_id)
     store = StageStore(out)

@@ -71,7 +71,8 @@ class ProfileSettings:
                                toe_window_mm=self.toe_window_mm, toe_threshold_mm=self.toe_threshold_mm,
                                groove_min_depth_mm=self.groove_min_depth_mm, groove_plate_gap_mm=self.groove_plate_gap_mm,
                                undercut_min_depth_mm=self.undercut_min_depth_mm, height_half_width_mm=1.0,
-                               min_points=self.min_points)
+                               min_points=self.min_points,
+                               min_height_mm=0.0)  # unread: a profile's section is this module's own (_section)
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,7 @@ class SectionSettings:
     undercut_min_depth_mm: float  # a dip deeper than this beside an as-welded toe is fitted as undercut
     height_half_width_mm: float  # the peak is read on the points this close to the section
     min_points: int  # fewer points in a fit: not measured
-    min_height_mm: float = 0.0  # a butt cap lower than this (tasks.weld_geometry) is no evidence of a weld
+    min_height_mm: float  # a butt cap lower than this (tasks.weld_geometry) is no evidence of a weld
 
 
 @dataclass(frozen=True)

@@ -75,9 +75,26 @@ def _verify(folder: Path, heads: dict[str, str]) -> int:
     n_artefacts = len({k for e in entries for k in (e.get("artefacts") or {})})
     anchored = (f", holds the head{'s' if len(heads) > 1 else ''} kept by " + "; ".join(heads.values())
                 if heads else ", no head kept outside the folder to compare (catalog, --head)")
+    events = [e for e in entries if e.get("kind") in RECORDED_EVENTS]
+    said = f"; {len(events)} event{'s' if len(events) != 1 else ''} recorded:" if events else ""
     print(f"{folder}: audit trail intact: {len(entries)} entries chained, {n_artefacts} artefacts re-hashed"
-          + anchored)
+          + anchored + said)
+    for e in events:  # intact means the record is whole, not that nothing happened: what it records is said
+        print(f"  seq {e.get('seq')} {e.get('time', '')} {RECORDED_EVENTS[e['kind']](e)}")
     return 0
+
+
+# what a trail records that its reader must see even when the chain is whole
+RECORDED_EVENTS = {
+    "stage-recomputed": lambda e: f"stage {e.get('stage')}{' ' + str(e['item']) if e.get('item') else ''} "
+                                  f"recomputed: {e.get('reason', '')}",
+    "leftovers-swept": lambda e: f"a run that died left {len(e.get('paths') or [])} half-written path(s), swept: "
+                                 f"{', '.join((e.get('paths') or [])[:5])}",
+    "trail-problems-found": lambda e: "a run found the trail not intact before it went on: "
+                                      + "; ".join(map(str, (e.get('problems') or [])[:5])),
+    "stage-failed": lambda e: f"stage {e.get('stage')}{' ' + str(e['item']) if e.get('item') else ''} failed: "
+                              f"{e.get('error', '')}",
+}
 
 
 def _show(folder: Path) -> int:

@@ -79,6 +79,18 @@ def log_to_file(folder: Path, name: str) -> Path:
                 logger.handlers[k] = handler
                 _UNDO.append(lambda logger=logger, old=old: logger.handlers.__setitem__(
                     logger.handlers.index(handler), old))
+    # a Prefect console handler made after this point (a logger Prefect configures later, a second
+    # setup) writes to the file too: its class's emit is the file's while the command runs
+    from prefect.logging.handlers import PrefectConsoleHandler
+
+    console_emit = PrefectConsoleHandler.emit
+    PrefectConsoleHandler.emit = lambda self, record: handler.emit(record)
+    _UNDO.append(lambda: setattr(PrefectConsoleHandler, "emit", console_emit))
+    # logging's own complaints ("--- Logging error ---", Prefect's "--- Error logging to API ---" when
+    # its server is gone or slow) are not for the terminal: the records themselves are in the file
+    raising = logging.raiseExceptions
+    logging.raiseExceptions = False
+    _UNDO.append(lambda: setattr(logging, "raiseExceptions", raising))
     root.setLevel(logging.INFO)
     logging.captureWarnings(True)
     _LOG_FILE = path

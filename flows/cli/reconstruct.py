@@ -54,7 +54,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
     config = load_config(args.config)
-    check_model_size(manifest.specimen.bounds_mm(), config)
+    check_model_size(None if manifest.specimen is None else manifest.specimen.bounds_mm(), config)
     check_weld_steps(manifest.weld_lines(), config)
     check_run_folder(out, manifest.sample_id)
     stop_after = getattr(args, "stop_after", None)

@@ -197,7 +197,9 @@ def report(ctx) -> dict[str, Any]:
         stress=stress_summary(stress),
         weld=weld_summary(weld),
         # the stress is checked where the weld was measured (elsewhere the weld's part says why not)
-        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"]) + [weld_check(weld), fe_model_check(volume)]
+        # the weld's evidence where the manifest describes a weld (imported scans of a bare part need none)
+        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"])
+                + ([weld_check(weld)] if ctx.manifest.weld_lines() else []) + [fe_model_check(volume)]
                 + ([stress_check(stress)] if weld.measured else [])),
         deliverables={name: inputs[stage].outputs[source]
                       for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()

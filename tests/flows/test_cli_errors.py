@@ -385,3 +385,30 @@ def test_a_log_file_that_cannot_be_written_says_nothing_on_the_terminal(capsys):
     captured = capsys.readouterr()
     assert "Logging error" not in captured.err and captured.err == ""
     assert handler.lost >= 1
+
+
+def test_prefect_noise_goes_to_the_log_file_not_the_terminal(tmp_path, capfd):
+    """Prefect's internal errors ("Service 'EventsWorker' failed", "--- Error logging to API ---" when its
+    server is gone or slow) printed above the one-line errors (issue 28): while a command logs to its file,
+    a Prefect console handler made later writes there, and logging's own complaints stay off the terminal."""
+    import logging
+
+    from prefect.logging.handlers import PrefectConsoleHandler
+
+    from flows.cli.errors import end_log_file, log_to_file
+
+    raising = logging.raiseExceptions
+    path = log_to_file(tmp_path / "logs", "reconstruct")
+    try:
+        late = logging.getLogger("prefect._internal.concurrency.late")  # made after the command's setup
+        late.propagate = False
+        late.addHandler(PrefectConsoleHandler())
+        late.error("Service 'EventsWorker' failed to process item")
+        assert logging.raiseExceptions is False
+    finally:
+        end_log_file()
+    out, err = capfd.readouterr()
+    assert "EventsWorker" not in out + err
+    assert "Service 'EventsWorker' failed to process item" in path.read_text()
+    assert logging.raiseExceptions is raising and PrefectConsoleHandler.emit is not None
+    late.handlers.clear()

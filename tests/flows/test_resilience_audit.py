@@ -269,6 +269,15 @@ def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_l
     assert verify_trail(run) == []
     published = json.loads((run / "results" / "report.json").read_text())
     assert published["stages"]["registration"]["residual_max_mm"] != 0.001
+    # what the run did about it is said on the terminal, and verify names it (intact is not uneventful)
+    said = [line for line in again.stderr.splitlines() if "registration: cached outputs do not match the audit trail" in line]
+    assert len(said) == 1 and "set aside to .tampered-" in said[0] and "recomputed" in said[0], again.stderr[-2000:]
+    verified = weldrecon("audit", "verify", str(run))
+    assert verified.returncode == 0
+    head, *events = verified.stdout.splitlines()
+    assert head.startswith(f"{run}: audit trail intact: ") and head.endswith("; 1 event recorded:"), verified.stdout
+    assert len(events) == 1 and f"seq {redone[0]['seq']} " in events[0] and \
+        "stage registration recomputed: cached outputs do not match the audit trail" in events[0]
 
 
 def _children(pid: int) -> set[int]:
