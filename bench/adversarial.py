@@ -266,7 +266,7 @@ class Case:
 
 
 CASES: list[Case] = []
-GROUPS = ["manifest", "passes", "config", "cli", "tamper", "identity", "simulate"]
+GROUPS = ["manifest", "passes", "config", "cli", "tamper", "identity", "simulate", "doors"]
 
 # Run only with --all (or named with --only GROUP/CASE): variations of a default case, or already
 # covered by the test suite; the default set fits in about 25 minutes on 2 cores.
@@ -1979,6 +1979,227 @@ for _c in CASES:
             inner(t)
 
         _c.fn = _guarded
+
+
+# --- the newer doors (issue 28): imports, files a description names, resources, weld evidence ----
+
+CELL_EXAMPLE = REPO / "tests" / "data" / "cell"
+SECRET = "SECRET-OUTSIDE-THE-FOLDER"
+
+
+def _cell(t: Trial) -> Path:
+    """A copy of the example cell logs (tests/data/cell), a file beside it that must never be read."""
+    cell = t.dir / "cell"
+    shutil.copytree(CELL_EXAMPLE, cell, ignore=shutil.ignore_patterns("README.md"))
+    (t.dir / "secret.csv").write_text(f"{SECRET},1,2,3\n")
+    return cell
+
+
+def _cell_yaml(cell: Path, fn) -> None:
+    import yaml
+
+    raw = yaml.safe_load((cell / "CELL.yaml").read_text())
+    fn(raw)
+    (cell / "CELL.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+
+
+def _import(t: Trial, cell: Path) -> None:
+    t.protect(cell)
+    t.main = t.cli("import", cell / "CELL.yaml", t.dir / "out" / "sample")
+    if SECRET in t.main.terminal or "root:" in t.main.terminal:
+        t.verdict = ("unclear", "a file outside the folder was read and echoed: " + t.main.first())
+    elif (t.dir / "out").exists() and any((t.dir / "out").iterdir()):
+        t.verdict = ("damaged", f"the refused import left {sorted(p.name for p in (t.dir / 'out').iterdir())}")
+
+
+def _cell_case(name: str, needle: str, what: str, spoil) -> None:
+    @case("doors", name, "refused", needle, what)
+    def run(t: Trial) -> None:
+        cell = _cell(t)
+        spoil(cell)
+        _import(t, cell)
+
+
+def _first_profiles(value):
+    return lambda raw: raw["setups"][0]["passes"][0].update(profiles=value)
+
+
+def _link_out(cell: Path) -> None:
+    (cell / "profiles" / "top-A.csv").unlink()
+    (cell / "profiles" / "top-A.csv").symlink_to(cell.parent / "secret.csv")
+
+
+def _fifo(cell: Path) -> None:
+    (cell / "profiles" / "top-A.csv").unlink()
+    os.mkfifo(cell / "profiles" / "top-A.csv")
+
+
+def _far_pose(cell: Path) -> None:
+    path = cell / "poses" / "top-A.txt"
+    lines = path.read_text().splitlines()
+    fields = lines[2].split()
+    fields[1] = "1e300"
+    lines[2] = " ".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def _no_return(cell: Path) -> None:
+    path = cell / "profiles" / "top-A.csv"
+    path.write_text("".join(line.split(",")[0] + ",0,0,0" * 8 + "\n" for line in path.read_text().splitlines()))
+
+
+def _alias_bomb(cell: Path) -> None:
+    bomb = ['l0: &l0 ["x","x","x","x","x","x","x","x","x"]']
+    bomb += [f"l{k}: &l{k} [{', '.join([f'*l{k - 1}'] * 9)}]" for k in range(1, 9)]
+    (cell / "CELL.yaml").write_text("\n".join(bomb) + "\n" + (cell / "CELL.yaml").read_text())
+
+
+def _gz_zeros(cell: Path) -> None:
+    import gzip
+
+    with gzip.open(cell / "profiles" / "top-B.csv.gz", "wb", compresslevel=1) as handle:
+        for _ in range(64):
+            handle.write(b"\0" * (1 << 20))
+
+
+for _name, _needle, _what, _spoil in [
+    ("cell-climbing", "../secret.csv", "CELL.yaml names a profile file '../secret.csv' beside the cell folder",
+     lambda c: _cell_yaml(c, _first_profiles("../secret.csv"))),
+    ("cell-passwd", "climbs out", "CELL.yaml names 'profiles/../../../../../../etc/passwd' as a profile file",
+     lambda c: _cell_yaml(c, _first_profiles("profiles/../../../../../../etc/passwd"))),
+    ("cell-symlink-out", "symbolic link", "a profile file that is a link to a file outside the folder", _link_out),
+    ("cell-fifo", "FIFO", "a profile file that is a named pipe (reading it would block)", _fifo),
+    ("cell-pose-1e300", "1e+300", "a pose log with a coordinate of 1e300 mm", _far_pose),
+    ("cell-time-offset-nan", "time_offset_s", "time_offset_s: .nan",
+     lambda c: _cell_yaml(c, lambda raw: raw.update(time_offset_s=float("nan")))),
+    ("cell-profiles-twice", "profile file", "the same profile file listed for two passes",
+     lambda c: _cell_yaml(c, lambda raw: raw["setups"][0]["passes"][1].update(profiles="profiles/top-A.csv"))),
+    ("cell-no-return", "no-return", "a pass whose every profile is 'no return'", _no_return),
+    ("cell-alias-bomb", "aliases", "a CELL.yaml with nested aliases expanding to 490 million values", _alias_bomb),
+    ("cell-gz-zeros", "longer than", "a profile .gz of 64 MiB of zeros (one endless line)", _gz_zeros),
+]:
+    _cell_case(_name, _needle, _what, _spoil)
+
+
+def _scans_import(t: Trial, files: list[Path], *extra) -> None:
+    for f in files:
+        t.protect(f)
+    t.main = t.cli("import-scans", *files, "--units", "mm", *extra, "--out", t.dir / "imported")
+    if t.main.rc != 0 and (t.dir / "imported").exists():
+        t.verdict = ("damaged", "the refused import left its folder behind")
+
+
+def _ply(path: Path, n: int = 500, claim: int | None = None, text: bool = False) -> Path:
+    import numpy as np
+    import plyfile
+
+    rng = np.random.default_rng(1)
+    v = np.zeros(n, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")])
+    v["x"], v["y"], v["z"] = rng.uniform(0, 50, (3, n))
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex")], text=text).write(str(path))
+    if claim is not None:
+        data = path.read_bytes()
+        path.write_bytes(data.replace(f"element vertex {n}".encode(), f"element vertex {claim}".encode(), 1))
+    return path
+
+
+@case("doors", "ply-header-short", "refused", "element vertex 400", "a PLY whose header counts 400 of its 500 points")
+def _(t: Trial) -> None:
+    _scans_import(t, [_ply(t.dir / "scan.ply", claim=400)])
+
+
+@case("doors", "pcd-header-long", "refused", "POINTS 900", "a PCD whose header claims 900 of its 500 points")
+def _(t: Trial) -> None:
+    import numpy as np
+    import pypcd4
+
+    pc = pypcd4.PointCloud.from_xyz_points(np.random.default_rng(2).uniform(0, 50, (500, 3)).astype(np.float32))
+    pc.save(t.dir / "scan.pcd", encoding=pypcd4.Encoding.BINARY)
+    data = (t.dir / "scan.pcd").read_bytes().replace(b"POINTS 500", b"POINTS 900", 1).replace(b"WIDTH 500", b"WIDTH 900", 1)
+    (t.dir / "scan.pcd").write_bytes(data)
+    _scans_import(t, [t.dir / "scan.pcd"])
+
+
+@case("doors", "xyz-gz-repeated", "refused", "decompresses", "a .xyz.gz of one line repeated 4 million times")
+def _(t: Trial) -> None:
+    import gzip
+
+    with gzip.open(t.dir / "scan.xyz.gz", "wb") as handle:
+        block = b"1.000 2.000 3.000\n" * 100_000
+        for _ in range(40):
+            handle.write(block)
+    _scans_import(t, [t.dir / "scan.xyz.gz"])
+
+
+@case("doors", "conf-far", "refused", "translation", "a .conf pose with a translation of 1e30")
+def _(t: Trial) -> None:
+    scan = _ply(t.dir / "a.ply")
+    (t.dir / "scans.conf").write_text("bmesh a.ply 1e30 0 0 0 0 0 1\n")
+    _scans_import(t, [scan], "--poses", t.dir / "scans.conf")
+
+
+
+@case("doors", "scan-fifo", "refused", "FIFO", "measure-weld on a named pipe")
+def _(t: Trial) -> None:
+    os.mkfifo(t.dir / "scan.xyz")
+    t.main = t.cli("measure-weld", t.dir / "scan.xyz", "--units", "mm", "--out", t.dir / "out", timeout=60)
+    if (t.dir / "out").exists():
+        t.verdict = ("damaged", "the refused measurement left its folder behind")
+
+
+@case("doors", "dask-not-a-scheduler", "refused", "not a Dask scheduler",
+      "--dask at a port where an HTTP server listens")
+def _(t: Trial) -> None:
+    sample = t.ctx.fresh_sample()
+    server = subprocess.Popen([sys.executable, "-m", "http.server", "0", "--bind", "127.0.0.1"], cwd=t.dir,
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, start_new_session=True, text=True)
+    try:
+        line = server.stdout.readline()  # "Serving HTTP on 127.0.0.1 port N ..."
+        port = int(line.split(" port ")[1].split()[0])
+        t.main = t.cli("reconstruct", sample, "--out", t.dir / "run", "--config", CI_CONFIG, "--dask",
+                       f"tcp://127.0.0.1:{port}", timeout=120)
+    finally:
+        kill_group(server)
+        server.wait()
+
+
+def _config_case(name: str, needle: str, what: str, text: str) -> None:
+    @case("doors", name, "refused", needle, what)
+    def run(t: Trial) -> None:
+        sample = t.ctx.fresh_sample()
+        t.protect(sample, strict=True)
+        config = write_yaml(t, "settings.yaml", text)
+        t.main = t.cli("reconstruct", sample, "--out", t.dir / "run", "--config", config, timeout=120)
+        if (t.dir / "run").exists():
+            t.verdict = ("damaged", "the refused run left its folder behind")
+
+
+_config_case("volume-size-tiny", "volume.size_mm", "volume.size_mm 0.01 (meshed for minutes before)",
+             "volume:\n  size_mm: 0.01\n")
+_config_case("weld-step-long", "section_step_mm", "weld.section_step_mm longer than the weld lines",
+             "weld:\n  section_step_mm: 80\n")
+_config_case("acceptance-inf", "finite", "an acceptance limit of .inf (written as Infinity into report.json before)",
+             "weld:\n  acceptance:\n    rules:\n      - {joint: double-sided butt, treatment: as-welded, source: mine, "
+             "toe_radius_mm: {min: 0.0, max: .inf}}\n")
+
+
+@case("doors", "weld-lines-off-the-weld", "flagged", "no weld found",
+      "the manifest's weld lines placed 60 mm off the weld, on the plate (stickers there)", timeout=400)
+def _(t: Trial) -> None:
+    def move(m: dict) -> None:
+        for line in m["weld"]["weld_lines"]:
+            for p in line["points_mm"]:
+                p[0] = 60.0
+
+    sample = t.ctx.fresh_sample()
+    edit_manifest(move)(sample)
+    t.main = t.cli("reconstruct", sample, "--out", t.dir / "run", "--config", CI_CONFIG, timeout=400)
+    report = t.dir / "run" / "results" / "report.json"
+    if report.is_file():
+        weld = json.loads(report.read_text())["weld"]
+        if weld.get("sections_measured"):
+            t.verdict = ("silent", f"{weld['sections_measured']} sections measured off the weld: {weld.get('verdict')}")
+
 
 
 # ------------------------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from data_catalog.manifests import load_manifest
 from data_catalog.stages import StageStore
 from flows.preflight import load_config
 from flows.stages import run_in_process
-from flows.stages.outputs import REPORT, WELD_GEOMETRY
+from flows.stages.outputs import WELD_GEOMETRY
 from flows.stages.report import weld_check
 from flows.stages.weld import section_settings, verdict_parts
 from schemas.reconstruction import WeldGeometryConfig
@@ -73,12 +73,12 @@ def moved_run(ci_sample, tmp_path_factory):
              for line in manifest.weld.weld_lines]
     moved = manifest.model_copy(update={"weld": manifest.weld.model_copy(update={"weld_lines": lines})})
     refs = run_in_process(store=StageStore(tmp_path_factory.mktemp("moved-weld")), sample_dir=ci_sample,
-                          manifest=moved, config=load_config(CI_CONFIG), upto="report")
-    return WELD_GEOMETRY.read(refs["weld"]), REPORT.read(refs["report"])
+                          manifest=moved, config=load_config(CI_CONFIG), upto="weld")
+    return WELD_GEOMETRY.read(refs["weld"])
 
 
 def test_weld_lines_off_the_weld_measure_nothing_and_the_report_flags_it(moved_run):
-    geometry, report = moved_run
+    geometry = moved_run
     assert geometry.measured and geometry.summary.sections > 50
     assert geometry.summary.sections_measured == 0 and geometry.summary.passed is False
     assert geometry.summary.verdict == "not measured: no weld found at the weld lines (bottom, top)"
@@ -86,12 +86,12 @@ def test_weld_lines_off_the_weld_measure_nothing_and_the_report_flags_it(moved_r
     assert all(h is None for h in heights)  # no figure without its weld
     toes = [t for sec in geometry.sections for t in (sec.toes.minus, sec.toes.plus) if t is not None]
     assert all(t.position_sigma_mm is not None and t.position_sigma_mm <= MAX_TOE_SIGMA_MM for t in toes)
-    [check] = [c for c in report.checks if c.check == "weld measured"]
-    assert check.result == "flagged" and check.what == geometry.summary.verdict
+    check = weld_check(geometry)  # the report's check (flows.stages.report), on the terminal as a warning line
+    assert check.check == "weld measured" and check.result == "flagged" and check.what == geometry.summary.verdict
 
 
 def test_the_weld_check_is_ok_only_for_a_judged_weld_at_every_line(moved_run):
-    geometry, _ = moved_run
+    geometry = moved_run
     judged = geometry.model_copy(update={"summary": verdict_parts(judge_weld([], geometry.acceptance), [True] * 4,
                                                                   {"top": 2, "bottom": 2})[1]})
     assert weld_check(judged).result == "ok"
