@@ -62,7 +62,8 @@ def _reconstruct_one(workspace: str, record: SampleRecord, config_path: str | No
                                     sample_id=record.sample_id,
                                     trail_head=record.trail_head["hash"] if record.trail_head else None)
     except Exception as exc:  # noqa: BLE001 - a failed sample is recorded, the batch goes on
-        stage = getattr(exc, "stage", None) or _failed_stage(out_dir)
+        # failed before any stage (the sample folder gone or changed since it was registered): the checks
+        stage = getattr(exc, "stage", None) or _failed_stage(out_dir) or "preflight"
         message = f"{type(exc).__name__}: {exc}"
         catalog.mark_failed(record.sample_id, stage, message)
         return {"sample_id": record.sample_id, "state": "failed", "stage": stage, "error": message}

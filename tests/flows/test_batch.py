@@ -156,3 +156,20 @@ def test_bad_sample_folders_are_refused_before_any_work(ci_sample, tmp_path, cas
     assert not out.exists()  # refused before any work
     with pytest.raises(ManifestError, match=expect):
         Catalog(tmp_path / "ws").register(sample)
+
+
+def test_a_sample_deleted_after_it_was_registered_fails_at_preflight_not_at_none(ci_sample, tmp_path):
+    """A sample folder removed mid-batch (after its registration, before its run) was reported
+    "FAILED ... at None" (issue 28): it fails at the checks before any stage, and says so."""
+    from flows.batch import _reconstruct_one
+
+    sample = _copy_sample(ci_sample, tmp_path / "samples" / "gone", "batch-gone", ["top-L01"])
+    workspace = tmp_path / "ws"
+    catalog = Catalog(workspace)
+    catalog.register(sample)
+    record = catalog.get("batch-gone")
+    shutil.rmtree(sample)
+    outcome = _reconstruct_one(str(workspace), record, CI_CONFIG, "pytest")
+    assert outcome["state"] == "failed" and outcome["stage"] == "preflight", outcome
+    assert str(sample) in outcome["error"]
+    assert Catalog(workspace).get("batch-gone").failed_stage == "preflight"
