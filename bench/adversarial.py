@@ -59,9 +59,9 @@ sys.path.insert(0, str(REPO))  # the project's own tree hash (the manifest's con
 
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
 RESULTS_MD = REPO / "bench" / "results" / "adversarial.md"
-SIX = ["top-L02", "top-L03", "top-L04", "bottom-L02", "bottom-L03", "bottom-L04"]
+SIX = ["top-L02", "top-L04", "top-L05", "bottom-L02", "bottom-L04", "bottom-L05"]  # the tests' subset (tests/conftest.py)
 SAMPLE_ID = "sim-ci-0011"  # the ci preset's sample id
-VICTIM = "top-L03"  # the pass the pass-store cases damage
+VICTIM = "top-L04"  # the pass the pass-store cases damage
 TRACEBACK = "Traceback (most recent call last)"
 OUTCOMES = ("refused", "flagged", "ok", "unclear", "traceback", "silent", "damaged")
 USUAL_TRAIL_KINDS = {"run-started", "stage", "run-finished", "leftovers-swept"}
@@ -183,8 +183,8 @@ def sha256_file(path: Path) -> str:
 
 
 def snapshot(path: Path) -> dict[str, str] | None:
-    """sha256 of every file under ``path`` (symbolic links by target, never followed); None when
-    ``path`` does not exist."""
+    """sha256 of every file under ``path`` (symbolic links by target, never followed; a FIFO,
+    socket or device by its mode, never opened); None when ``path`` does not exist."""
     if path.is_symlink():
         return {".": "link:" + os.readlink(path)}
     if path.is_file():
@@ -197,7 +197,12 @@ def snapshot(path: Path) -> dict[str, str] | None:
             item = Path(folder) / name
             rel = item.relative_to(path).as_posix()
             try:
-                found[rel] = "link:" + os.readlink(item) if item.is_symlink() else sha256_file(item)
+                if item.is_symlink():
+                    found[rel] = "link:" + os.readlink(item)
+                elif not item.is_file():  # a FIFO, a socket, a device: never opened (a FIFO blocks)
+                    found[rel] = f"special: mode {oct(item.lstat().st_mode)}"
+                else:
+                    found[rel] = sha256_file(item)
             except OSError as exc:
                 found[rel] = f"unreadable: {exc}"
     return found
@@ -574,7 +579,7 @@ def set_path(manifest: dict, dotted: str, value) -> None:
 
 
 DELETE = object()
-VICTIM_AT = "setups.0.passes.1"  # top-L03 in the 6-pass subset
+VICTIM_AT = "setups.0.passes.1"  # VICTIM in the 6-pass subset
 
 
 def field_edit(dotted: str, value) -> Callable[[Path], None]:
@@ -744,7 +749,7 @@ def _file_not_store(sample: Path) -> None:
 
 
 def _symlink_out(sample: Path) -> None:
-    outside = sample.parent.parent / "outside-top-L03.zarr"
+    outside = sample.parent.parent / f"outside-{VICTIM}.zarr"
     shutil.rmtree(outside, ignore_errors=True)
     shutil.move(str(store(sample)), outside)
     store(sample).symlink_to(outside)
@@ -780,8 +785,8 @@ for _name, _needle, _what, _edit, *_expect in [
      field_edit("schema_version", "2.0")),
     ("sample-id-path", "sample_id", "sample_id '../../evil' (it names the run folder and the result files)",
      field_edit("sample_id", "../../evil")),
-    ("pass-id-space", "pass_id", "a pass_id with a space", field_edit(f"{VICTIM_AT}.pass_id", "top L03")),
-    ("pass-id-slash", "pass_id", "a pass_id with a slash", field_edit(f"{VICTIM_AT}.pass_id", "top/L03")),
+    ("pass-id-space", "pass_id", "a pass_id with a space", field_edit(f"{VICTIM_AT}.pass_id", VICTIM.replace("-", " "))),
+    ("pass-id-slash", "pass_id", "a pass_id with a slash", field_edit(f"{VICTIM_AT}.pass_id", VICTIM.replace("-", "/"))),
     ("pass-id-duplicate", "top-L02", "two passes share a pass_id (top-L02 in both setups)",
      edit_manifest(_dup_pass_id)),
     ("file-duplicate", "top-L02.zarr", "two passes point at the same pass file", edit_manifest(_dup_file)),
@@ -789,8 +794,8 @@ for _name, _needle, _what, _edit, *_expect in [
      edit_manifest(_swap_files)),
     ("file-dotdot", "passes.1.file", "a pass file '../../etc/passwd'", field_edit(f"{VICTIM_AT}.file", "../../etc/passwd")),
     ("file-absolute", "passes.1.file", "an absolute pass file path", field_edit(f"{VICTIM_AT}.file", "/etc/passwd")),
-    ("file-backslash", "passes.1.file", "a Windows path 'passes\\top-L03.zarr'",
-     field_edit(f"{VICTIM_AT}.file", "passes\\top-L03.zarr")),
+    ("file-backslash", "passes.1.file", f"a Windows path 'passes\\{VICTIM}.zarr'",
+     field_edit(f"{VICTIM_AT}.file", f"passes\\{VICTIM}.zarr")),
     ("file-empty", "passes.1.file", "an empty pass file path", field_edit(f"{VICTIM_AT}.file", "")),
     ("file-missing", VICTIM, "a pass file that does not exist", field_edit(f"{VICTIM_AT}.file", "passes/nope.zarr")),
     ("file-not-a-store", VICTIM, "a pass file that is a plain file, not a zarr store", _file_not_store),
@@ -885,7 +890,7 @@ def _swap_chunks(sample: Path) -> None:
 
 
 def _copy_of_neighbour(sample: Path) -> None:
-    """top-L03's store replaced by a copy of top-L02's, relabelled (a copy-paste in the export)."""
+    """VICTIM's store replaced by a copy of top-L02's, relabelled (a copy-paste in the export)."""
     shutil.rmtree(store(sample))
     shutil.copytree(store(sample, "top-L02"), store(sample))
     attrs_edit(lambda a: a.update(pass_id=VICTIM), hashed="rehash")(sample)
@@ -2084,7 +2089,7 @@ for _name, _needle, _what, _spoil in [
 def _scans_import(t: Trial, files: list[Path], *extra) -> None:
     for f in files:
         t.protect(f)
-    t.main = t.cli("import-scans", *files, "--units", "mm", *extra, "--out", t.dir / "imported")
+    t.main = t.cli("import-scans", "--units", "mm", *extra, t.dir / "imported", *files)
     if t.main.rc != 0 and (t.dir / "imported").exists():
         t.verdict = ("damaged", "the refused import left its folder behind")
 
