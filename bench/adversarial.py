@@ -59,7 +59,7 @@ sys.path.insert(0, str(REPO))  # the project's own tree hash (the manifest's con
 
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
 RESULTS_MD = REPO / "bench" / "results" / "adversarial.md"
-SIX = ["top-L02", "top-L04", "top-L05", "bottom-L02", "bottom-L04", "bottom-L05"]  # the tests' subset (tests/conftest.py)
+SIX = ["top-L02", "top-L04", "top-L05", "bottom-L02", "bottom-L04", "bottom-L05"]  # tests/conftest.py SIX
 SAMPLE_ID = "sim-ci-0011"  # the ci preset's sample id
 VICTIM = "top-L04"  # the pass the pass-store cases damage
 TRACEBACK = "Traceback (most recent call last)"
