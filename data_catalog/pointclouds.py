@@ -421,10 +421,12 @@ def _check_text_limits(path: Path) -> None:
     with (gzip.open(path, "rb") if gzipped else open(path, "rb")) as handle:
         while block := handle.read(1 << 20):
             total += len(block)
-            last = block.rfind(b"\n")
-            longest = max(run + (block.find(b"\n") if last >= 0 else len(block)),
-                          max((len(x) for x in block[:last].split(b"\n")), default=0) if last >= 0 else 0)
-            run = len(block) - last - 1 if last >= 0 else run + len(block)
+            pieces = block.split(b"\n")  # the first continues the line in progress, the last starts the next
+            if len(pieces) == 1:
+                longest = run = run + len(block)
+            else:
+                longest = max(run + len(pieces[0]), max(map(len, pieces[1:-1]), default=0))
+                run = len(pieces[-1])
             if max(longest, run) > MAX_TEXT_LINE_BYTES:
                 raise PointCloudFormatError(f"{path}: a line longer than {MAX_TEXT_LINE_BYTES:,} bytes"
                                             f"{' decompressed' if gzipped else ''}; expected lines of x y z [intensity]")

@@ -460,3 +460,12 @@ def test_one_line_repeated_millions_of_times_is_refused_as_a_bomb(tmp_path):
         for _ in range(40):  # 72 MB of text
             handle.write(block)
     _refused(path, "decompresses to more than 100 times its", "expected scanned points, which compress 3-5 times")
+
+
+def test_an_overlong_line_among_good_ones_is_refused_wherever_the_blocks_cut_it(tmp_path):
+    good = "".join(f"{k} {k} {k}\n" for k in range(200_000))  # ~2.5 MB: several 1 MiB blocks
+    path = tmp_path / "scan.xyz"
+    path.write_text(good[: len(good) // 2] + "9" * (1_100_000) + " 1 1\n" + good[len(good) // 2:])
+    _refused(path, "a line longer than 1,048,576 bytes; expected lines of x y z [intensity]")
+    path.write_text(good)
+    assert len(read_point_cloud(path, units="mm").points_mm) == 200_000
