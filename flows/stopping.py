@@ -60,7 +60,8 @@ def install(command: str) -> None:
         for s in (*STOP_SIGNALS, signal.SIGPIPE):  # a second signal while stopping: ignored, the first is
             signal.signal(s, signal.SIG_IGN)    # acted on (and a pipe to a child just ended is no reason to die)
         name = signal.Signals(signum).name
-        line = f"weldrecon {command}: stopped by {name}; its child processes ended, nothing it was writing was published\n"
+        line = (f"weldrecon {command}: stopped by {name}; its child processes ended, nothing it was writing was "
+                "published\n")
         try:  # the terminal's fds to /dev/null meanwhile: the line is the last one, not a progress line after it
             saved = os.dup(2)
             quiet = os.open(os.devnull, os.O_WRONLY)
