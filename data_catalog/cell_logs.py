@@ -136,8 +136,8 @@ def _data_lines(path: Path, header_lines: int, what: str) -> Iterator[tuple[int,
                 number += 1
                 if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
                     raise CellLogError(f"{path}: line {number} is longer than {MAX_LINE_BYTES:,} bytes"
-                                       f"{' decompressed' if gzipped else ''}; expected {what} (a line a profile "
-                                       "or a pose)")
+                                       f"{' decompressed' if gzipped else ''}; expected {what} (one line per "
+                                       "profile or pose)")
                 if number > MAX_LINES:
                     raise CellLogError(f"{path}: more than {MAX_LINES:,} lines{' decompressed' if gzipped else ''}; "
                                        f"expected {what} of one pass (at 1 kHz, {MAX_LINES / 3.6e6:.1f} hours)")

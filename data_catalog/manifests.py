@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from pydantic import ValidationError
@@ -81,7 +82,7 @@ def _gate(root: Path, file: str, where: str, what: str, *, folder: bool) -> None
     """ManifestError (``data_catalog.paths.path_inside``'s line) when ``root / file`` climbs out, goes
     through a symbolic link or is not a regular file (``folder``: a folder). A missing path is
     left to the caller."""
-    if not (root / file).exists() and not (root / file).is_symlink():
+    if not os.path.lexists(root / file):
         return
     path_inside(root, file, where=f"{root / MANIFEST_NAME}: {where}", what=what, folder=folder, error=ManifestError)
 

@@ -15,7 +15,7 @@ from data_catalog.textfiles import read_yaml_model
 from schemas.reconstruction import ReconstructionConfig
 
 __all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
-           "check_model_size", "check_weld_steps", "wait_for_file", "trail_problems"]
+           "check_settings", "wait_for_file", "trail_problems"]
 
 RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
 MAX_TETRAHEDRA = 30_000_000  # gmsh's HXT on 2 cores: the demo's 0.7 M take ~1 min; 30 M, most of an hour
@@ -143,14 +143,19 @@ def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s
         time.sleep(poll_s)
 
 
-def check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
-    """Refuse, before any work, a volume.size_mm that would fill the part with more tetrahedra
-    than ``MAX_TETRAHEDRA``, counted low (the part filling a tenth of its bounding box
-    ``bounds_mm``, (min corner, max corner) mm, every element at size_mm, the largest it may be):
-    such a run would mesh for hours and then not fit in memory. ValueError naming the field.
-    ``bounds_mm`` None (a sample of imported scans declares no part): nothing to check against."""
-    if bounds_mm is None:
-        return
+def check_settings(manifest, config: ReconstructionConfig) -> None:
+    """Refuse, before any work, settings the sample (``manifest``) cannot be run with
+    (``_check_model_size``, ``_check_weld_steps``). ValueError naming the field."""
+    if manifest.specimen is not None:  # a sample of imported scans declares no part to count from
+        _check_model_size(manifest.specimen.bounds_mm(), config)
+    _check_weld_steps(manifest.weld_lines(), config)
+
+
+def _check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
+    """A volume.size_mm that would fill the part with more tetrahedra than ``MAX_TETRAHEDRA``,
+    counted low (the part filling a tenth of its bounding box ``bounds_mm``, (min corner, max
+    corner) mm, every element at size_mm, the largest it may be), refused: such a run would mesh
+    for hours and then not fit in memory."""
     extent = [hi - lo for lo, hi in zip(*bounds_mm)]
     size = config.volume.size_mm
     count = _FILLED * extent[0] * extent[1] * extent[2] / (_TET_VOLUME * size ** 3)
@@ -161,10 +166,10 @@ def check_model_size(bounds_mm, config: ReconstructionConfig) -> None:
                          "are graded finer by weld_size_mm and toe_size_mm on their own)")
 
 
-def check_weld_steps(weld_lines, config: ReconstructionConfig) -> None:
-    """Refuse, before any work, a weld.section_step_mm that leaves a weld line (``weld_lines``,
-    the manifest's, polylines in mm) without a section: longer than the line less its end margins
-    (the run said "0 of 0 sections measured, fail"). ValueError naming the field and the lines."""
+def _check_weld_steps(weld_lines, config: ReconstructionConfig) -> None:
+    """A weld.section_step_mm that leaves a weld line (``weld_lines``, the manifest's, polylines
+    in mm) without a section, refused: longer than the line less its end margins (the run said
+    "0 of 0 sections measured, fail"), naming the lines."""
     import numpy as np
 
     w = config.weld

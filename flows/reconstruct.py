@@ -26,8 +26,8 @@ from data_catalog.manifests import MANIFEST_NAME, check_pass_file, check_sample_
 from data_catalog.passes import pass_is_complete
 from data_catalog.stages import StageStore
 from flows import stopping
-from flows.preflight import (check_dask_scheduler, check_model_size, check_out_dir, check_run_folder, check_weld_steps,
-                             load_config, trail_problems, wait_for_file)
+from flows.preflight import (check_dask_scheduler, check_out_dir, check_run_folder, check_settings, load_config,
+                             trail_problems, wait_for_file)
 from flows.stages import (STAGE_NAMES, STAGES, Stage, StageFailed, StageRef, code_version, needed_for,
                           run_stage)
 from flows.stages.contracts import each
@@ -332,8 +332,7 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                          "(renamed, or the folder reused for another sample)")
     check_sample_files(sample, manifest)
     config = load_config(config_path)
-    check_model_size(None if manifest.specimen is None else manifest.specimen.bounds_mm(), config)
-    check_weld_steps(manifest.weld_lines(), config)
+    check_settings(manifest, config)
     check_run_folder(out, manifest.sample_id)
     store = StageStore(out)
     out.mkdir(parents=True, exist_ok=True)

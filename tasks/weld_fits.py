@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["TOE_RADIUS_BOUNDS_MM", "Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line", "fit_robust_line", "fit_toe",
-           "fit_groove", "propagate", "toe_radius_range", "toe_at_radius", "running_median"]
+__all__ = ["TOE_RADIUS_BOUNDS_MM", "Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line",
+           "fit_robust_line", "fit_toe", "fit_groove", "propagate", "toe_radius_range", "toe_at_radius", "running_median"]
 
 _NAN = float("nan")
 _R_MIN_MM, _R_MAX_MM = 0.02, 10.0  # the toe fillet's radius is fitted between these
@@ -399,7 +399,7 @@ def toe_at_radius(v: np.ndarray, h: np.ndarray, *, settings: SectionSettings, to
     held = _fixed_radius_fit(v, h, settings, toe_guess_v, fit)
     if held is None:
         return fit
-    w, z, undercut, _, at = held
+    *_, undercut, _, at = held
     p = at(float(np.clip(radius_mm, _R_MIN_MM, _R_MAX_MM))).x
     return ToeFit(side=fit.side, position_u_mm=float(p[0]), position_sigma_mm=fit.position_sigma_mm,
                   flank_angle_deg=Measured(math.degrees(p[1]), fit.flank_angle_deg.sigma),

@@ -38,8 +38,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     import getpass
 
     from data_catalog.manifests import check_sample_files, load_manifest
-    from flows.preflight import (check_dask_scheduler, check_model_size, check_out_dir, check_run_folder,
-                                 check_weld_steps, load_config, wait_for_file)
+    from flows.preflight import (check_dask_scheduler, check_out_dir, check_run_folder, check_settings, load_config,
+                                 wait_for_file)
 
     # everything a run needs is checked first, before Prefect and the compute stack are imported
     sample = Path(args.sample_dir)
@@ -53,9 +53,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         wait_for_file(sample / "manifest.json", timeout_s=follow, what=f"sample {sample}")
     manifest = load_manifest(sample)
     check_sample_files(sample, manifest)  # bad input is refused here, before a flow run
-    config = load_config(args.config)
-    check_model_size(None if manifest.specimen is None else manifest.specimen.bounds_mm(), config)
-    check_weld_steps(manifest.weld_lines(), config)
+    check_settings(manifest, load_config(args.config))
     check_run_folder(out, manifest.sample_id)
     stop_after = getattr(args, "stop_after", None)
     if stop_after is not None:

@@ -549,18 +549,23 @@ def test_a_gzipped_profile_file_reads_as_its_text(tmp_path):
     assert open_pass(tmp_path / "gz" / "passes" / "top-A.zarr").n_profiles == 5
 
 
+def _refused_import(cell: Path, tmp_path: Path) -> str:
+    """The one-line refusal of importing ``cell``, after checking that nothing was written."""
+    (tmp_path / "out").mkdir()
+    with pytest.raises(CellLogError) as caught:
+        import_cell(cell / "CELL.yaml", tmp_path / "out" / "sample")
+    assert list((tmp_path / "out").iterdir()) == []
+    return str(caught.value)
+
+
 def test_a_decompression_bomb_is_refused_by_its_line_length(tmp_path):
     """A .gz of zeros: one 'line' of many megabytes, refused at the first MiB, never held whole."""
     cell = _example_copy(tmp_path)
     with gzip.open(cell / "profiles/top-B.csv.gz", "wb", compresslevel=1) as handle:
         for _ in range(16):
             handle.write(b"\0" * (1 << 20))
-    (tmp_path / "out").mkdir()
-    with pytest.raises(CellLogError) as caught:
-        import_cell(cell / "CELL.yaml", tmp_path / "out" / "sample")
-    assert str(caught.value).startswith(f"{cell}/profiles/top-B.csv.gz: line 1 is longer than 1,048,576 bytes "
-                                        "decompressed; expected a profile file")
-    assert list((tmp_path / "out").iterdir()) == []
+    assert _refused_import(cell, tmp_path).startswith(f"{cell}/profiles/top-B.csv.gz: line 1 is longer than "
+                                                      "1,048,576 bytes decompressed; expected a profile file")
 
 
 def test_a_file_of_endless_lines_is_refused_by_its_line_count(tmp_path, monkeypatch):
@@ -573,9 +578,5 @@ def test_a_file_of_endless_lines_is_refused_by_its_line_count(tmp_path, monkeypa
     with gzip.open(cell / "profiles/top-B.csv.gz", "wt") as handle:
         for _ in range(200):
             handle.write(line + "\n")
-    (tmp_path / "out").mkdir()
-    with pytest.raises(CellLogError) as caught:
-        import_cell(cell / "CELL.yaml", tmp_path / "out" / "sample")
-    assert str(caught.value).startswith(f"{cell}/profiles/top-B.csv.gz: more than 50 lines decompressed; expected a "
-                                        "profile file")
-    assert list((tmp_path / "out").iterdir()) == []
+    assert _refused_import(cell, tmp_path).startswith(f"{cell}/profiles/top-B.csv.gz: more than 50 lines "
+                                                      "decompressed; expected a profile file")
