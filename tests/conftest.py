@@ -266,7 +266,7 @@ _TIERS = (("tests/tasks/", "tests/schemas/", "tests/test_layering.py", "tests/te
 
 
 def _tier(item) -> int:
-    path = Path(str(item.fspath)).resolve().relative_to(Path(__file__).resolve().parents[1]).as_posix()
+    path = _relative(item)
     return next((k for k, prefixes in enumerate(_TIERS) if path.startswith(prefixes)), len(_TIERS))
 
 
@@ -275,10 +275,40 @@ _MADE_ONCE = {"ci_sample", "no_pose_log_sample", "six_sample", "tjoint_sample", 
               "tjoint_run", "tjoint_single_run", "cruciform_sample", "cruciform_run"}
 
 
-def _order(item) -> tuple[int, bool]:
-    """Its tier; within one, the tests that need none of the session's samples first: while the
-    first worker simulates a sample, the other runs those instead of waiting for it."""
-    return _tier(item), bool(_MADE_ONCE & set(item.fixturenames))
+# The costliest files, in the order the workers take them (pyproject.toml: ``--dist loadfile
+# --no-loadscope-reorder``: a worker takes a whole file, the next in this order when it is free;
+# xdist's own order, by the number of tests in a file, ignores their cost). The longest first, so
+# that the many short files even out the end; and each pair the two workers start side by side
+# needs different made-once samples, so that neither waits for the other to make one: the
+# six-pass run (resilience) beside the T-joint's; the ``ci`` run beside the cruciform's; then the
+# files that reuse them. Seconds: one suite run's sum of the file's setup and calls (2026-11-28,
+# 2 cores). A file not named here follows them, in its tier.
+_COSTLIEST = ("tests/flows/test_resilience_audit.py",  # 103 s, makes the six-pass run (66 s)
+              "tests/flows/test_reconstruct_tjoint.py",  # 110 s, the T-joint's runs
+              "tests/flows/test_reconstruct_ci.py",  # 55 s, makes the ci run
+              "tests/flows/test_reconstruct_cruciform.py",  # 73 s
+              "tests/flows/test_stress_stage.py",  # 59 s, on the ci run
+              "tests/flows/test_cli_errors.py",  # 103 s, a full disk on the six-pass run's stages
+              "tests/deploy/test_service.py",  # 48 s, on the six-pass run's stages
+              "tests/flows/test_consistency_checks.py",  # 38 s
+              "tests/flows/test_measure_weld_cli.py",  # 34 s
+              "tests/flows/test_batch.py",  # 29 s
+              "tests/flows/test_per_pass_blocks.py",  # 28 s
+              "tests/flows/test_plate_flow.py",  # 23 s
+              "tests/flows/test_follow.py",  # 23 s
+              "tests/flows/test_stage_keys.py")  # 22 s
+
+
+def _relative(item) -> str:
+    return Path(str(item.fspath)).resolve().relative_to(Path(__file__).resolve().parents[1]).as_posix()
+
+
+def _order(item) -> tuple[int, int, bool]:
+    """The costliest files first (``_COSTLIEST``); then by tier, and within one, the tests that
+    need none of the session's samples first."""
+    path = _relative(item)
+    first = _COSTLIEST.index(path) if path in _COSTLIEST else len(_COSTLIEST)
+    return first, _tier(item), bool(_MADE_ONCE & set(item.fixturenames))
 
 
 def pytest_collection_modifyitems(session, config, items):
