@@ -103,8 +103,8 @@ def no_pose_log_sample(ci_sample, tmp_path_factory) -> Path:
     return _made_once(tmp_path_factory, "no-pose-log-sample", lambda out: without_pose_logs(ci_sample, out))
 
 
-def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None = None):
-    """``sample`` reconstructed into ``out`` (real Prefect engine, ci settings): (run folder, report),
+def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None = None, config=CI_CONFIG):
+    """``sample`` reconstructed into ``out`` (real Prefect engine, the settings ``config``, ci.yaml unless named): (run folder, report),
     the report as published (tests.flows.samples.as_published; a run stopped after the stage
     ``stop_after`` publishes none: its stages' refs and metrics only). ``lock``: a _SessionLock held
     while it runs, so that a second worker reconstructing the same sample waits and then copies
@@ -115,7 +115,7 @@ def _reconstructed(sample: Path, out: Path, *, lock=None, stop_after: str | None
     from tests.flows.samples import as_published
 
     with lock or contextlib.nullcontext():
-        return out, as_published(reconstruct_sample(str(sample), str(out), str(CI_CONFIG), started_by="pytest",
+        return out, as_published(reconstruct_sample(str(sample), str(out), str(config), started_by="pytest",
                                                     stop_after=stop_after))
 
 
@@ -196,8 +196,11 @@ def six_sample(ci_sample, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def six_run(six_sample, tmp_path_factory):
-    """The six-pass subset reconstructed once: (run folder, report)."""
-    return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run",
+    """The six-pass subset reconstructed once with the quick settings (tests.flows.samples.QUICK_CONFIG,
+    as every test that runs this subset whole): (run folder, report)."""
+    from tests.flows.samples import QUICK_CONFIG
+
+    return _reconstructed(six_sample, tmp_path_factory.mktemp("recon-six") / "run", config=QUICK_CONFIG,
                           lock=_SessionLock(tmp_path_factory, "six-run"))
 
 

@@ -17,6 +17,7 @@ import pytest
 
 from data_catalog.audit import read_trail, verify_trail
 from flows.stages import STAGE_NAMES
+from tests.flows.samples import QUICK_CONFIG
 
 REPO = Path(__file__).resolve().parents[2]
 PREFECT = REPO / ".venv" / "bin" / "prefect"
@@ -51,7 +52,7 @@ def test_server_worker_and_deployments_on_loopback(six_sample, six_run, tmp_path
         out = tmp_path / "ws" / "runs" / "ci"
         run = subprocess.run([str(PREFECT), "deployment", "run", "reconstruct-sample/on-demand",
                               "--param", f"sample_dir={six_sample}", "--param", f"out_dir={out}",
-                              "--param", f"config_path={REPO / 'deploy' / 'configs' / 'ci.yaml'}", "--watch",
+                              "--param", f"config_path={QUICK_CONFIG}", "--watch",
                               "--watch-timeout", "400"], env=env, capture_output=True, text=True, timeout=480)
         assert run.returncode == 0 and "Completed" in run.stdout, run.stdout[-3000:] + run.stderr[-3000:]
         report = json.loads((out / "results" / "report.json").read_text())

@@ -6,19 +6,9 @@ import json
 import shutil
 from pathlib import Path
 
-
-def quick_config(ci_config: Path, folder: Path) -> Path:
-    """The ci settings (``ci_config``) with the weld read every 5 mm and the stress every 40 mm,
-    written to ``folder/quick.yaml``: for a test that runs the whole flow on data of its own and
-    looks at something other than the weld's or the stress's figures."""
-    import yaml
-
-    settings = yaml.safe_load(Path(ci_config).read_text())
-    settings["weld"] = {"section_step_mm": 5.0}
-    settings["stress"] = {"section_step_mm": 40.0}
-    quick = folder / "quick.yaml"
-    quick.write_text(yaml.safe_dump(settings))
-    return quick
+QUICK_CONFIG = str(Path(__file__).resolve().parents[1] / "data" / "quick.yaml")
+"""The ci settings with the weld read every 5 mm and the stress every 40 mm (tests/data/quick.yaml):
+for the tests that run a flow to test what is around the weld's and the stress's figures."""
 
 
 def copy_sample(ci_sample: Path, dst: Path, keep: list[str] | None = None) -> Path:

@@ -15,7 +15,7 @@ from data_catalog.catalog import Catalog
 from data_catalog.manifests import ManifestError, check_sample_files, load_manifest
 from tests.conftest import SIX
 from tests.flows.cli import run_cli, weldrecon
-from tests.flows.samples import copy_sample
+from tests.flows.samples import QUICK_CONFIG, copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -50,7 +50,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     chunk.write_bytes(original[: len(original) // 2])  # truncated
     workspace = tmp_path / "ws"
 
-    first = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")
+    first = reconstruct_batch(str(workspace), str(samples), QUICK_CONFIG, max_concurrent=2, started_by="pytest")
     assert sorted(first["done"]) == ["batch-a", "batch-b"]
     assert list(first["failed"]) == ["batch-c"]
     why = first["failed"]["batch-c"]
@@ -88,7 +88,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     assert page.count('alt="mesh of batch-') == 2  # each done sample's mesh picture, inline
 
     chunk.write_bytes(original)  # repaired
-    second = reconstruct_batch(str(workspace), str(samples), CI_CONFIG, max_concurrent=2, started_by="pytest")
+    second = reconstruct_batch(str(workspace), str(samples), QUICK_CONFIG, max_concurrent=2, started_by="pytest")
     assert second["done"] == ["batch-c"] and second["failed"] == {}
     assert sorted(second["up_to_date"]) == ["batch-a", "batch-b"]
     assert catalog.get("batch-c").state == "done"
@@ -96,7 +96,7 @@ def test_a_failing_sample_does_not_stop_the_batch_and_only_it_reruns_after_repai
     index.unlink()
     rebuilt = weldrecon("catalog", "index", "--workspace", str(workspace))
     assert rebuilt.returncode == 0 and rebuilt.stdout.strip() == f"index: {index}" and index.is_file()
-    third = reconstruct_batch(str(workspace), None, CI_CONFIG, started_by="pytest")
+    third = reconstruct_batch(str(workspace), None, QUICK_CONFIG, started_by="pytest")
     assert third["done"] == [] and len(third["up_to_date"]) == 3
 
 

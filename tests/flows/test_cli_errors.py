@@ -18,7 +18,7 @@ from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from tests.conftest import SIX
 from tests.flows.cli import run_cli, weldrecon
-from tests.flows.samples import copy_sample
+from tests.flows.samples import QUICK_CONFIG, copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
@@ -279,7 +279,7 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
     _mount_tmpfs(disk, "8m")
     try:
         run = disk / "run"
-        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG)
         assert done.returncode == 2
         problems = _problems(done.stderr)
         assert problems[0].startswith("weldrecon reconstruct: error: stage denoise failed for ")
@@ -292,7 +292,7 @@ def test_a_full_disk_is_named_nothing_half_written_is_trusted_and_the_run_recove
         assert verify.returncode == 0 and "audit trail intact" in verify.stdout
         # space freed: enough for the whole run (its stage folders, the C3D10 model, the stress sections)
         subprocess.run(["mount", "-o", "remount,size=256m", str(disk)], check=True)
-        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG)
+        done = run_cli("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG)
         assert done.returncode == 0, done.stderr
         report = json.loads((run / "results" / "report.json").read_text())
         assert report["mesh"]["triangles"] > 10_000  # (this subset's mesh is open: 3 passes per side)

@@ -16,7 +16,7 @@ import zarr
 from data_catalog.hashing import sha256_tree
 from tests.flows.cli import weldrecon
 from tests.conftest import SIX
-from tests.flows.samples import copy_sample, quick_config
+from tests.flows.samples import QUICK_CONFIG, copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
@@ -108,8 +108,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     out = tmp_path / "out"
     # the ci settings with the weld and the stress read at fewer sections (what is checked here is
     # the chunk; its stages run once more than the session's, on this pass's data)
-    quick = quick_config(CI_CONFIG, tmp_path)
-    done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", str(quick))
+    done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", QUICK_CONFIG)
     assert done.returncode == 0, done.stderr
     report = json.loads((out / "results" / "report.json").read_text())
     flagged = {(c["pass"], c["check"]) for c in report["checks"] if c["result"] != "ok"}
@@ -128,7 +127,7 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
 
     published = {p.name: p.read_bytes() for p in (out / "results").iterdir()}
     config = tmp_path / "tight.yaml"
-    config.write_text(quick.read_text() + "refine:\n  neighbour_mm: 0.2\n")
+    config.write_text(Path(QUICK_CONFIG).read_text() + "refine:\n  neighbour_mm: 0.2\n")
     done = weldrecon("reconstruct", str(sample), "--out", str(out), "--config", str(config))
     assert done.returncode != 0
     assert ("refine: no pass kept a surface point to match: none has 16 points (refine.normal_neighbours) "

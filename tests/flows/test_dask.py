@@ -11,10 +11,9 @@ from pathlib import Path
 from data_catalog.audit import read_trail, verify_trail
 from flows.stages import STAGE_NAMES
 from flows.stages.qa_audit import strip_audit
-from tests.flows.samples import as_published
+from tests.flows.samples import QUICK_CONFIG, as_published
 
 REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 
@@ -52,7 +51,7 @@ def test_a_sample_on_a_local_dask_cluster(six_run, six_sample, tmp_path, monkeyp
     watcher.start()
     try:
         with prefect_api_for_workers():
-            report = as_published(reconstruct_sample(str(six_sample), str(out), CI_CONFIG, started_by="pytest dask", dask="local:2"))
+            report = as_published(reconstruct_sample(str(six_sample), str(out), QUICK_CONFIG, started_by="pytest dask", dask="local:2"))
     finally:
         running.set()
         watcher.join()

@@ -24,6 +24,7 @@ from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME
 from tests.flows.cli import REPO, cli_env, weldrecon
+from tests.flows.samples import QUICK_CONFIG
 
 CI_CONFIG = REPO / "deploy" / "configs" / "ci.yaml"
 
@@ -56,7 +57,7 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     stores = sorted((six_sample / "passes").iterdir())
     with open(tmp_path / "follow.err", "w") as err:
         follow = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(sample), "--out", str(out),
-                                   "--follow", "--follow-timeout", "600", "--config", str(CI_CONFIG)],
+                                   "--follow", "--follow-timeout", "600", "--config", QUICK_CONFIG],
                                   cwd=REPO, env=cli_env(), stdout=subprocess.DEVNULL, stderr=err)
         try:
             for store in stores[:-1]:

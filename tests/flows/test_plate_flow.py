@@ -4,12 +4,8 @@ butt-welded plate (tests/schemas/test_manifest_parts.py checks the parts' manife
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-from tests.flows.samples import as_published, quick_config
-
-REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
+from tests.flows.samples import QUICK_CONFIG, as_published
 
 
 def test_a_plate_reconstructs_with_the_dog_bones_weld_zone(six_sample, six_run, tmp_path):
@@ -26,11 +22,9 @@ def test_a_plate_reconstructs_with_the_dog_bones_weld_zone(six_sample, six_run, 
              "thickness_mm": dog["thickness_mm"]}
     sample = copy_sample(six_sample, tmp_path / "plate")
     (sample / "manifest.json").write_text(json.dumps({**raw, "specimen": plate}))
-    # the ci settings with the weld and the stress read at fewer sections: the stages that read the
-    # part's kind are made again for it; what is compared is the merge (the same key as the
-    # dog-bone run's, whatever the settings of the stages after it)
-    quick = quick_config(CI_CONFIG, tmp_path)
-    report = as_published(reconstruct_sample(str(sample), str(tmp_path / "run"), str(quick), started_by="pytest"))
+    # the quick settings, as the dog-bone run's: the stages that read the part's kind are made again
+    # for it; what is compared is the merge (the same key as the dog-bone run's)
+    report = as_published(reconstruct_sample(str(sample), str(tmp_path / "run"), QUICK_CONFIG, started_by="pytest"))
     dog_merge, plate_merge = six_run[1]["stages"]["merge"], report["stages"]["merge"]
     assert plate_merge["weld_zone_points_out"] > 0
     assert plate_merge["weld_zone_points_out"] == dog_merge["weld_zone_points_out"]

@@ -20,10 +20,9 @@ from data_catalog.hashing import sha256_file
 from flows.stages import STAGE_NAMES, needed_for
 from flows.stages.outputs import MERGED
 from tests.flows.cli import run_cli, weldrecon
-from tests.flows.samples import as_published
+from tests.flows.samples import QUICK_CONFIG, as_published
 
 REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 
 
@@ -121,7 +120,7 @@ def test_a_corrupted_cached_stage_is_recomputed_not_trusted(run_copy, six_sample
 
     run, report = run_copy
     _flip_byte(_merged_chunk(run, report))
-    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest"))
+    again = as_published(reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest"))
     assert again["cached"]["merge"] is False  # recomputed
     assert again["cached"]["registration"] is True and again["cached"]["refine"] is True
     assert again["stage_keys"]["merge"] == report["stage_keys"]["merge"]  # same inputs, same key
@@ -149,7 +148,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sa
     for stage in [s.name for s in needed_for("export") if s.name not in ("mesh", "export")]:
         shutil.copytree(six_run[0] / "stages" / stage, run / "stages" / stage)
     env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", CI_CONFIG,
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", QUICK_CONFIG,
                              "--out", str(run), "--stop-after", "export"], cwd=REPO, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 300
@@ -166,7 +165,7 @@ def test_kill_9_while_meshing_then_rerun_gives_identical_outputs(six_run, six_sa
     assert not (run / "results").exists()
     left = list((run / "stages" / "mesh").glob(".build-*"))
     assert left  # the killed run's half-built mesh
-    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest",
+    again = as_published(reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest",
                                             stop_after="export"))
     stl = f"{report['sample_id']}.stl"
     made = again["refs"]["export"]  # its mesh.stl is what a finished run publishes as SAMPLE.stl
@@ -201,7 +200,7 @@ def test_a_run_folder_whose_trail_was_cut_short_reruns_and_records_the_damage(ru
         f.write(half)
     done = run_cli("audit", "verify", str(run))
     assert done.returncode != 0 and "no line end (the write was cut short)" in done.stdout + done.stderr
-    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", QUICK_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     aside = [e for e in entries if e["kind"] == "trail-damage-set-aside"]
@@ -258,7 +257,7 @@ def test_a_cached_stage_tampered_with_its_hashes_is_named_and_a_rerun_does_not_l
     (folder / RECORD_NAME).write_text(json.dumps(record))
     before = [str(p) for p in verify_trail(run)]
     assert any(p.startswith(f"stages/registration/{folder.name}/") and "content changed" in p for p in before)
-    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", CI_CONFIG)
+    again = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", QUICK_CONFIG)
     assert again.returncode == 0, again.stderr[-2000:]
     entries = read_trail(run)
     redone = [e for e in entries if e["kind"] == "stage-recomputed" and e["stage"] == "registration"]
@@ -301,7 +300,7 @@ def test_a_run_killed_alone_leaves_no_server_behind(six_sample, tmp_path):
     run = tmp_path / "killed"
     env = dict(os.environ, PREFECT_SERVER_ANALYTICS_ENABLED="false")
     env.pop("PREFECT_API_URL", None)
-    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", CI_CONFIG,
+    proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(six_sample), "--config", QUICK_CONFIG,
                              "--out", str(run)], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.monotonic() + 300
@@ -335,7 +334,7 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
     lines = (run / TRAIL).read_bytes().splitlines(keepends=True)
     assert json.loads(lines[report["trail_head"]["seq"]])["hash"] == report["trail_head"]["hash"]
     (run / TRAIL).write_bytes(b"".join(lines[:report["trail_head"]["seq"]]))
-    again = as_published(reconstruct_sample(str(six_sample), str(run), CI_CONFIG, started_by="pytest",
+    again = as_published(reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest",
                                             trail_head=report["trail_head"]["hash"]))
     assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
     found = [e for e in read_trail(run) if e["kind"] == "trail-problems-found"]

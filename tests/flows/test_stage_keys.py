@@ -17,9 +17,9 @@ import pytest
 
 from data_catalog.audit import read_trail, verify_trail
 from flows.stages import downstream_of, needed_for
+from tests.flows.samples import QUICK_CONFIG
 
 REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 PACKAGES = ("schemas", "tasks", "data_catalog", "flows", "simulator")
 
 # a real change of behaviour in a helper the merge stage runs (not its body): every merged cell's
@@ -93,7 +93,7 @@ def test_an_edited_helper_recomputes_its_stage_and_downstream_only(six_run, six_
     shutil.copytree(out, run)
     code = _code_copy(tmp_path / "code", HELPER_EDIT)
     script = (f"import json; from flows.reconstruct import reconstruct_sample; "
-              f"r = reconstruct_sample({str(six_sample)!r}, {str(run)!r}, {CI_CONFIG!r}, started_by='pytest edited', "
+              f"r = reconstruct_sample({str(six_sample)!r}, {str(run)!r}, {QUICK_CONFIG!r}, started_by='pytest edited', "
               f"stop_after={LAST!r}); "
               f"print(json.dumps({{'cached': r.cached, 'keys': {{n: [x.key for x in v] if isinstance(v, list) else v.key "
               f"for n, v in r.refs.items()}}}}))")

@@ -8,16 +8,15 @@ from pathlib import Path
 from data_catalog.audit import read_trail
 from tests.conftest import SIX
 from tests.flows.cli import run_cli, weldrecon
-from tests.flows.samples import copy_sample
+from tests.flows.samples import QUICK_CONFIG, copy_sample
 
 REPO = Path(__file__).resolve().parents[2]
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 
 
 def test_a_run_stopped_after_a_stage_makes_only_the_stages_before_it(ci_sample, tmp_path):
     sample = copy_sample(ci_sample, tmp_path / "s", SIX)
     run = tmp_path / "run"
-    done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG, "--stop-after", "refine")
+    done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG, "--stop-after", "refine")
     assert done.returncode == 0, done.stderr
     assert "stopped after stage refine: denoise (" in done.stdout and f"nothing published in {run}" in done.stdout
     assert sorted(p.name for p in (run / "stages").iterdir()) == ["denoise", "refine", "registration", "targets"]
@@ -26,7 +25,7 @@ def test_a_run_stopped_after_a_stage_makes_only_the_stages_before_it(ci_sample, 
     assert trail[-1]["kind"] == "run-stopped" and trail[-1]["after"] == "refine"
     verify = run_cli("audit", "verify", str(run))
     assert verify.returncode == 0 and "audit trail intact" in verify.stdout  # a stopped run is an ended one
-    again = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", CI_CONFIG, "--stop-after", "merge")
+    again = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG, "--stop-after", "merge")
     assert again.returncode == 0, again.stderr
     entries = read_trail(run)
     last = max(k for k, e in enumerate(entries) if e["kind"] == "run-started")

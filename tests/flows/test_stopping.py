@@ -22,9 +22,8 @@ import psutil
 
 from tests.conftest import SIX
 from tests.flows.cli import REPO, cli_env
-from tests.flows.samples import copy_sample
+from tests.flows.samples import QUICK_CONFIG, copy_sample
 
-CI_CONFIG = str(REPO / "deploy" / "configs" / "ci.yaml")
 
 
 def _started(run: Path) -> bool:
@@ -38,7 +37,7 @@ def test_sigterm_stops_the_run_and_its_children_at_once(ci_sample, tmp_path):
     run = tmp_path / "run"
     env = {k: v for k, v in cli_env().items() if k != "PREFECT_API_URL"}  # the run starts its own server
     proc = subprocess.Popen([sys.executable, "-m", "flows.cli", "reconstruct", str(sample), "--out", str(run),
-                             "--config", CI_CONFIG], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
+                             "--config", QUICK_CONFIG], cwd=REPO, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     try:
         deadline, children = time.monotonic() + 120, []
