@@ -84,6 +84,22 @@ def checks(names: list[str], denoise: list[StageRef], refine: StageRef) -> list[
     return out
 
 
+def declared_part_check(segment: StageRef) -> list[Check]:
+    """The part kept held against the part declared (flows.stages.segment, tasks.declared_part): its
+    size along the specimen frame's axes and, for a flat part, its thickness; none where no setup
+    places the part (imported scans)."""
+    found = segment.metrics.get("declared_part")
+    if not found:
+        return []
+    measured = {k: found[k] for k in ("declared_mm", "measured_mm", "cut_faces", "thickness_mm")}
+    if found["agrees"]:
+        extents = " x ".join(f"{b - a:.1f}" for a, b in found["measured_mm"])
+        return [Check(check="part as declared", pass_="all", result="ok",
+                      what=f"the part measured ({extents} mm along x, y, z) is the part declared", measured=measured)]
+    return [Check(check="part as declared", pass_="all", result="flagged", what="; ".join(found["findings"]),
+                  measured=measured)]
+
+
 def weld_summary(geometry: WeldGeometry) -> WeldReport:
     """The weld's part of the report: the verdict, where it fails, the figures along the weld
     (the per-section values and their uncertainties stay in the weld stage's weld_geometry.json)."""
@@ -198,7 +214,7 @@ def report(ctx) -> dict[str, Any]:
         weld=weld_summary(weld),
         # the stress is checked where the weld was measured (elsewhere the weld's part says why not)
         # the weld's evidence where the manifest describes a weld (imported scans of a bare part need none)
-        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"])
+        checks=(checks(ctx.names, inputs["denoise"], inputs["refine"]) + declared_part_check(inputs["segment"])
                 + ([weld_check(weld)] if ctx.manifest.weld_lines() else []) + [fe_model_check(volume)]
                 + ([stress_check(stress)] if weld.measured else [])),
         deliverables={name: inputs[stage].outputs[source]

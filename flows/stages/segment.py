@@ -11,6 +11,9 @@ are not linked to it.
 One setup (the part never turned): the fixture's plane, the part's drawing where the setup puts
 it, and one body of the part's size (``tasks.single_setup``); a body that is not of the part's size
 is refused with its figures, never kept.
+
+Either way, where the first setup places the part, the part kept is held against the part declared
+(``declared_part``: tasks.declared_part; the report's check "part as declared").
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import numpy as np
 
 from flows.stages.contracts import zarr_array
 from flows.stages.outputs import MERGED, REFINED, SPECIMEN
+from tasks.declared_part import against_declaration
 from tasks.segment import keep_specimen_components
 from tasks.single_setup import (Underside, fill_underside, inside_drawing_box, keep_part_single_setup,
                                 principal_extents_mm)
@@ -48,9 +52,7 @@ def _single_setup(ctx, T_common_pass: np.ndarray, points: np.ndarray,
     setup = ctx.manifest.setups[0]
     first = [e.pass_id for _, e in ctx.manifest.passes()].index(setup.passes[0].pass_id)
     T_common_world = np.asarray(T_common_pass[first])
-    T_part = None
-    if setup.T_world_specimen_nominal is not None:
-        T_part = T_common_world @ np.asarray(setup.T_world_specimen_nominal)
+    T_part = _first_setup_part(ctx, T_common_pass)
     s = ctx.settings
     result = keep_part_single_setup(points, np.asarray(normals[...]), up=T_common_world[:3, :3] @ np.asarray(s.up_world),
                                     link_mm=s.link_mm, part_bounds_mm=ctx.manifest.specimen.bounds_mm(),
@@ -92,6 +94,18 @@ def _one_body_of_the_parts_size(ctx, kept: np.ndarray) -> dict[str, Any]:
             "drawing_extents_mm": [round(float(v), 2) for v in drawing]}
 
 
+def _declared_part(ctx, points: np.ndarray, keep: np.ndarray, T_part: np.ndarray | None) -> dict[str, Any] | None:
+    """The part kept held against the part declared (tasks.declared_part), in the frame the first
+    setup places it in; None where no setup states a placement."""
+    if T_part is None or not keep.any():
+        return None
+    specimen = ctx.manifest.specimen
+    return against_declaration(points[keep], points, T_frame_part=T_part, part_bounds_mm=specimen.bounds_mm(),
+                               grow_mm=ctx.manifest.setups[0].placement_tolerance_mm + _BOX_MARGIN_MM,
+                               link_mm=ctx.settings.link_mm, flat=specimen.kind in ("plate", "dog-bone"),
+                               declared_thickness_mm=getattr(specimen, "thickness_mm", None))
+
+
 def segment(ctx) -> dict[str, Any]:
     reg = REFINED.open(ctx.inputs["refine"])
     anchors = reg.track_positions_mm[reg.specimen_track.astype(bool)]
@@ -118,9 +132,11 @@ def segment(ctx) -> dict[str, Any]:
         metrics = {"method": "components holding the targets seen in more than one setup",
                    "points_outside_drawing_box": int(len(all_points) - len(rows)),
                    "components": int(result.n_components), "kept_components": int(len(result.kept_labels)),
-                   **_one_body_of_the_parts_size(ctx, all_points[keep])}
+                   **_one_body_of_the_parts_size(ctx, all_points[keep]),
+                   "declared_part": _declared_part(ctx, all_points, keep, T_part)}
     elif len(ctx.manifest.setups) == 1:
         keep, fill, metrics = _single_setup(ctx, reg.T_common_pass, all_points, normals)
+        metrics["declared_part"] = _declared_part(ctx, all_points, keep, _first_setup_part(ctx, reg.T_common_pass))
     else:
         raise ValueError(f"no target was seen in more than one of the {len(ctx.manifest.setups)} setups: the "
                          "specimen cannot be told from the fixture (the part's stickers are those seen in two "

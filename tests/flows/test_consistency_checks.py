@@ -118,10 +118,11 @@ def test_a_chunk_out_of_place_is_flagged_in_the_report_and_on_the_terminal(ci_sa
     # (06d0a63: its sections were cut askew, the membrane stress 2 % off; now 0.3 %)
     assert ("top-L02", "surface continuity at chunk boundaries") in flagged
     assert flagged <= {("top-L02", "surface continuity at chunk boundaries"), ("all", "FE model")}
-    assert len(report["checks"]) == 3 * 6 + 4  # and the surfaces the setups share, the weld, the FE model, the stress
+    # and the surfaces the setups share, the part as declared, the weld, the FE model, the stress
+    assert len(report["checks"]) == 3 * 6 + 5
     jumps = next(c for c in report["checks"] if c["pass"] == "top-L02" and c["check"].startswith("surface"))
     assert {j["profile"] for j in jumps["measured"]} <= {256, 384, 512, 640} and jumps["measured"]
-    assert f"checks: {22 - len(flagged)} of 22 ok" in done.stdout
+    assert f"checks: {23 - len(flagged)} of 23 ok" in done.stdout
     warnings = [line for line in done.stderr.splitlines() if "warning: pass top-L02" in line]
     assert len(warnings) == 1 and "a chunk may be out of place" in warnings[0]
 

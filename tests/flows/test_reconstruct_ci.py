@@ -117,9 +117,11 @@ def test_every_consistency_check_is_stated_and_passes_on_a_clean_sample(run):
     _, report = run
     checks = report["checks"]
     # per pass: profile times and poses, chunk continuity, target residuals; for the sample: the
-    # surfaces the two setups share agree as well as one setup's own overlaps do; the weld measured at every
-    # line and judged; the FE model; the stress
-    assert len(checks) == 3 * 14 + 4 and {c["result"] for c in checks} == {"ok"}
+    # surfaces the two setups share agree as well as one setup's own overlaps do; the part measured is the
+    # part declared; the weld measured at every line and judged; the FE model; the stress
+    assert len(checks) == 3 * 14 + 5 and {c["result"] for c in checks} == {"ok"}
+    [declared] = [c for c in checks if c["check"] == "part as declared"]
+    assert abs(declared["measured"]["thickness_mm"] - 20.0) < 0.3  # the ci dog-bone: 20 mm (and 0.1 mm stickers)
     [weld] = [c for c in checks if c["check"] == "weld measured"]
     assert weld["what"].endswith("sections measured at every weld line, judged: pass"), weld
     shared = [c for c in checks if c["check"] == "surfaces the setups share"]
