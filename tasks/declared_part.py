@@ -6,8 +6,9 @@ and one smaller than declared leaves the box half empty. Three pieces of evidenc
 with the declared one beside it:
 
 - **beyond the box**: the kept part touches a face of the grown box (a cut: the honest samples
-  keep nothing within ``link_mm`` of it), and the merged cloud goes on past it, linked to the part:
-  how far the part reaches, followed through the merged points in the box extended on that side;
+  keep nothing within ``link_mm`` of it), and the merged cloud goes on past it by more than
+  ``link_mm``, linked to the part: how far the part reaches, followed through the merged points in
+  the box extended on that side;
 - **shorter than declared**: along an axis, the kept part's extent (its extreme points: noise and
   tilt only lengthen it) falls short of the declared extent by more than ``max(5 mm, 10 %)``: the
   scans cover less of the part than declared, or the part is not the one declared (a flat part's
@@ -103,6 +104,8 @@ def against_declaration(kept_points: np.ndarray, merged_points: np.ndarray, *, T
             if merged is None:
                 merged = _local(merged_points, T_frame_part)
             reach = _reach(merged, kept[near], grown_lo, grown_hi, axis, side, float(declared.max()), link_mm)
+            if (reach - face) * side <= link_mm:  # at the face, not past it (a weld's cap near a thin box)
+                continue
             if side > 0:
                 high[axis] = max(high[axis], reach)
             else:
