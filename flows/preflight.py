@@ -15,12 +15,28 @@ from data_catalog.textfiles import read_yaml_model
 from schemas.reconstruction import ReconstructionConfig
 
 __all__ = ["RUN_FOLDER_ENTRIES", "load_config", "check_out_dir", "check_run_folder", "check_dask_scheduler",
-           "check_settings", "wait_for_file", "trail_problems"]
+           "check_settings", "check_memory", "memory_needed_bytes", "memory_available", "NotEnoughMemory",
+           "wait_for_file", "trail_problems"]
 
 RUN_FOLDER_ENTRIES = {"audit", "stages", "results", "logs"}  # what a run writes into its folder
 MAX_TETRAHEDRA = 30_000_000  # gmsh's HXT on 2 cores: the demo's 0.7 M take ~1 min; 30 M, most of an hour
 _FILLED = 0.1  # the least of its bounding box a part fills (a T-joint's stem and base: ~0.2)
 _TET_VOLUME = 1 / (6 * 2 ** 0.5)  # a regular tetrahedron's volume over its edge cubed
+
+
+# The least memory a run takes, by its surface mesh's octree depth (mesh.poisson_depth), a floor
+# under every run measured (peak RSS of its largest process, /usr/bin/time -v): depth 8, the ci
+# six-pass subset, 0.84 GB; depth 10, the demo, 2.33 GB; depth 12, the tjoint preset 4.6 GB and the
+# paper preset 8.0 GB. The floor, 0.5 GB at depth 8 and below, x1.5 a level above it (1.1 GB at 10,
+# 2.5 GB at 12), stays under each of them: a run refused for it could not have finished.
+MEMORY_FLOOR_BYTES = 500 * 2 ** 20
+MEMORY_PER_LEVEL = 1.5
+MEMORY_FLOOR_DEPTH = 8
+_NO_LIMIT = 2 ** 60  # cgroup v1's "unlimited" is 2^63 - 4096 rounded to a page
+
+
+class NotEnoughMemory(RuntimeError):
+    """The machine (or the memory cgroup the run is in) has less memory free than the run needs."""
 
 
 def load_config(path: str | Path | None) -> ReconstructionConfig:
@@ -149,6 +165,85 @@ def check_settings(manifest, config: ReconstructionConfig) -> None:
     if manifest.specimen is not None:  # a sample of imported scans declares no part to count from
         _check_model_size(manifest.specimen.bounds_mm(), config)
     _check_weld_steps(manifest.weld_lines(), config)
+    check_memory(config)
+
+
+def memory_needed_bytes(config: ReconstructionConfig) -> int:
+    """The least memory a run with these settings takes (``MEMORY_FLOOR_BYTES``, by the octree depth)."""
+    levels = max(0, config.mesh.poisson_depth - MEMORY_FLOOR_DEPTH)
+    return int(MEMORY_FLOOR_BYTES * MEMORY_PER_LEVEL ** levels)
+
+
+def _read_int(path: Path) -> int | None:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return None
+    return _NO_LIMIT if text == "max" else int(text) if text.isdigit() else None
+
+
+def _cgroup_memory() -> tuple[int, int, str] | None:
+    """(limit, in use, where) of the memory cgroup this process is in (v1 or v2), in bytes, the
+    page cache it could drop not counted as in use; None without a limit."""
+    try:
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if "memory" in controllers.split(","):  # v1
+            base = Path("/sys/fs/cgroup/memory") / path.lstrip("/")
+            limit, usage = _read_int(base / "memory.limit_in_bytes"), _read_int(base / "memory.usage_in_bytes")
+            cache_key = "total_inactive_file"
+            stat_file = base / "memory.stat"
+        elif controllers == "" and Path("/sys/fs/cgroup/cgroup.controllers").exists():  # v2
+            base = Path("/sys/fs/cgroup") / path.lstrip("/")
+            limit, usage = _read_int(base / "memory.max"), _read_int(base / "memory.current")
+            cache_key = "inactive_file"
+            stat_file = base / "memory.stat"
+        else:
+            continue
+        if limit is None or usage is None or limit >= _NO_LIMIT:
+            return None
+        try:
+            stat = dict(row.split() for row in stat_file.read_text().splitlines() if len(row.split()) == 2)
+            usage -= int(stat.get(cache_key, 0))
+        except (OSError, ValueError):
+            pass
+        return limit, max(0, usage), f"the memory cgroup {path}'s limit {limit / 2 ** 30:.1f} GB"
+    return None
+
+
+def memory_available() -> tuple[int, str]:
+    """(bytes, where): the memory a run can still take: the machine's available memory
+    (/proc/meminfo MemAvailable), or less where the memory cgroup this process is in has less
+    left under its limit."""
+    available, where = None, "the machine"
+    try:
+        for row in Path("/proc/meminfo").read_text().splitlines():
+            if row.startswith("MemAvailable:"):
+                available = int(row.split()[1]) * 1024
+    except (OSError, ValueError):
+        pass
+    group = _cgroup_memory()
+    if group is not None:
+        limit, used, named = group
+        if available is None or limit - used < available:
+            available, where = max(0, limit - used), f"{named}, {used / 2 ** 30:.1f} GB of it in use"
+    return (available if available is not None else _NO_LIMIT), where
+
+
+def check_memory(config: ReconstructionConfig) -> None:
+    """Refuse, before any work, a run the machine cannot hold: less memory available
+    (``memory_available``) than the least a run with these settings takes (``memory_needed_bytes``).
+    NotEnoughMemory with both figures."""
+    needed = memory_needed_bytes(config)
+    available, where = memory_available()
+    if available < needed:
+        raise NotEnoughMemory(
+            f"not enough memory for this run: it needs at least {needed / 2 ** 30:.1f} GB (mesh.poisson_depth "
+            f"{config.mesh.poisson_depth}; no run measured at that depth took less), {available / 2 ** 30:.1f} GB is "
+            f"available ({where}); give it more memory or a lower mesh.poisson_depth")
 
 
 def _check_model_size(bounds_mm, config: ReconstructionConfig) -> None:

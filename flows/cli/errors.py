@@ -126,6 +126,12 @@ def _traceback_log(command: str, exc: BaseException) -> Path | None:
     return path
 
 
+# what a library that could not be loaded, or a thread that could not start, says when the memory
+# limit is reached (the loader maps the library's segments; libgomp starts its threads)
+_OUT_OF_MEMORY = ("failed to map segment from shared object", "Cannot allocate memory",
+                  "Thread creation failed: Resource temporarily unavailable")
+
+
 def say_error(command: str, exc: Exception) -> int:
     """``weldrecon COMMAND: error: ...`` on stderr, one line for the problem (the traceback of
     one not known as an input error goes to a log file, named on a second line); returns the
@@ -134,6 +140,9 @@ def say_error(command: str, exc: Exception) -> int:
 
     if isinstance(exc, KeyError):
         what = exc.args[0] if exc.args else exc
+    elif isinstance(exc, (ImportError, OSError)) and any(sign in str(exc) for sign in _OUT_OF_MEMORY):
+        what = (f"out of memory ({exc}); give the run more memory (the least it needs: flows/preflight.py, "
+                "MEMORY_FLOOR_BYTES)")
     elif isinstance(exc, (ValueError, OSError, RuntimeError, TimeoutError, sqlite3.Error)):
         stage = getattr(exc, "stage", None)
         what = (f"stage {stage}: " if stage and not str(exc).startswith(f"stage {stage}") else "") + str(exc)
@@ -142,7 +151,10 @@ def say_error(command: str, exc: Exception) -> int:
     else:  # not an input problem we know of: say so, and keep the evidence
         what = f"unexpected {type(exc).__name__}: {exc} (please report it with the log below)"
     print(f"weldrecon {command}: error: {what}", file=sys.stderr)
-    plain = (KeyError, ValueError, FileNotFoundError, FileExistsError, TimeoutError)  # input errors we name
+    from flows.preflight import NotEnoughMemory
+
+    # input errors we name, and a machine too small for the run
+    plain = (KeyError, ValueError, FileNotFoundError, FileExistsError, TimeoutError, NotEnoughMemory)
     if _LOG_FILE is not None or not isinstance(exc, plain):
         log = _traceback_log(command, exc)
         if log is not None:
