@@ -2207,6 +2207,67 @@ def _(t: Trial) -> None:
 
 
 
+def _declared_as(t: Trial, sample: Path, specimen: dict) -> None:
+    """``sample``'s manifest declaring ``specimen``, its weld joint "other" (the kind's own joints
+    differ); the sample protected, the run's report read for the check "part as declared"."""
+    def declare(m: dict) -> None:
+        m["specimen"] = specimen
+        m["weld"]["joint"] = "other"
+
+    edit_manifest(declare)(sample)
+    t.protect(sample, strict=True)
+    t.main = t.cli("reconstruct", sample, "--out", t.dir / "run", "--config", CI_CONFIG, timeout=600)
+    report = t.dir / "run" / "results" / "report.json"
+    if report.is_file():
+        checks = [c for c in json.loads(report.read_text())["checks"] if c["check"] == "part as declared"]
+        if not checks or checks[0]["result"] == "ok":
+            t.verdict = ("silent", "the report's check 'part as declared': " + (checks[0]["what"] if checks else
+                                                                               "missing"))
+
+
+@case("doors", "tjoint-declared-plate", "flagged", "declared 12 mm",
+      "the T-joint (a 60 mm stem on a 12 mm base) declared as a 260 x 120 x 12 mm plate", timeout=900)
+def _(t: Trial) -> None:
+    sample = t.dir / "tjoint"
+    made = t.cli("simulate", "--preset", "tjoint", "--no-preview", sample, timeout=600)
+    if made.rc != 0:
+        raise Skip(f"could not simulate the tjoint preset: {made.first()}")
+    shutil.rmtree(sample / "truth")
+    _declared_as(t, sample, {"kind": "plate", "length_mm": 260.0, "width_mm": 120.0, "thickness_mm": 12.0})
+
+
+@case("doors", "dog-bone-declared-thinner", "flagged", "declared 12 mm thick",
+      "the 20 mm dog-bone declared as a 12 mm plate of its length and width", timeout=600)
+def _(t: Trial) -> None:
+    _declared_as(t, t.ctx.fresh_sample(), {"kind": "plate", "length_mm": 240.0, "width_mm": 60.0,
+                                            "thickness_mm": 12.0})
+
+
+@case("doors", "memory-cgroup-small", "refused", "not enough memory",
+      "reconstruct in a memory cgroup of 400 MB (died with a shared-library or libgomp message before)", timeout=120)
+def _(t: Trial) -> None:
+    cgroups = Path("/sys/fs/cgroup/memory")
+    if not os.access(cgroups, os.W_OK):
+        raise Skip("needs a writable cgroup v1 memory controller (root)")
+    sample = t.ctx.fresh_sample()
+    t.protect(sample, strict=True)
+    group = cgroups / f"weldrecon-adversarial-{os.getpid()}"
+    group.mkdir()
+    try:
+        (group / "memory.limit_in_bytes").write_text(str(400 * 2 ** 20))
+        args = ("reconstruct", sample, "--out", t.dir / "run", "--config", CI_CONFIG)
+        line = " ".join(f"'{a}'" for a in t.ctx.cli.argv(args))
+        started = time.monotonic()
+        proc = subprocess.Popen(["sh", "-c", f"echo $$ > {group / 'cgroup.procs'} && exec {line}"], cwd=t.ctx.cli.cwd,
+                                env=t.ctx.cli.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                start_new_session=True)
+        t.main = t.ctx.cli.finish(proc, args, started, t.case.timeout)
+    finally:
+        group.rmdir()
+    if (t.dir / "run").exists():
+        t.verdict = ("damaged", "the refused run left its folder behind")
+
+
 # ------------------------------------------------------------------------------------------------
 # running, the table, the tally
 

@@ -299,7 +299,8 @@ _COSTLIEST = ("tests/flows/test_resilience_audit.py",  # 103 s, makes the six-pa
               "tests/flows/test_per_pass_blocks.py",  # 28 s
               "tests/flows/test_plate_flow.py",  # 23 s
               "tests/flows/test_follow.py",  # 23 s
-              "tests/flows/test_stage_keys.py")  # 22 s
+              "tests/flows/test_stage_keys.py",  # 22 s
+              "tests/flows/test_declared_part_flow.py")  # 25 s, a six-pass run declared as another part
 
 
 def _relative(item) -> str:
