@@ -143,11 +143,16 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
         load_config(args.config)
     from flows.batch import reconstruct_batch
+    from flows.reconstruct import prefect_api_for_workers
 
     log = log_to_file(folder / "logs", "batch")
     print(f"batch log: {log}", file=sys.stderr)
-    summary = reconstruct_batch(str(folder), args.samples, args.config, args.max_concurrent,
-                                started_by="cli batch")
+    # the batch's own temporary API server, waited for up to 2 minutes (Prefect's own ephemeral one
+    # gives up after 20 s: on a loaded machine "Timed out while attempting to connect to ephemeral
+    # Prefect API server", issue 28), and stopped by the kernel if this process dies
+    with prefect_api_for_workers():
+        summary = reconstruct_batch(str(folder), args.samples, args.config, args.max_concurrent,
+                                    started_by="cli batch")
     print(f"done: {', '.join(summary['done']) or 'none'}")
     for sample_id, why in summary["failed"].items():
         print(f"FAILED {sample_id} at {why['stage']}: {why['error']}")
