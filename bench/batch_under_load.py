@@ -5,18 +5,22 @@ API-server timeout, three times in a row.
     python bench/batch_under_load.py WORK [--rounds 3]
 
 WORK holds the ci sample (simulated once), the samples the batch reconstructs (the tests' six-pass
-subset of it, twice, under two ids), the demo's folder and one workspace per round. Prints one line
-per round (exit status, seconds, whether the demo was still running when the batch ended, any
-"Timed out" line) and the tally; exits 1 when a round failed.
+subset of it, twice, under two ids), the demos' folders (a new demo starts when the last ends, so
+that one runs beside every round) and one workspace per round. Prints one line per round (exit
+status, seconds, how much of the time a demo ran beside it, any "Timed out" line) and the tally;
+exits 1 when a round failed.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -48,6 +52,41 @@ def samples(work: Path) -> Path:
     return root
 
 
+class Demos:
+    """`weldrecon demo` run again and again beside the rounds (a new one when the last ends), each
+    into its own folder under WORK; ``stop`` ends the one running and says how each ended."""
+
+    def __init__(self, work: Path) -> None:
+        self.work, self.ended, self._stop = work, [], threading.Event()
+        self._proc: subprocess.Popen | None = None
+        self._thread = threading.Thread(target=self._loop)
+
+    def _loop(self) -> None:
+        k = 0
+        while not self._stop.is_set():
+            k += 1
+            folder = self.work / f"demo-{k}"
+            shutil.rmtree(folder, ignore_errors=True)
+            with open(self.work / f"demo-{k}.log", "w") as log:
+                self._proc = subprocess.Popen(weldrecon("demo", "--out", folder), cwd=REPO, stdout=log,
+                                              stderr=subprocess.STDOUT, start_new_session=True)
+                rc = self._proc.wait()
+            self.ended.append("stopped" if self._stop.is_set() else f"exit {rc}")
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    def stop(self) -> str:
+        self._stop.set()
+        if self._proc is not None and self._proc.poll() is None:
+            os.killpg(self._proc.pid, signal.SIGTERM)
+        self._thread.join()
+        return ", ".join(self.ended)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("work", type=Path)
@@ -56,10 +95,8 @@ def main() -> int:
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     root = samples(work)
-    shutil.rmtree(work / "demo", ignore_errors=True)
-    demo_log = open(work / "demo.log", "w")
-    demo = subprocess.Popen(weldrecon("demo", "--out", work / "demo"), cwd=REPO, stdout=demo_log,
-                            stderr=subprocess.STDOUT)
+    beside = Demos(work)
+    beside.start()
     time.sleep(20)  # the demo simulating, then reconstructing: the machine busy before the first round
     failed = 0
     try:
@@ -67,20 +104,25 @@ def main() -> int:
             ws = work / f"ws-{k}"
             shutil.rmtree(ws, ignore_errors=True)
             started = time.monotonic()
-            done = subprocess.run(weldrecon("batch", "--samples", root, "--workspace", ws, "--config", QUICK),
-                                  cwd=REPO, capture_output=True, text=True, timeout=1800)
+            batch = subprocess.Popen(weldrecon("batch", "--samples", root, "--workspace", ws, "--config", QUICK),
+                                     cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            samples_busy = []
+            while batch.poll() is None:  # once a second: is a demo running beside it?
+                samples_busy.append(beside.running())
+                time.sleep(1)
+            out, err = batch.communicate()
             seconds = time.monotonic() - started
-            timed_out = [line for line in (done.stdout + done.stderr).splitlines() if "Timed out" in line]
-            busy = demo.poll() is None
-            ok = done.returncode == 0 and not timed_out and "done: load-a, load-b" in done.stdout
+            timed_out = [line for line in (out + err).splitlines() if "Timed out" in line]
+            ok = batch.returncode == 0 and not timed_out and "done: load-a, load-b" in out
             failed += not ok
-            print(f"round {k}: exit {done.returncode}, {seconds:.0f} s, demo {'running' if busy else 'finished'} "
-                  f"at its end, {'OK' if ok else 'FAILED'}" + (f": {timed_out[0]}" if timed_out else "")
-                  + ("" if ok else f"\n{done.stdout[-1500:]}{done.stderr[-1500:]}"), flush=True)
+            busy = 100 * sum(samples_busy) / max(1, len(samples_busy))
+            print(f"round {k}: exit {batch.returncode}, {seconds:.0f} s, a demo running beside it {busy:.0f} % of the "
+                  f"time, {'OK' if ok else 'FAILED'}" + (f": {timed_out[0]}" if timed_out else "")
+                  + ("" if ok else f"\n{out[-1500:]}{err[-1500:]}"), flush=True)
     finally:
-        demo.wait()
-        demo_log.close()
-    print(f"{args.rounds - failed} of {args.rounds} rounds ok beside a demo (exit {demo.returncode})")
+        demos = beside.stop()
+    print(f"demos beside: {demos}")
+    print(f"{args.rounds - failed} of {args.rounds} rounds ok")
     return 1 if failed else 0
 
 
