@@ -67,7 +67,10 @@ class Stage:
     ``ReconstructionConfig`` it is configured by: its own name (``"*"``: the whole config; None:
     nothing);
     ``outputs`` the files it writes; ``body`` computes them; ``manifest_view`` the part of the
-    manifest it reads (hashed into its key)."""
+    manifest it reads (hashed into its key); ``reads_input_metrics``: it reads its inputs'
+    metrics as well as their files (the report), so they are hashed into its key too (without
+    their ``seconds``): two runs whose stages wrote the same files with other figures (a segment
+    that kept the same points of a part declared otherwise) do not share its output."""
 
     name: str
     per_pass: bool
@@ -78,6 +81,7 @@ class Stage:
     manifest_view_at: str  # "module:function"
     summary: str
     surfaces_body_at: str | None = None  # the body for a sample registered on its surfaces (imported scans)
+    reads_input_metrics: bool = False
 
     @property
     def body(self) -> Callable[[StageContext], dict[str, Any]]:
@@ -281,6 +285,10 @@ def _input_hashes(stage: Stage, sample_dir: Path, manifest: SampleManifest, entr
         for r in each(ref):
             prefix = need if r.item is None else f"{need}/{r.item}"
             hashes.update({f"{prefix}/{name}": digest for name, digest in r.outputs.items()})
+            if stage.reads_input_metrics:
+                figures = {k: v for k, v in r.metrics.items() if k != "seconds"}
+                hashes[f"{prefix}/metrics"] = hashlib.sha256(
+                    json.dumps(figures, sort_keys=True, default=str).encode()).hexdigest()
     return hashes
 
 

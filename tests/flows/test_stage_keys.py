@@ -134,3 +134,28 @@ def test_code_versions_read_back_from_the_cache_are_the_ones_computed(tmp_path):
     assert all(json.loads(f.read_text(encoding="utf-8")) for f in files)  # written again
     (tmp_path / "a-file").write_text("")
     assert versions(tmp_path / "a-file") == computed  # not a folder: no cache
+
+
+def test_the_reports_key_holds_its_inputs_figures_not_only_their_files(ci_sample):
+    """A segment that kept the same points of a part declared otherwise (issue 28: a 20 mm dog-bone
+    declared 12 mm thick) writes the same file with another finding; the report reads the finding,
+    so its key must differ (it had been taken from the stage cache with the other run's figures).
+    Stages that read only files keep one key; a stage's own time never counts."""
+    from data_catalog.manifests import load_manifest
+    from flows.stages import STAGES
+    from flows.stages.contracts import StageRef
+    from flows.stages.runner import _input_hashes
+
+    manifest = load_manifest(ci_sample)
+    stage = {s.name: s for s in STAGES}
+
+    def segment(**metrics) -> StageRef:
+        return StageRef("segment", None, "k", "/nowhere", {"specimen.zarr": "same"}, False, metrics)
+
+    agrees, differs = segment(declared_part={"agrees": True}, seconds=1.0), segment(declared_part={"agrees": False})
+    for name, reads in (("report", True), ("mesh", False)):
+        a, b = (_input_hashes(stage[name], ci_sample, manifest, None, {"segment": ref}) for ref in (agrees, differs))
+        assert (a != b) is reads, name
+    slower = segment(declared_part={"agrees": True}, seconds=9.0)
+    assert (_input_hashes(stage["report"], ci_sample, manifest, None, {"segment": agrees})
+            == _input_hashes(stage["report"], ci_sample, manifest, None, {"segment": slower}))
