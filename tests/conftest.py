@@ -259,7 +259,7 @@ def _the_sessions_prefect_api():
             APILogHandler().flush()
 
 
-# --- tiers: the suite runs fastest first, so that a failure says which layer it is in ---
+# --- tiers: after the costliest files (``_COSTLIEST`` below), the suite runs fastest first ---
 # 1: known answers on in-memory arrays and documents (tasks, schemas, the layout, the docs);
 # 2: storage and the simulated cell (data_catalog, simulator, deploy);
 # 3: stages through the runner and the flows end to end (flows).
