@@ -78,3 +78,18 @@ def test_nothing_imports_prefect_outside_flows():
                 for package in RULES for path in _files(package) for line, name, _ in _imports(path)
                 if name in ("prefect", "prefect_dask", "distributed")]
     assert not problems, "\n".join(problems)
+
+
+def test_a_stage_that_reads_its_inputs_figures_says_so():
+    """Stage keys hash the inputs' files; a stage whose body reads its inputs' metrics as well (the
+    report) declares it (``Stage.reads_input_metrics``), so that they go into its key too: without,
+    a run whose inputs wrote the same files with other figures took the other run's report from the
+    stage cache (issue 28). Checked on the source of every stage's body module."""
+    from flows.stages import STAGES
+
+    for stage in STAGES:
+        for at in filter(None, (stage.body_at, stage.surfaces_body_at)):
+            module = at.split(":")[0]
+            source = (REPO / (module.replace(".", "/") + ".py")).read_text(encoding="utf-8")
+            reads = any(isinstance(node, ast.Attribute) and node.attr == "metrics" for node in ast.walk(ast.parse(source)))
+            assert reads <= stage.reads_input_metrics, f"{stage.name} ({module}) reads .metrics; set reads_input_metrics"
