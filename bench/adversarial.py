@@ -174,6 +174,17 @@ def kill_group(proc: subprocess.Popen) -> None:
 # what must not change
 
 
+def result_digest(path: Path) -> str:
+    """A published result's sha256; the QA page's without its audit section, which is each run
+    folder's own (its trail's head and length: a rerun adds entries), as flows.stages.qa_audit
+    compares two runs' pages."""
+    if path.name != "report.html":
+        return sha256_file(path)
+    from flows.stages.qa_audit import strip_audit
+
+    return hashlib.sha256(strip_audit(path.read_text(encoding="utf-8")).encode()).hexdigest()
+
+
 def sha256_file(path: Path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
@@ -457,7 +468,7 @@ class Context:
             self.pristine.mkdir(parents=True, exist_ok=True)
             shutil.copytree(self.sample, self.pristine / "six", symlinks=True)
             shutil.copytree(self.ws, self.pristine / "ws", symlinks=True)
-        self.results = {p.name: sha256_file(p) for p in sorted((self.pristine / "ws" / "runs" / SAMPLE_ID /
+        self.results = {p.name: result_digest(p) for p in sorted((self.pristine / "ws" / "runs" / SAMPLE_ID /
                                                                    "results").iterdir()) if p.is_file()}
         self.ready = True
         self.prep_seconds = time.monotonic() - t0
@@ -1392,7 +1403,7 @@ def _results_changed(ctx: Context, run: Path) -> list[str]:
         path = run / "results" / name
         if not path.is_file():
             out.append(f"results/{name} missing")
-        elif sha256_file(path) != digest_:
+        elif result_digest(path) != digest_:
             out.append(f"results/{name} differs")
     return out
 

@@ -113,10 +113,14 @@ class StageStore:
     record. ``shared``: a stage cache shared by run folders (``$WELDRECON_STAGE_CACHE`` when not
     given; None: none), laid out the same way: a stage this store lacks is copied in from it when
     it holds the same key (verified by hash), and a stage made here is copied out to it, so that
-    runs of the same data and settings in other folders reuse the work."""
+    runs of the same data and settings in other folders reuse the work. ``trust_folder`` False:
+    the folder's audit trail did not verify when the run started (cut, edited, re-chained against
+    the head kept outside it), so nothing it vouches for is reused: the folder's stages are set
+    aside and made again (or copied again from the shared cache, verified there)."""
 
-    def __init__(self, root: Path, *, shared: Path | None | bool = True) -> None:
+    def __init__(self, root: Path, *, shared: Path | None | bool = True, trust_folder: bool = True) -> None:
         self.root = Path(root)
+        self.trust_folder = trust_folder
         if shared is True:
             shared = Path(os.environ["WELDRECON_STAGE_CACHE"]) if os.environ.get("WELDRECON_STAGE_CACHE") else None
         self.shared = None if not shared or Path(shared).resolve() == self.root.resolve() else Path(shared)

@@ -334,9 +334,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     config = load_config(config_path)
     check_settings(manifest, config)
     check_run_folder(out, manifest.sample_id)
-    store = StageStore(out)
-    out.mkdir(parents=True, exist_ok=True)
     found = trail_problems(out, trail_head)
+    store = StageStore(out, trust_folder=not found)  # a trail that does not verify vouches for no stage
+    out.mkdir(parents=True, exist_ok=True)
     audit.append(out, "run-started", sample_id=manifest.sample_id, sample_dir=str(sample),
                  config=config.model_dump(mode="json"), **_trigger(started_by))
     if found:  # recorded before this run's entries can make a cut or edited trail look whole again

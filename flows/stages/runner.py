@@ -336,6 +336,9 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     code = code_version(stage)
     key = cache_key(stage.name if item is None else f"{stage.name}/{item}", hashes, parameters, code)
     found, problem = store.verified(stage.name, key)
+    untrusted = None
+    if found is not None and not store.trust_folder:  # the trail vouching for it did not verify
+        untrusted, found = store.set_aside(stage.name, key, "untrusted"), None
     shared = None
     if found is None and problem is None:  # not made in this folder: made by a run elsewhere?
         try:
@@ -346,11 +349,18 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
     if problem is not None:
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
                      reason=f"cached outputs failed their hash check: {problem}; set aside and recomputed", **ids)
+    if untrusted is not None:
+        audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
+                     reason=f"the folder's audit trail did not verify when the run started: its stage set aside to "
+                            f"{untrusted.name} and {'copied again from the stage cache' if found else 'recomputed'}",
+                     **ids)
     if found is not None:
         now = _artefacts(store, stage.name, key, found.outputs)
         # consistent with itself is not enough: a record edited together with the hashes in it
-        # must also match what the trail recorded when the stage was made
-        then, line = audit.recorded(store.root, store.path(stage.name, key).relative_to(store.root).as_posix())
+        # must also match what the trail recorded when the stage was made (a trail that did not
+        # verify records nothing to hold a copy from the stage cache against)
+        then, line = (audit.recorded(store.root, store.path(stage.name, key).relative_to(store.root).as_posix())
+                      if store.trust_folder else ({}, None))
         changed = sorted(k for k in set(now) | set(then) if now.get(k) != then.get(k)) if then else []
         if not changed:
             audit.append(store.root, "stage", stage=stage.name, item=item, cache_key=key, cached=True,

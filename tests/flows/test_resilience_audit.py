@@ -4,6 +4,7 @@ cached artefacts, and the tamper-evident audit trail (real flows on the ``ci`` s
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import shutil
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from data_catalog.audit import TRAIL, read_trail, verify_trail
+from data_catalog.audit import GENESIS, TRAIL, read_trail, verify_trail
 from data_catalog.hashing import sha256_file
 from flows.stages import STAGE_NAMES, needed_for
 from flows.stages.outputs import MERGED
@@ -336,7 +337,12 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
     (run / TRAIL).write_bytes(b"".join(lines[:report["trail_head"]["seq"]]))
     again = as_published(reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest",
                                             trail_head=report["trail_head"]["hash"]))
-    assert all(again["cached"].values())  # nothing recomputed: the outputs themselves are sound
+    # the folder's stages are not trusted (its trail did not verify): set aside, copied again from
+    # the session's stage cache, each saying so
+    assert all(again["cached"].values())
+    redone = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
+    assert redone and all("the folder's audit trail did not verify when the run started" in e["reason"]
+                          and e["reason"].endswith("copied again from the stage cache") for e in redone)
     found = [e for e in read_trail(run) if e["kind"] == "trail-problems-found"]
     assert len(found) == 1
     assert any("no run-finished entry records this result" in p for p in found[0]["problems"])
@@ -346,3 +352,41 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
                for p in problems), problems
     done = run_cli("audit", "verify", str(run))
     assert done.returncode == 1 and "a run found the trail not intact before it" in done.stdout
+
+
+def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sample):
+    """A stage's record edited (a nicer registration residual), its trail entry edited to match
+    and the chain computed anew: consistent on its own, only the head kept outside tells. The
+    rerun finds the trail not intact against that head, so it trusts none of the folder's stages:
+    each is set aside and copied again from the session's stage cache (verified there; made again
+    where the cache lacks it), and the published report is the untampered run's, byte for byte
+    (before: the forged figure went into the report)."""
+    from data_catalog.audit import _digest
+    from flows.reconstruct import reconstruct_sample
+
+    run, report = run_copy
+    published = (run / "results" / "report.json").read_bytes()
+    [folder] = (run / "stages" / "registration").iterdir()
+    record = json.loads((folder / "record.json").read_text())
+    record["metrics"]["residual_max_mm"] = 0.001
+    (folder / "record.json").write_text(json.dumps(record, indent=1))
+    forged = hashlib.sha256((folder / "record.json").read_bytes()).hexdigest()
+    entries, prev = [], GENESIS
+    for entry in read_trail(run):
+        rel = f"stages/registration/{folder.name}/record.json"
+        if rel in (entry.get("artefacts") or {}):
+            entry["artefacts"][rel] = forged
+            entry["record"]["metrics"]["residual_max_mm"] = 0.001
+        entry["seq"], entry["prev"] = len(entries), prev
+        entry["hash"] = prev = _digest(entry)
+        entries.append(entry)
+    (run / TRAIL).write_text("".join(json.dumps(e, sort_keys=True, default=str) + "\n" for e in entries))
+    assert verify_trail(run) == []  # consistent on its own
+    reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest",
+                       trail_head=report["trail_head"]["hash"])
+    assert (run / "results" / "report.json").read_bytes() == published
+    redone = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
+    assert {e["stage"] for e in redone} >= {"registration", "report"}
+    assert all(e["reason"].endswith("copied again from the stage cache") for e in redone)
+    assert [p.name.split("-")[0] for p in (run / "stages" / "registration").iterdir() if p.name.startswith(".")] == [
+        ".untrusted"]
