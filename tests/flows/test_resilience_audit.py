@@ -354,7 +354,7 @@ def test_a_rerun_does_not_make_a_cut_trail_whole_again(run_copy, six_sample):
     assert done.returncode == 1 and "a run found the trail not intact before it" in done.stdout
 
 
-def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sample):
+def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sample, tmp_path):
     """A stage's record edited (a nicer registration residual), its trail entry edited to match
     and the chain computed anew: consistent on its own, only the head kept outside tells. The
     rerun finds the trail not intact against that head, so it trusts none of the folder's stages:
@@ -362,7 +362,7 @@ def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sam
     where the cache lacks it), and the published report is the untampered run's, byte for byte
     (before: the forged figure went into the report)."""
     from data_catalog.audit import _digest
-    from flows.reconstruct import reconstruct_sample
+    from data_catalog.catalog import Catalog
 
     run, report = run_copy
     published = (run / "results" / "report.json").read_bytes()
@@ -382,8 +382,17 @@ def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sam
         entries.append(entry)
     (run / TRAIL).write_text("".join(json.dumps(e, sort_keys=True, default=str) + "\n" for e in entries))
     assert verify_trail(run) == []  # consistent on its own
-    reconstruct_sample(str(six_sample), str(run), QUICK_CONFIG, started_by="pytest",
-                       trail_head=report["trail_head"]["hash"])
+    # the folder catalogued with its head, as a batch leaves it; `weldrecon reconstruct` of that
+    # folder holds the trail to the head the workspace's catalog keeps
+    workspace = tmp_path / "ws"
+    catalog = Catalog(workspace)
+    record = catalog.register(six_sample)
+    catalog.mark_running(record.sample_id, run)
+    catalog.mark_done(record.sample_id, record.fingerprint, {}, trail_head=report["trail_head"])
+    done = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", QUICK_CONFIG,
+                     env={"WELDRECON_WORKSPACE": str(workspace)})
+    assert done.returncode == 0, done.stderr
+    assert "registration: the folder's audit trail did not verify when the run started" in done.stderr
     assert (run / "results" / "report.json").read_bytes() == published
     redone = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
     assert {e["stage"] for e in redone} >= {"registration", "report"}
