@@ -216,6 +216,11 @@ class Catalog:
         with self._connect() as db:
             return [self._record(r) for r in db.execute("SELECT * FROM samples ORDER BY sample_id")]
 
+    def runs_in(self, folder: Path) -> list[SampleRecord]:
+        """The samples whose run folder is ``folder`` (paths compared resolved)."""
+        folder = Path(folder).resolve()
+        return [r for r in self.list() if r.out_dir and Path(r.out_dir).resolve() == folder]
+
     def due(self, fresh: Iterable[str] = (), unreadable: dict[str, str] | None = None) -> list[SampleRecord]:
         """Samples to reconstruct. Their fingerprints are refreshed from disk first, except for
         the ``fresh`` sample ids (just registered: their fingerprints are current). A sample whose

@@ -161,7 +161,8 @@ def wait_for_file(path: Path, *, timeout_s: float, what: str, ready=None, poll_s
 
 def check_settings(manifest, config: ReconstructionConfig) -> None:
     """Refuse, before any work, settings the sample (``manifest``) cannot be run with
-    (``_check_model_size``, ``_check_weld_steps``). ValueError naming the field."""
+    (``_check_model_size``, ``_check_weld_steps``: ValueError naming the field) and a run the
+    machine cannot hold (``check_memory``: NotEnoughMemory)."""
     if manifest.specimen is not None:  # a sample of imported scans declares no part to count from
         _check_model_size(manifest.specimen.bounds_mm(), config)
     _check_weld_steps(manifest.weld_lines(), config)
@@ -195,18 +196,16 @@ def _cgroup_memory() -> tuple[int, int, str] | None:
             base = Path("/sys/fs/cgroup/memory") / path.lstrip("/")
             limit, usage = _read_int(base / "memory.limit_in_bytes"), _read_int(base / "memory.usage_in_bytes")
             cache_key = "total_inactive_file"
-            stat_file = base / "memory.stat"
         elif controllers == "" and Path("/sys/fs/cgroup/cgroup.controllers").exists():  # v2
             base = Path("/sys/fs/cgroup") / path.lstrip("/")
             limit, usage = _read_int(base / "memory.max"), _read_int(base / "memory.current")
             cache_key = "inactive_file"
-            stat_file = base / "memory.stat"
         else:
             continue
         if limit is None or usage is None or limit >= _NO_LIMIT:
             return None
         try:
-            stat = dict(row.split() for row in stat_file.read_text().splitlines() if len(row.split()) == 2)
+            stat = dict(row.split() for row in (base / "memory.stat").read_text().splitlines() if len(row.split()) == 2)
             usage -= int(stat.get(cache_key, 0))
         except (OSError, ValueError):
             pass

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from tasks.frames import apply, invert
 from tasks.segment import keep_specimen_components
 
 __all__ = ["against_declaration", "AXES"]
@@ -33,11 +34,6 @@ CUT_FRACTION = 5e-4  # of the kept points within link_mm of a grown face: a cut 
 SHORT_MM, SHORT_FRACTION = 5.0, 0.10
 THICKNESS_MM, THICKNESS_FRACTION = 1.0, 0.05
 _MAX_POINTS = 1_000_000  # the principal axes from every k-th kept point (deterministic)
-
-
-def _local(points: np.ndarray, T_frame_part: np.ndarray) -> np.ndarray:
-    T = np.asarray(T_frame_part, dtype=np.float64)
-    return (np.asarray(points, dtype=np.float64) - T[:3, 3]) @ T[:3, :3]
 
 
 def _thickness(local: np.ndarray, bin_mm: float = 0.1) -> float:
@@ -88,7 +84,8 @@ def against_declaration(kept_points: np.ndarray, merged_points: np.ndarray, *, T
     edge; flat : a plate or dog-bone (its thickness is checked); declared_thickness_mm : its thickness.
     """
     lo, hi = (np.asarray(b, dtype=np.float64) for b in part_bounds_mm)
-    kept = _local(kept_points, T_frame_part)
+    T_part_frame = invert(np.asarray(T_frame_part, dtype=np.float64))
+    kept = apply(T_part_frame, kept_points)
     low, high = kept.min(axis=0), kept.max(axis=0)
     grown_lo, grown_hi = lo - grow_mm, hi + grow_mm
     declared = hi - lo
@@ -102,7 +99,7 @@ def against_declaration(kept_points: np.ndarray, merged_points: np.ndarray, *, T
             if count < max(1, CUT_FRACTION * len(kept)):
                 continue
             if merged is None:
-                merged = _local(merged_points, T_frame_part)
+                merged = apply(T_part_frame, merged_points)
             reach = _reach(merged, kept[near], grown_lo, grown_hi, axis, side, float(declared.max()), link_mm)
             if (reach - face) * side <= link_mm:  # at the face, not past it (a weld's cap near a thin box)
                 continue

@@ -7,7 +7,7 @@ import argparse
 import re
 from pathlib import Path
 
-from flows.cli.catalog import workspace
+from flows.cli.catalog import existing_catalog, workspace
 
 __all__ = ["add_audit"]
 
@@ -28,19 +28,18 @@ def add_audit(sub, ws: argparse.ArgumentParser) -> None:
 def _run_folder(args: argparse.Namespace) -> tuple[Path, dict[str, str]]:
     """A run folder given directly, or a sample id looked up in the catalog; and the trail heads
     kept outside it (the catalog's, for a catalogued run folder; ``--head``) -> where kept."""
-    from data_catalog.catalog import CATALOG_NAME, Catalog
+    from data_catalog.catalog import CATALOG_NAME
 
     target = Path(args.target)
     root = workspace(args)
-    catalog = Catalog(root) if (root / CATALOG_NAME).is_file() else None  # looking must not create one
+    catalog = existing_catalog(root)
     head = getattr(args, "head", None)
     if head is not None and not re.fullmatch(r"[0-9a-f]{64}", head):
         raise ValueError(f"--head {head}: expected an entry's sha256 (64 hex digits), as reconstruct prints it")
     heads = {head: "--head"} if head else {}
     if target.is_dir():
         folder = target
-        records = [r for r in catalog.list() if r.out_dir and Path(r.out_dir).resolve() == folder.resolve()] \
-            if catalog else []
+        records = catalog.runs_in(folder) if catalog else []
     elif catalog is None:
         raise FileNotFoundError(f"{args.target}: not a run folder, and no catalog at {root / CATALOG_NAME} "
                                 "to look it up in as a sample id (--workspace)")

@@ -22,8 +22,17 @@ def workspace_option() -> argparse.ArgumentParser:
 
 
 def workspace(args: argparse.Namespace) -> Path:
-    """The workspace folder: ``--workspace``, else $WELDRECON_WORKSPACE, else ./workspace."""
-    return Path(args.workspace or os.environ.get("WELDRECON_WORKSPACE", "workspace"))
+    """The workspace folder: ``--workspace`` (where the command has it), else $WELDRECON_WORKSPACE,
+    else ./workspace."""
+    return Path(getattr(args, "workspace", None) or os.environ.get("WELDRECON_WORKSPACE", "workspace"))
+
+
+def existing_catalog(root: Path):
+    """The workspace ``root``'s catalog (data_catalog.catalog.Catalog), or None where it has none:
+    looking must not create one."""
+    from data_catalog.catalog import CATALOG_NAME, Catalog
+
+    return Catalog(root) if (root / CATALOG_NAME).is_file() else None
 
 
 def add_catalog(sub, ws: argparse.ArgumentParser) -> None:

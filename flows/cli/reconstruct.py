@@ -15,20 +15,16 @@ from flows.cli.render import print_run_summary, print_stopped_run
 __all__ = ["add_reconstruct", "run_reconstruct"]
 
 
-def catalogued_head(out: Path, sample_id: str) -> str | None:
-    """The head the catalog keeps for the run folder ``out`` of ``sample_id`` (the workspace's
-    catalog, $WELDRECON_WORKSPACE or ./workspace, where there is one: looking creates none), so
-    that a run of a catalogued folder holds its trail to it, as a batch does: a trail re-chained by
-    someone who knows the hashing is then not intact, and none of the folder's stages is trusted."""
-    from data_catalog.catalog import CATALOG_NAME, Catalog
+def catalogued_head(args: argparse.Namespace, out: Path, sample_id: str) -> str | None:
+    """The head the workspace's catalog keeps for the run folder ``out`` of ``sample_id``, where
+    there is one, so that a run of a catalogued folder holds its trail to it, as a batch does: a
+    trail re-chained by someone who knows the hashing is then not intact, and none of the folder's
+    stages is trusted."""
+    from flows.cli.catalog import existing_catalog, workspace
 
-    root = Path(os.environ.get("WELDRECON_WORKSPACE", "workspace"))
-    if not (root / CATALOG_NAME).is_file():
-        return None
-    for record in Catalog(root).list():
-        if record.sample_id == sample_id and record.out_dir and Path(record.out_dir).resolve() == out.resolve():
-            return record.trail_head["hash"] if record.trail_head else None
-    return None
+    catalog = existing_catalog(workspace(args))
+    records = [r for r in catalog.runs_in(out) if r.sample_id == sample_id] if catalog else []
+    return records[0].trail_head["hash"] if records and records[0].trail_head else None
 
 
 def add_reconstruct(sub) -> None:
@@ -105,7 +101,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
         run = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
                                  dask=dask, follow_timeout_s=follow, stop_after=stop_after,
-                                 trail_head=catalogued_head(out, manifest.sample_id))
+                                 trail_head=catalogued_head(args, out, manifest.sample_id))
     if run.report is None:
         print_stopped_run(run, out, stop_after)
         return 0

@@ -45,14 +45,14 @@ def _first_setup_part(ctx, T_common_pass: np.ndarray) -> np.ndarray | None:
     return np.asarray(T_common_pass[first]) @ np.asarray(setup.T_world_specimen_nominal)
 
 
-def _single_setup(ctx, T_common_pass: np.ndarray, points: np.ndarray,
+def _single_setup(ctx, T_common_pass: np.ndarray, T_part: np.ndarray | None, points: np.ndarray,
                   normals) -> tuple[np.ndarray, Underside | None, dict[str, Any]]:
     """The part in a single setup's merged cloud (common frame: the setup's robot frame through its
-    first pass's pose), and the plane closing its unseen underside (None: ``underside_fill_mm`` 0)."""
+    first pass's pose; ``T_part``: the part's nominal placement there, ``_first_setup_part``), and
+    the plane closing its unseen underside (None: ``underside_fill_mm`` 0)."""
     setup = ctx.manifest.setups[0]
     first = [e.pass_id for _, e in ctx.manifest.passes()].index(setup.passes[0].pass_id)
     T_common_world = np.asarray(T_common_pass[first])
-    T_part = _first_setup_part(ctx, T_common_pass)
     s = ctx.settings
     result = keep_part_single_setup(points, np.asarray(normals[...]), up=T_common_world[:3, :3] @ np.asarray(s.up_world),
                                     link_mm=s.link_mm, part_bounds_mm=ctx.manifest.specimen.bounds_mm(),
@@ -114,12 +114,12 @@ def segment(ctx) -> dict[str, Any]:
     fine = zarr_array(ctx.inputs["merge"], MERGED, "fine")
     all_points = np.asarray(points[...])  # labelling needs every point; normals and zones are read by block
     fill = None
+    T_part = None if ctx.manifest.surfaces else _first_setup_part(ctx, reg.T_common_pass)
     if ctx.manifest.surfaces:  # imported scans: no fixture, no stickers to tell the part by
         keep = np.ones(len(all_points), bool)
         metrics = {"method": "surfaces sample (imported scans): every merged point kept, no fixture to remove",
                    "components": None, "kept_components": None}
     elif len(anchors):
-        T_part = _first_setup_part(ctx, reg.T_common_pass)
         boxed = np.ones(len(all_points), bool)
         if T_part is not None:
             grow = np.full(3, ctx.manifest.setups[0].placement_tolerance_mm + _BOX_MARGIN_MM)
@@ -135,8 +135,8 @@ def segment(ctx) -> dict[str, Any]:
                    **_one_body_of_the_parts_size(ctx, all_points[keep]),
                    "declared_part": _declared_part(ctx, all_points, keep, T_part)}
     elif len(ctx.manifest.setups) == 1:
-        keep, fill, metrics = _single_setup(ctx, reg.T_common_pass, all_points, normals)
-        metrics["declared_part"] = _declared_part(ctx, all_points, keep, _first_setup_part(ctx, reg.T_common_pass))
+        keep, fill, metrics = _single_setup(ctx, reg.T_common_pass, T_part, all_points, normals)
+        metrics["declared_part"] = _declared_part(ctx, all_points, keep, T_part)
     else:
         raise ValueError(f"no target was seen in more than one of the {len(ctx.manifest.setups)} setups: the "
                          "specimen cannot be told from the fixture (the part's stickers are those seen in two "
