@@ -15,7 +15,7 @@ from data_catalog.textfiles import read_text_file
 from schemas.manifest import DrawingSpecimen, SampleManifest, ScanEntry
 
 __all__ = ["MANIFEST_NAME", "MAX_POINTS_PER_SAMPLE", "ManifestError", "load_manifest", "check_sample_files",
-           "check_pass_file", "check_drawing_file", "write_manifest", "manifest_json_schema"]
+           "check_pass_file", "check_passes_distinct", "check_drawing_file", "write_manifest", "manifest_json_schema"]
 
 MAX_POINTS_PER_SAMPLE = 4_000_000_000  # 12 times the paper's full-resolution plan
 
@@ -74,8 +74,51 @@ def check_sample_files(sample_dir: Path, manifest: SampleManifest) -> None:
                             f"points_per_profile, n_points), more than {MAX_POINTS_PER_SAMPLE:,}; that is not a scan of one specimen")
     for setup, entry in manifest.passes():
         check_pass_file(root, manifest, setup, entry)
+    check_passes_distinct(root, manifest)
     if isinstance(manifest.specimen, DrawingSpecimen):
         check_drawing_file(root, manifest.specimen)
+
+
+# the arrays that hold what a pass measured (not its attributes, intensities or times)
+_MEASUREMENTS = {"profiles": ("x_mm", "z_mm"), "scan": ("points_mm",)}
+
+
+def _measurement_files(store: Path, kind: str) -> list[Path]:
+    files: list[Path] = []
+    for name in _MEASUREMENTS[kind]:
+        folder = store / name
+        if folder.is_dir() and not folder.is_symlink():
+            files += sorted(p for p in folder.rglob("*") if p.is_file() and not p.is_symlink())
+    return files
+
+
+def check_passes_distinct(sample_dir: Path, manifest: SampleManifest) -> None:
+    """Refuse a sample in which two passes hold the same measurements byte for byte (a pass store
+    copied over another's and relabelled, one file exported twice): no two scans of a real
+    surface agree to the bit, and a copy would be registered onto its original and counted as a
+    second view of the part. Compared by each store's measurement files' sizes first (a stat, no
+    read), and by their content only where those agree. ManifestError naming both passes."""
+    root = Path(sample_dir)
+    by_sizes: dict[tuple, list[tuple[str, str, str, list[Path]]]] = {}
+    for setup, entry in manifest.passes():
+        kind = "scan" if isinstance(entry, ScanEntry) else "profiles"
+        store = root / entry.file
+        files = _measurement_files(store, kind)
+        if not files:
+            continue  # a missing or emptied store: its own stage names it
+        sizes = (kind,) + tuple((p.relative_to(store).as_posix(), p.stat().st_size) for p in files)
+        by_sizes.setdefault(sizes, []).append((entry.pass_id, setup, entry.file, files))
+    for same_sizes in by_sizes.values():
+        seen: dict[tuple[str, ...], tuple[str, str]] = {}
+        for pass_id, setup, file, files in same_sizes if len(same_sizes) > 1 else ():
+            digest = tuple(sha256_file(p) for p in files)
+            if digest in seen:
+                first, first_setup = seen[digest]
+                raise ManifestError(
+                    f"pass {pass_id} (setup {setup}): its store {file} holds the same "
+                    f"measurements, byte for byte, as pass {first} (setup {first_setup}); a copy of another pass's "
+                    "store (relabelled or exported twice?): expected each pass its own scan")
+            seen[digest] = (pass_id, setup)
 
 
 def _gate(root: Path, file: str, where: str, what: str, *, folder: bool) -> None:

@@ -74,9 +74,11 @@ def _expanded_size(node: yaml.Node, memo: dict[int, int]) -> int:
 
 
 def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
-    """The mapping of fields in the YAML file ``path`` (empty file: no fields), read safely (no
-    tags that build objects). ValueError in one line naming the file, ``what`` it should hold and,
-    for bad YAML, the line and column."""
+    """The mapping of fields in the YAML file ``path``, read safely (no tags that build objects).
+    ValueError in one line naming the file, ``what`` it should hold and, for bad YAML, the line
+    and column. A file with no document at all (empty, or comments only) is refused: a file named
+    on purpose that sets nothing is a mistake (a truncated copy, the wrong file) that would
+    otherwise run every default without a word; ``{}`` says "no fields" on purpose."""
     text = read_text_file(path, f"a {what} file (YAML)")
     if len(text) > MAX_YAML_BYTES:
         raise ValueError(f"{path}: {len(text):,} characters; expected a {what} file of at most {MAX_YAML_BYTES:,}")
@@ -97,11 +99,12 @@ def read_yaml_mapping(path: str | Path, what: str) -> dict[str, Any]:
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise ValueError(f"{path}: the {what} is not valid YAML ({where}{problem})") from None
-    if raw is None:
-        return {}
+    if node is None:
+        raise ValueError(f"{path}: the {what} file is empty (no fields, only blank lines or comments); expected "
+                         f"its fields (section: field: value), or {{}} to set none on purpose")
     if not isinstance(raw, dict):
         raise ValueError(f"{path}: the {what} must be a mapping of fields (section: field: value), "
-                         f"not a {type(raw).__name__}")
+                         f"not {'null' if raw is None else 'a ' + type(raw).__name__}")
     return raw
 
 

@@ -48,6 +48,7 @@ class TrailProgress:
         self._started = 0.0
         self._rich: Any = None
         self._bars: dict[str, Any] = {}
+        self._untrusted = 0  # stages set aside because the folder's trail did not verify
 
     def __enter__(self) -> "TrailProgress":
         self._offset = self._path.stat().st_size if self._path.is_file() else 0
@@ -72,6 +73,8 @@ class TrailProgress:
         self._poll()
         if self._rich is not None:
             self._rich.stop()
+        if self._untrusted:
+            self._say(f"{self._untrusted} stage(s) of the folder set aside as untrusted and made again", final=True)
         for name, c in self._counts.items():
             if c.failed:
                 failed = list(dict.fromkeys(c.failed))  # a retried item failed more than once: named once
@@ -113,6 +116,13 @@ class TrailProgress:
             self._say(f"{entry['stage']}{' ' + item if item else ''} FAILED: {entry.get('error', '')}")
             return
         if entry.get("kind") == "stage-recomputed":  # what the run did about damage or tampering: said here
+            if entry.get("cause") == "untrusted-folder":  # every stage of the folder: said once
+                if not self._untrusted:
+                    self._say("the folder's audit trail did not verify when the run started: each of its stages is "
+                              "set aside (.untrusted-*) and recomputed or copied from the stage cache; "
+                              "`weldrecon audit verify` lists them", final=True)
+                self._untrusted += 1
+                return
             self._say(f"{entry['stage']}{' ' + item if item else ''}: {entry.get('reason', 'recomputed')}", final=True)
             return
         if entry.get("kind") != "stage":

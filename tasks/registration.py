@@ -117,7 +117,7 @@ def solve_pass_poses(graph: RegistrationGraph, *, fixed: int = 0, outlier_mm: fl
         x, iterations = sol.x, iterations + sol.nfev
         T = _poses(x, free, centres, n)
         res = np.linalg.norm(apply_each(T[graph.edge_passes[:, 0]], a) - apply_each(T[graph.edge_passes[:, 1]], b), axis=1)
-        limit = max(outlier_mm, 5 * float(np.median(res[inlier])))
+        limit = max(outlier_mm, 5 * float(np.median(res[inlier]))) if inlier.any() else outlier_mm  # a lone pass: none
         new = res <= limit
         if np.array_equal(new, inlier):
             break

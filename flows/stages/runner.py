@@ -351,6 +351,7 @@ def run_stage(stage: Stage, *, store: StageStore, sample_dir: Path, manifest: Sa
                      reason=f"cached outputs failed their hash check: {problem}; set aside and recomputed", **ids)
     if untrusted is not None:
         audit.append(store.root, "stage-recomputed", stage=stage.name, item=item, cache_key=key,
+                     cause="untrusted-folder",
                      reason=f"the folder's audit trail did not verify when the run started: its stage set aside to "
                             f"{untrusted.name} and {'copied again from the stage cache' if found else 'recomputed'}",
                      **ids)

@@ -59,3 +59,33 @@ def test_an_alias_bomb_on_the_command_line_is_one_line_and_writes_nothing(tmp_pa
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and "expands to 490,329,064 values through its aliases" in done.stderr, done.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n  # and another\n"])
+def test_a_file_that_sets_nothing_is_refused_and_braces_say_none_on_purpose(tmp_path, text):
+    path = tmp_path / "settings.yaml"
+    path.write_text(text)
+    with pytest.raises(ValueError) as caught:
+        read_yaml_mapping(path, "settings")
+    assert str(caught.value) == (f"{path}: the settings file is empty (no fields, only blank lines or comments); "
+                                 "expected its fields (section: field: value), or {} to set none on purpose")
+    path.write_text("{}  # the defaults\n")
+    assert read_yaml_mapping(path, "settings") == {}
+    path.write_text("~\n")
+    with pytest.raises(ValueError, match=r"settings.yaml: the settings must be a mapping of fields \(section: field: "
+                                         r"value\), not null$"):
+        read_yaml_mapping(path, "settings")
+
+
+def test_an_empty_config_on_the_command_line_is_one_line_and_writes_nothing(tmp_path):
+    empty = tmp_path / "settings.yaml"
+    empty.write_text("")
+    scan = tmp_path / "scan.xyz"
+    scan.write_text("0 0 0\n1 0 0\n0 1 0\n")
+    out = tmp_path / "out"
+    done = weldrecon("measure-weld", str(scan), "--units", "mm", "--config", str(empty), "--out", str(out))
+    assert done.returncode == 2, done.stderr
+    assert done.stderr == (f"weldrecon measure-weld: error: {empty}: the measure-weld settings file is empty (no fields, "
+                           "only blank lines or comments); expected its fields (section: field: value), or {} to set "
+                           "none on purpose\n"), done.stderr
+    assert not out.exists() and empty.read_text() == ""

@@ -334,6 +334,38 @@ def test_a_pass_that_contradicts_its_manifest_entry_is_named(ci_sample, tmp_path
     assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
 
 
+@pytest.mark.parametrize("copied", ["store", "measurements"])
+def test_a_pass_store_that_is_a_copy_of_another_is_named_with_both_passes(ci_sample, tmp_path, copied):
+    """A store copied over another and relabelled (its hash rewritten as an exporter would), or
+    only its profiles copied (times and intensities its own): refused before any work, naming
+    the copy and its original, not as a registration failure of unrelated passes."""
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02", "top-L03"])
+    store = sample / "passes" / "top-L03.zarr"
+    if copied == "store":
+        shutil.rmtree(store)
+        shutil.copytree(sample / "passes" / "top-L01.zarr", store)
+        zarr.open_group(str(store), mode="r+").attrs["pass_id"] = "top-L03"
+    else:
+        for name in ("x_mm", "z_mm"):
+            shutil.rmtree(store / name)
+            shutil.copytree(sample / "passes" / "top-L01.zarr" / name, store / name)
+    manifest = json.loads((sample / "manifest.json").read_text())
+    manifest["setups"][0]["passes"][2]["content_sha256"] = sha256_tree(store)
+    (sample / "manifest.json").write_text(json.dumps(manifest))
+    before = _tree_bytes(sample)
+    run = tmp_path / "run"
+    done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG)
+    assert done.returncode == 2 and _problems(done.stderr) == [
+        "weldrecon reconstruct: error: pass top-L03 (setup top): its store passes/top-L03.zarr holds the same "
+        "measurements, byte for byte, as pass top-L01 (setup top); a copy of another pass's store (relabelled or "
+        "exported twice?): expected each pass its own scan"], done.stderr
+    assert not run.exists() and _tree_bytes(sample) == before
+
+
+def _tree_bytes(path: Path) -> dict[str, bytes]:
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
 def test_an_out_folder_of_other_files_and_a_bad_follow_timeout_are_refused_before_any_work(ci_sample, tmp_path):
     foreign = tmp_path / "thesis"
     foreign.mkdir()

@@ -392,9 +392,13 @@ def test_a_stage_forged_with_its_trail_rechained_is_not_reused(run_copy, six_sam
     done = weldrecon("reconstruct", str(six_sample), "--out", str(run), "--config", QUICK_CONFIG,
                      env={"WELDRECON_WORKSPACE": str(workspace)})
     assert done.returncode == 0, done.stderr
-    assert "registration: the folder's audit trail did not verify when the run started" in done.stderr
     assert (run / "results" / "report.json").read_bytes() == published
     redone = [e for e in read_trail(run) if e["kind"] == "stage-recomputed"]
+    # said on the terminal once, not once a stage, with how many were made again
+    said = [line.split("] ", 1)[-1] for line in done.stderr.splitlines() if "untrusted" in line]
+    assert said == ["the folder's audit trail did not verify when the run started: each of its stages is set aside "
+                    "(.untrusted-*) and recomputed or copied from the stage cache; `weldrecon audit verify` lists them",
+                    f"{len(redone)} stage(s) of the folder set aside as untrusted and made again"], done.stderr
     assert {e["stage"] for e in redone} >= {"registration", "report"}
     assert all(e["reason"].endswith("copied again from the stage cache") for e in redone)
     assert [p.name.split("-")[0] for p in (run / "stages" / "registration").iterdir() if p.name.startswith(".")] == [
