@@ -334,12 +334,9 @@ def test_a_pass_that_contradicts_its_manifest_entry_is_named(ci_sample, tmp_path
     assert any(re.search(message, line) for line in _problems(done.stderr)), done.stderr
 
 
-@pytest.mark.parametrize("copied", ["store", "measurements"])
-def test_a_pass_store_that_is_a_copy_of_another_is_named_with_both_passes(ci_sample, tmp_path, copied):
-    """A store copied over another and relabelled (its hash rewritten as an exporter would), or
-    only its profiles copied (times and intensities its own): refused before any work, naming
-    the copy and its original, not as a registration failure of unrelated passes."""
-    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02", "top-L03"])
+def _copy_pass(sample: Path, copied: str) -> None:
+    """top-L03's store made a copy of top-L01's, its hash rewritten as an exporter would: the whole
+    store relabelled (``store``), or only its profiles (``measurements``: times and intensities its own)."""
     store = sample / "passes" / "top-L03.zarr"
     if copied == "store":
         shutil.rmtree(store)
@@ -352,14 +349,32 @@ def test_a_pass_store_that_is_a_copy_of_another_is_named_with_both_passes(ci_sam
     manifest = json.loads((sample / "manifest.json").read_text())
     manifest["setups"][0]["passes"][2]["content_sha256"] = sha256_tree(store)
     (sample / "manifest.json").write_text(json.dumps(manifest))
+
+
+_COPIED = ("pass top-L03 (setup top): its store passes/top-L03.zarr holds the same measurements, byte for byte, as "
+           "pass top-L01 (setup top); a copy of another pass's store (relabelled or exported twice?): expected each "
+           "pass its own scan")
+
+
+def test_a_pass_store_that_is_a_copy_of_another_is_named_with_both_passes(ci_sample, tmp_path):
+    """A store copied over another and relabelled: refused before any work, naming the copy and its
+    original, not as a registration failure of unrelated passes; and a store whose profiles alone
+    are another's (``data_catalog.manifests.check_passes_distinct``)."""
+    from data_catalog.manifests import ManifestError, check_passes_distinct, load_manifest
+
+    sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02", "top-L03"])
+    check_passes_distinct(sample, load_manifest(sample))
+    _copy_pass(sample, "store")
     before = _tree_bytes(sample)
     run = tmp_path / "run"
     done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG)
-    assert done.returncode == 2 and _problems(done.stderr) == [
-        "weldrecon reconstruct: error: pass top-L03 (setup top): its store passes/top-L03.zarr holds the same "
-        "measurements, byte for byte, as pass top-L01 (setup top); a copy of another pass's store (relabelled or "
-        "exported twice?): expected each pass its own scan"], done.stderr
+    assert done.returncode == 2 and _problems(done.stderr) == [f"weldrecon reconstruct: error: {_COPIED}"], done.stderr
     assert not run.exists() and _tree_bytes(sample) == before
+    other = copy_sample(ci_sample, tmp_path / "t", ["top-L01", "top-L02", "top-L03"])
+    _copy_pass(other, "measurements")
+    with pytest.raises(ManifestError) as caught:
+        check_passes_distinct(other, load_manifest(other))
+    assert str(caught.value) == _COPIED
 
 
 def _tree_bytes(path: Path) -> dict[str, bytes]:
