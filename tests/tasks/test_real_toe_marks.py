@@ -12,6 +12,8 @@ median offset toward the plate within 0.1 mm (two points): no bias between the t
 
 from __future__ import annotations
 
+import functools
+
 from pathlib import Path
 
 import numpy as np
@@ -86,6 +88,7 @@ def test_toe_positions_against_marks(marks_and_ours):
     assert abs(np.median(outward)) <= MEDIAN_TOLERANCE_MM, sorted(outward)
 
 
+@functools.lru_cache(maxsize=1)
 def _aw_front_stretch():
     """AW-front's points 12.5-20 mm along its found weld line, the line, and each point's position
     along it and across it (n x t: the minus toe at about -18 mm)."""
@@ -101,6 +104,13 @@ def _aw_front_stretch():
     along = (points - np.asarray(line.start_mm)) @ t
     stretch = (along > 12.5) & (along < 20.0)
     return points[stretch], line, along[stretch], (points[stretch] - np.asarray(line.start_mm)) @ a
+
+
+@functools.lru_cache(maxsize=1)
+def _untouched_minus_toes():
+    """``_minus_toes`` of the stretch as scanned (measured once for the tests of this file)."""
+    points, line, _, _ = _aw_front_stretch()
+    return _minus_toes(points, line)
 
 
 def _minus_toes(points, line):
@@ -121,8 +131,7 @@ def test_a_dip_beside_the_toe_is_not_read_as_flank():
     radius free up to 1.4 mm; its neighbours within 0.1 mm of each other at 38-50 deg). Fitted with
     the radius held at the smallest the points allow (the radius is not resolved), each lands among
     its neighbours at the first fit: no toe of the stretch needs fitting again."""
-    points, line, _, _ = _aw_front_stretch()
-    measured, fits = _minus_toes(points, line)
+    measured, fits = _untouched_minus_toes()
     at = {round(s.section.position_mm, 2): f for s, f in zip(measured.sections, fits)}
     assert all(40.0 < at[p].flank_angle_deg.value < 46.0 for p in (14.65, 17.65))
     assert not any(t.fit is not None and "fitted again" in t.fit.note for s in measured.sections for t in s.toes)
@@ -134,7 +143,7 @@ def test_a_toe_off_its_neighbours_is_fitted_again_from_theirs():
     against the three profiles either side, it is fitted again from theirs and lands among them,
     its note saying so; no other toe of the stretch moves."""
     points, line, along, across = _aw_front_stretch()
-    untouched, _ = _minus_toes(points, line)
+    untouched, _ = _untouched_minus_toes()
     ridge = (np.abs(along - 16.15) < 0.2) & (across > 18.1 + 0.8) & (across < 18.1 + 1.8)
     assert ridge.sum() >= 10
     points = points.copy()
