@@ -365,20 +365,16 @@ def test_a_pass_store_that_is_a_copy_of_another_is_named_with_both_passes(ci_sam
     sample = copy_sample(ci_sample, tmp_path / "s", ["top-L01", "top-L02", "top-L03"])
     check_passes_distinct(sample, load_manifest(sample))
     _copy_pass(sample, "store")
-    before = _tree_bytes(sample)
+    before = sha256_tree(sample)
     run = tmp_path / "run"
     done = weldrecon("reconstruct", str(sample), "--out", str(run), "--config", QUICK_CONFIG)
     assert done.returncode == 2 and _problems(done.stderr) == [f"weldrecon reconstruct: error: {_COPIED}"], done.stderr
-    assert not run.exists() and _tree_bytes(sample) == before
+    assert not run.exists() and sha256_tree(sample) == before
     other = copy_sample(ci_sample, tmp_path / "t", ["top-L01", "top-L02", "top-L03"])
     _copy_pass(other, "measurements")
     with pytest.raises(ManifestError) as caught:
         check_passes_distinct(other, load_manifest(other))
     assert str(caught.value) == _COPIED
-
-
-def _tree_bytes(path: Path) -> dict[str, bytes]:
-    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
 
 
 def test_an_out_folder_of_other_files_and_a_bad_follow_timeout_are_refused_before_any_work(ci_sample, tmp_path):
