@@ -24,6 +24,7 @@ Correspondences are found again every iteration, the gate shrinking from ``max_d
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -200,7 +201,8 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
                  points_a: np.ndarray, points_b: np.ndarray, *, max_iterations: int, tolerance_mm: float,
                  max_distance_mm: float, final_distance_mm: float, neighbour_mm: float, normal_neighbours: int,
                  target_sigma_mm: float, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
-                 max_plane_rms_mm: float, normal_space: bool, fixed: int = 0) -> RefineResult:
+                 max_plane_rms_mm: float, normal_space: bool, fixed: int = 0, free: Sequence[int] | None = None,
+                 warm: bool = False) -> RefineResult:
     """Refine ``T_common_pass`` (n, 4, 4; pass frame -> common frame, from target registration).
 
     ``edge_passes`` (e, 2), ``points_a``/``points_b`` (e, 3): the inlier target pairs, each centre
@@ -209,7 +211,14 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     ``neighbour_mm`` and within ``max_plane_rms_mm`` of their plane, with a normal within
     ``acos(min_normal_cos)`` of the source point's; each pair contributes at most
     ``max_points_per_pair`` per direction. Returns the refined poses; pass ``fixed`` does not move.
-    Raises ``NothingToRefine`` (a ValueError) when an iteration finds no residual at all.
+
+    A problem that grows with the scan: ``free`` (pass indices) the only passes that move, the
+    others held where ``T_common_pass`` puts them (a solved problem's poses), and only the target
+    and surface pairs that touch a free pass counted (the others' residuals cannot change);
+    ``fixed`` is then unread. ``warm``: the poses are already close (a solved problem, a pass
+    added to it): every iteration at ``final_distance_mm`` instead of narrowing to it from
+    ``max_distance_mm``. Raises ``NothingToRefine`` (a ValueError) when an iteration finds no
+    residual at all.
     """
     n = len(samples)
     T = np.array(T_common_pass, dtype=np.float64)
@@ -219,14 +228,25 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
     points_a = check_points("points_a", points_a) if len(edge_passes) else np.zeros((0, 3))
     points_b = check_points("points_b", points_b) if len(edge_passes) else np.zeros((0, 3))
     trees = [s.tree if len(s.dense_mm) >= normal_neighbours else None for s in samples]
-    free = np.flatnonzero(np.arange(n) != fixed)
+    if free is None:
+        moving = np.arange(n) != fixed
+    else:
+        free = np.asarray(free, dtype=np.int64).reshape(-1)
+        if len(free) == 0 or len(free) >= n or free.min() < 0 or free.max() >= n:
+            raise ValueError(f"free must name 1 to {n - 1} of the {n} passes (0..{n - 1}), got {free.tolist()}")
+        moving = np.isin(np.arange(n), free)
+    free = np.flatnonzero(moving)
+    all_pairs = edge_passes, points_a, points_b  # every pair's residual is returned
+    if len(edge_passes):  # a pair of two held passes adds a constant: left out
+        touching = moving[edge_passes].any(axis=1)
+        edge_passes, points_a, points_b = edge_passes[touching], points_a[touching], points_b[touching]
     column = np.full(n, -1)
     column[free] = np.arange(len(free))
     # the pose increment rotates about this centre, which keeps the normal equations well scaled
     centre = np.mean([apply(T[k], s.points_mm).mean(axis=0) for k, s in enumerate(samples) if len(s.points_mm)], axis=0)
     # the gate on point-to-plane distances narrows over the first iterations, then stays; the
     # loop ends once no pass point moves more than tolerance_mm
-    gates = np.geomspace(max_distance_mm, final_distance_mm, 3).tolist()
+    gates = [] if warm else np.geomspace(max_distance_mm, final_distance_mm, 3).tolist()
     gates += [final_distance_mm] * max(max_iterations - len(gates), 0)
     gates = gates[:max_iterations]
     cache = [np.full((len(s.dense_mm), 8), np.nan) for s in samples]
@@ -256,7 +276,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
         pair_rms, pair_count = {}, {}
         # both ways round: point-to-plane on a curved surface is biased (the tangent plane at the
         # matched point passes outside a convex surface), and the two directions cancel that
-        for a, b in [p for pair in _overlapping_pairs(boxes, gate) for p in (pair, pair[::-1])]:
+        for a, b in [p for pair in _overlapping_pairs(boxes, gate) if moving[list(pair)].any() for p in (pair, pair[::-1])]:
             sa, tree_b = samples[a], trees[b]
             if tree_b is None or len(sa.points_mm) == 0:
                 continue
@@ -329,6 +349,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
         steps.append(step)
         if gate == final_distance_mm and step < tolerance_mm:
             break
+    edge_passes, points_a, points_b = all_pairs
     target_res = (np.linalg.norm(np.einsum("nij,nj->ni", T[edge_passes[:, 0], :3, :3], points_a) + T[edge_passes[:, 0], :3, 3]
                                  - np.einsum("nij,nj->ni", T[edge_passes[:, 1], :3, :3], points_b)
                                  - T[edge_passes[:, 1], :3, 3], axis=1) if len(edge_passes) else np.zeros(0))

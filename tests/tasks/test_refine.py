@@ -55,15 +55,16 @@ def _sample(grid, **changes):
                           neighbours=cfg.normal_neighbours, max_plane_rms_mm=cfg.max_plane_rms_mm)
 
 
-def _refine(samples, start, edges, targets_a, targets_b, **changes):
+def _refine(samples, start, edges, targets_a, targets_b, free=None, warm=False, **changes):
     cfg = SETTINGS.model_copy(update=changes)
+    grow = {"free": free, "warm": warm} if free is not None or warm else {}
     return refine_poses(samples, start, edges, targets_a, targets_b, max_iterations=cfg.max_iterations,
                         tolerance_mm=cfg.tolerance_mm, max_distance_mm=cfg.max_distance_mm,
                         final_distance_mm=cfg.final_distance_mm, neighbour_mm=cfg.neighbour_mm,
                         normal_neighbours=cfg.normal_neighbours, target_sigma_mm=cfg.target_sigma_mm,
                         surface_sigma_mm=cfg.surface_sigma_mm, max_points_per_pair=cfg.max_points_per_pair,
                         min_normal_cos=cfg.min_normal_cos, max_plane_rms_mm=cfg.max_plane_rms_mm,
-                        normal_space=cfg.normal_space_sampling)
+                        normal_space=cfg.normal_space_sampling, **grow)
 
 
 def _error(T_b, T_true_b, b):
@@ -125,6 +126,39 @@ def test_curved_patches_would_bias_the_poses(two_passes):
     strict = [_sample(g) for g in (a, b)]
     clean = _refine(strict, start, edges, targets_a, targets_b)
     assert _error(clean.T_common_pass[1], T_true_b, b) < 0.5 * _error(biased.T_common_pass[1], T_true_b, b)
+
+
+def test_a_pass_added_to_a_solved_problem_lands_where_the_whole_problem_puts_it(two_passes):
+    """The problem grown with the scan: passes a and b solved, then c (a third view of the same
+    surface, its start 0.1 mm off) added alone, a and b held, warm (the final gate from the
+    start): c lands where solving all three from their starts puts it, in fewer iterations,
+    and a and b do not move by a bit."""
+    a, b, T_true_b, targets_a, targets_b = two_passes
+    rng = np.random.default_rng(11)
+    c_true = _pass(0.07, rng)
+    T_true_c = _transform([-3e-4, 5e-4, 2e-4], [-0.05, 0.04, 0.06])
+    c = _apply(np.linalg.inv(T_true_c), c_true.reshape(-1, 3)).reshape(c_true.shape)
+    targets_c = _apply(np.linalg.inv(T_true_c), targets_a)
+    samples = [_sample(g) for g in (a, b, c)]
+    edges = np.array([[0, 1]] * len(targets_a) + [[0, 2]] * len(targets_a))
+    ta, tb = np.concatenate([targets_a, targets_a]), np.concatenate([targets_b, targets_c])
+    start = np.repeat(np.eye(4)[None], 3, axis=0)
+    whole = _refine(samples, start, edges, ta, tb)
+    solved = _refine(samples[:2], start[:2], edges[:5], ta[:5], tb[:5])
+    held = np.concatenate([solved.T_common_pass, start[2:]])
+    grown = _refine(samples, held, edges, ta, tb, free=[2], warm=True)
+    assert np.array_equal(grown.T_common_pass[:2], solved.T_common_pass)  # held exactly
+    assert _error(start[2], T_true_c, c) > 0.09
+    # measured: 1.6 um from the truth (the whole problem: 1.5), 0.16 um from the whole problem's answer;
+    # 2 iterations against 3
+    assert _error(grown.T_common_pass[2], T_true_c, c) < 0.006
+    assert _error(grown.T_common_pass[2], whole.T_common_pass[2], c) < 0.002
+    assert len(grown.step_mm) < len(whole.step_mm)
+    assert set(grown.pair_count) == {(0, 2), (2, 0), (1, 2), (2, 1)}  # the held pair (a, b) is not matched again
+    assert len(grown.target_residual_mm) == len(edges)  # every pair's residual, the held ones' too
+    for bad in ([], [0, 1, 2], [3], [-1]):
+        with pytest.raises(ValueError, match="free must name 1 to 2 of the 3 passes"):
+            _refine(samples, held, edges, ta, tb, free=bad)
 
 
 def test_bad_input_is_named():
