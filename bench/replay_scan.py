@@ -57,8 +57,12 @@ def lag(live: Path, run: Path) -> dict:
     landed, first = max(times.values()), min(times.values())
     stages = {e["stage"]: datetime.fromisoformat(e["record"]["finished"]).timestamp()
               for e in read_trail(run) if e.get("kind") == "stage" and "record" in e}
+    provisional = [(e["after_pass"], e["passes"], e.get("verdict"), datetime.fromisoformat(e["time"]).timestamp())
+                   for e in read_trail(run) if e.get("kind") == "provisional-published"]
     return {"first_to_last_pass_s": round(landed - first, 1),
-            "after_last_pass_s": {name: round(t - landed, 1) for name, t in sorted(stages.items(), key=lambda x: x[1])}}
+            "after_last_pass_s": {name: round(t - landed, 1) for name, t in sorted(stages.items(), key=lambda x: x[1])},
+            "provisional_verdicts": [{"after_pass": p, "passes": n, "verdict": v, "after_its_landing_s": round(t - times[p], 1),
+                                      "after_last_pass_s": round(t - landed, 1)} for p, n, v, t in provisional]}
 
 
 def main() -> int:

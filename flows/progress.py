@@ -107,6 +107,11 @@ class TrailProgress:
                 continue  # valid JSON, but not an entry of the shape the audit writes: skipped
 
     def _show(self, entry: dict[str, Any]) -> None:
+        if entry.get("kind") == "provisional-published":  # the weld verdict while the scan comes in (flows.provisional)
+            self._say(f"PROVISIONAL weld verdict after pass {entry['after_pass']} ({entry['passes']} of "
+                      f"{entry['of_passes']} passes): {entry.get('verdict')} (provisional/weld_verdict.json; "
+                      "the final verdict follows the whole run)", final=True)
+            return
         count = self._counts.get(entry.get("stage"))
         if count is None:
             return

@@ -268,9 +268,10 @@ def _on_dask() -> bool:
 
 
 def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageStore, config: ReconstructionConfig,
-                           timeout_s: float, log) -> dict[str, list]:
+                           timeout_s: float, log, provisional=None) -> dict[str, list]:
     """Follow a scan in progress: each pass's per-pass stages are submitted as soon as its store is
-    complete on disk, in the manifest's order (the robot's)."""
+    complete on disk, in the manifest's order (the robot's); ``provisional`` (a
+    ``flows.provisional.ProvisionalWeld``) is told of each pass and its stages."""
     pending: dict[str, list] = {}
     for setup, entry in manifest.passes():
         wait_for_file(sample / entry.file, timeout_s=timeout_s, what=f"pass {entry.pass_id} (setup {setup})",
@@ -281,6 +282,8 @@ def _submit_as_passes_land(sample: Path, manifest: SampleManifest, store: StageS
             if stage.per_pass:
                 pending.setdefault(stage.name, []).append(
                     STAGE_TASKS[stage.name].submit(store, sample, manifest, config, {}, entry))
+        if provisional is not None:
+            provisional.landed(entry, pending["denoise"][-1], pending["targets"][-1])
     return pending
 
 
@@ -354,9 +357,14 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
             refs[name] = _gather(name, pending.pop(name))
         return refs[name]
 
+    provisional = None
+    if follow_timeout_s is not None and stop_after is None:  # the weld verdict while the scan comes in
+        from flows.provisional import ProvisionalWeld
+
+        provisional = ProvisionalWeld(sample=sample, out=out, manifest=manifest, config=config, log=log)
     try:
         if follow_timeout_s is not None:
-            pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log))
+            pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log, provisional))
         for stage in needed_for(stop_after) if stop_after else STAGES:
             if stage.name in pending:  # submitted as its passes landed
                 continue
@@ -378,6 +386,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
             stopped = audit.append(out, "run-stopped", sample_id=manifest.sample_id, after=stop_after, cached=cached)
             return RunResult(report=None, outputs={}, refs=refs, cached=cached, seconds=seconds,
                              trail_head=TrailHead(seq=stopped["seq"], hash=stopped["hash"]))
+        if provisional is not None:
+            provisional.close()
+            if provisional.published:  # the trail says which verdicts were provisional and that they are no more
+                audit.append(out, "provisional-superseded", sample_id=manifest.sample_id,
+                             provisional=[p["seq"] for p in provisional.published])
         with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
             published = publish(out, manifest.sample_id, refs["report"], refs,
                                 config.model_dump_json(indent=2) + "\n", audit_status(out))
@@ -385,6 +398,8 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                                     artefacts={f"{RESULTS}/{name}": item["sha256"] for name, item in published.items()},
                                     cached=cached)
     except BaseException as exc:
+        if provisional is not None:
+            provisional.close(wait=False)
         audit.append(out, "run-failed", sample_id=manifest.sample_id, stage=getattr(exc, "stage", None),
                      error=f"{type(exc).__name__}: {exc}")
         raise

@@ -40,16 +40,25 @@ def _land(source: Path, passes: Path) -> None:
     os.rename(hidden, passes / source.name)
 
 
-def _denoised(out: Path) -> list[str]:
+def _trail(out: Path) -> list[dict]:
     try:
-        trail = read_trail(out)
+        return read_trail(out)
     except FileNotFoundError:
         return []
-    return [e["item"] for e in trail if e.get("kind") == "stage" and e.get("stage") == "denoise"]
+
+
+def _denoised(out: Path) -> list[str]:
+    return [e["item"] for e in _trail(out) if e.get("kind") == "stage" and e.get("stage") == "denoise"]
+
+
+def _provisional(out: Path) -> list[dict]:
+    return [e for e in _trail(out) if e.get("kind") == "provisional-published"]
 
 
 @pytest.mark.slow
 def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample, six_run, tmp_path):
+    """... and publishes a provisional weld verdict while the last pass is still missing (the
+    test holds it back until one is published), marked as such and never among the results."""
     _, finished = six_run
     sample, out = tmp_path / "live", tmp_path / "run"
     (sample / "passes").mkdir(parents=True)
@@ -63,12 +72,13 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
             for store in stores[:-1]:
                 _land(store, sample / "passes")
             deadline = time.monotonic() + 600
-            while not _denoised(out):  # the robot is still scanning the last pass
+            while not (_denoised(out) and _provisional(out)):  # the robot is still scanning the last pass
                 assert follow.poll() is None, (tmp_path / "follow.err").read_text()[-3000:]
-                assert time.monotonic() < deadline, "no pass was denoised while the last one was missing"
+                assert time.monotonic() < deadline, ("no pass was denoised and no provisional verdict published while "
+                                                     "the last one was missing")
                 time.sleep(0.5)
             assert not (sample / "passes" / stores[-1].name).exists()
-            early = _denoised(out)
+            early, early_verdicts = _denoised(out), _provisional(out)
             _land(stores[-1], sample / "passes")
             assert follow.wait(timeout=600) == 0, (tmp_path / "follow.err").read_text()[-3000:]
         finally:
@@ -76,6 +86,22 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
                 follow.kill()
     assert early and stores[-1].stem not in early
     assert len(_denoised(out)) == len(stores)
+    # the provisional verdicts: made from the passes landed, said on the terminal, superseded in the
+    # trail before the run's results are recorded, never in results/
+    assert early_verdicts and all(2 <= e["passes"] < len(stores) and e["of_passes"] == len(stores) for e in early_verdicts)
+    trail = _trail(out)
+    kinds = [e["kind"] for e in trail]
+    verdicts = [e for e in trail if e["kind"] == "provisional-published"]
+    superseded = trail[kinds.index("provisional-superseded")]
+    assert superseded["provisional"] == [e["seq"] for e in verdicts]
+    assert kinds.index("provisional-superseded") < kinds.index("run-finished")
+    document = json.loads((out / "provisional" / "weld_verdict.json").read_text())
+    assert document["provisional"] is True and document["after_pass"] == verdicts[-1]["after_pass"]
+    assert document["weld"]["measured"] and document["weld"]["summary"]["verdict"] == verdicts[-1]["verdict"]
+    assert verdicts[-1]["artefacts"] == {"provisional/weld_verdict.json": _digest(out / "provisional" / "weld_verdict.json")}
+    assert not any("provisional" in p.name for p in (out / "results").iterdir())
+    err = (tmp_path / "follow.err").read_text()
+    assert f"PROVISIONAL weld verdict after pass {early_verdicts[0]['after_pass']}" in err, err[-3000:]
     # the same mesh as the run on the finished sample
     stl_live = out / "results" / f"{finished['sample_id']}.stl"
     stl_done = Path(finished["outputs"][f"{finished['sample_id']}.stl"]["path"])
