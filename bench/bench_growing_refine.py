@@ -37,18 +37,9 @@ from data_catalog.stages import StageStore  # noqa: E402
 from flows.preflight import load_config  # noqa: E402
 from flows.stages import run_in_process  # noqa: E402
 from flows.stages.outputs import REGISTRATION  # noqa: E402
-from flows.stages.refine import _thinned_grid  # noqa: E402
+from flows.stages.refine import pass_surface_sample, refine_arguments  # noqa: E402
 from tasks.frames import apply  # noqa: E402
-from tasks.refine import NothingToRefine, refine_poses, surface_sample  # noqa: E402
-
-
-def _settings(rc) -> dict:
-    return dict(max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm, max_distance_mm=rc.max_distance_mm,
-                final_distance_mm=rc.final_distance_mm, neighbour_mm=rc.neighbour_mm,
-                normal_neighbours=rc.normal_neighbours, target_sigma_mm=rc.target_sigma_mm,
-                surface_sigma_mm=rc.surface_sigma_mm, max_points_per_pair=rc.max_points_per_pair,
-                normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
-                max_plane_rms_mm=rc.max_plane_rms_mm)
+from tasks.refine import NothingToRefine, refine_poses  # noqa: E402
 
 
 def main() -> int:
@@ -67,15 +58,9 @@ def main() -> int:
     inlier = reg.inlier.astype(bool)
     E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
     t0 = time.perf_counter()
-    samples = []
-    for (_, entry), ref in zip(manifest.passes(), refs["denoise"]):
-        row_mm, col_mm = manifest.grid_pitch_mm(entry)
-        stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
-        samples.append(surface_sample(_thinned_grid(ref, stride), spacing_mm=rc.sample_spacing_mm,
-                                      normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
-                                      max_plane_rms_mm=rc.max_plane_rms_mm))
+    samples = [pass_surface_sample(manifest, entry, ref, rc) for (_, entry), ref in zip(manifest.passes(), refs["denoise"])]
     sampling_s = time.perf_counter() - t0
-    kw = _settings(rc)
+    kw = refine_arguments(rc)
     n, last = len(samples), len(samples) - 1
     names = [entry.pass_id for _, entry in manifest.passes()]
     rows = []

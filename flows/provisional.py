@@ -44,12 +44,12 @@ from flows.stages import StageContext, StageRef, run_stage, stage
 from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REGISTRATION, SPECIMEN, WELD_GEOMETRY, RefinedPoses, SpecimenCloud
 from flows.stages.placement import T_common_specimen
-from flows.stages.refine import _thinned_grid
+from flows.stages.refine import pass_surface_sample, refine_arguments
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 from tasks.frames import apply
 from tasks.merge import CellSums, cell_sums, combine_cell_sums, transform_measured
-from tasks.refine import NothingToRefine, SurfaceSample, refine_poses, surface_sample
+from tasks.refine import NothingToRefine, SurfaceSample, refine_poses
 from tasks.single_setup import inside_drawing_box
 from tasks.weld_zone import weld_zone
 
@@ -143,11 +143,7 @@ class ProvisionalWeld:
         for item in batch:
             pid = item.entry.pass_id
             st.denoise[pid], st.targets[pid] = item.denoise.result(), item.targets.result()
-            row_mm, col_mm = self.manifest.grid_pitch_mm(item.entry)
-            stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
-            st.samples[pid] = surface_sample(_thinned_grid(st.denoise[pid], stride), spacing_mm=rc.sample_spacing_mm,
-                                             normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
-                                             max_plane_rms_mm=rc.max_plane_rms_mm)
+            st.samples[pid] = pass_surface_sample(self.manifest, item.entry, st.denoise[pid], rc)
             st.order.append(pid)
         if not self.measurable or self._stop.is_set() or len(st.order) < 2:  # a lone pass: nothing to register
             return
@@ -178,12 +174,7 @@ class ProvisionalWeld:
         new = [k for k, p in enumerate(ids) if p not in st.T and k > 0]
         inlier = reg.inlier.astype(bool)
         E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
-        kw = dict(max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm, max_distance_mm=rc.max_distance_mm,
-                  final_distance_mm=rc.final_distance_mm, neighbour_mm=rc.neighbour_mm,
-                  normal_neighbours=rc.normal_neighbours, target_sigma_mm=rc.target_sigma_mm,
-                  surface_sigma_mm=rc.surface_sigma_mm, max_points_per_pair=rc.max_points_per_pair,
-                  normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
-                  max_plane_rms_mm=rc.max_plane_rms_mm)
+        kw = refine_arguments(rc)
         samples = [st.samples[p] for p in ids]
         if rc.enabled and len(ids) > 1:
             try:

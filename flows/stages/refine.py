@@ -11,9 +11,9 @@ from flows.stages.contracts import block_rows, zarr_array
 from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
 from schemas.stage_documents import RefineSummary, SurfacePair
 from tasks.consistency import residual_outliers, surfaces_between_setups
-from tasks.refine import refine_poses, surface_sample
+from tasks.refine import SurfaceSample, refine_poses, surface_sample
 
-__all__ = ["refine"]
+__all__ = ["refine", "refine_arguments", "pass_surface_sample"]
 
 
 def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
@@ -26,6 +26,25 @@ def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
     return np.concatenate([np.asarray(points[a:a + step])[::rs, ::cs] for a in range(0, n, step)])
 
 
+def pass_surface_sample(manifest, entry, ref, rc) -> SurfaceSample:
+    """One denoised pass's surface sample as the refine stage matches it (``rc``: RefineConfig):
+    its grid thinned to about ``surface_spacing_mm``, then ``tasks.refine.surface_sample``."""
+    row_mm, col_mm = manifest.grid_pitch_mm(entry)
+    stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
+    return surface_sample(_thinned_grid(ref, stride), spacing_mm=rc.sample_spacing_mm, normal_radius_mm=rc.neighbour_mm,
+                          neighbours=rc.normal_neighbours, max_plane_rms_mm=rc.max_plane_rms_mm)
+
+
+def refine_arguments(rc) -> dict[str, Any]:
+    """``tasks.refine.refine_poses``'s settings from a RefineConfig."""
+    return dict(max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm, max_distance_mm=rc.max_distance_mm,
+                final_distance_mm=rc.final_distance_mm, neighbour_mm=rc.neighbour_mm,
+                normal_neighbours=rc.normal_neighbours, target_sigma_mm=rc.target_sigma_mm,
+                surface_sigma_mm=rc.surface_sigma_mm, max_points_per_pair=rc.max_points_per_pair,
+                normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
+                max_plane_rms_mm=rc.max_plane_rms_mm)
+
+
 def refine(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
     reg = REGISTRATION.read(ctx.inputs["registration"])
@@ -35,13 +54,8 @@ def refine(ctx) -> dict[str, Any]:
     T = T_targets
     target_res = reg.residual_mm[inlier]
     if rc.enabled:
-        samples = []
-        for (_, entry), r in zip(ctx.manifest.passes(), ctx.inputs["denoise"]):
-            row_mm, col_mm = ctx.manifest.grid_pitch_mm(entry)
-            stride = (max(1, int(rc.surface_spacing_mm / row_mm)), max(1, int(rc.surface_spacing_mm / col_mm)))
-            samples.append(surface_sample(_thinned_grid(r, stride), spacing_mm=rc.sample_spacing_mm,
-                                          normal_radius_mm=rc.neighbour_mm, neighbours=rc.normal_neighbours,
-                                          max_plane_rms_mm=rc.max_plane_rms_mm))
+        samples = [pass_surface_sample(ctx.manifest, entry, r, rc)
+                   for (_, entry), r in zip(ctx.manifest.passes(), ctx.inputs["denoise"])]
         if not any(len(sample.points_mm) for sample in samples):
             raise ValueError(
                 f"refine: no pass kept a surface point to match: none has {rc.normal_neighbours} points "
@@ -49,12 +63,7 @@ def refine(ctx) -> dict[str, Any]:
                 f"{rc.max_plane_rms_mm} mm (refine.max_plane_rms_mm) at this sample's point spacing; widen "
                 f"refine.neighbour_mm or lower refine.normal_neighbours, or set refine.enabled: false")
         result = refine_poses(samples, T_targets, reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier],
-                              max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm,
-                              max_distance_mm=rc.max_distance_mm, final_distance_mm=rc.final_distance_mm,
-                              neighbour_mm=rc.neighbour_mm, normal_neighbours=rc.normal_neighbours,
-                              target_sigma_mm=rc.target_sigma_mm, surface_sigma_mm=rc.surface_sigma_mm,
-                              max_points_per_pair=rc.max_points_per_pair, normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
-                              max_plane_rms_mm=rc.max_plane_rms_mm)
+                              **refine_arguments(rc))
         T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
         target_res = result.target_residual_mm
     # each physical target where the refined poses put it: the mean of its observations
