@@ -9,8 +9,10 @@ before it solved, in a thread beside the flow's own work:
   setups cannot be matched yet, the verdict waits and says why);
 - the new passes' poses refined on targets and overlapping surfaces against the passes already
   solved, those held (``tasks.refine.refine_poses(free=...)``: the last pass of a 32-pass scan in
-  about 1/14 of the whole problem's time, ``bench/bench_growing_refine.py``); when a pass lands
-  while nothing else waits, every pass is solved again together, warm;
+  about 1/14 of the whole problem's time, ``bench/bench_growing_refine.py``); after a verdict, when
+  nothing waits and the last such solve's time fits before the next pass is due (its planned
+  duration at the pace the passes land), every pass is solved again together, warm (passes only
+  ever added alone drift: 82 um worst on demo against 29);
 - each pass's points within the weld's reach of its lines (``weld.reach_mm`` and the placement
   tolerance) and inside the part's drawing box, summed per ``merge.cell_mm`` cell once, with the
   pose it had then (``tasks.merge.cell_sums``; no coarse cells, no fixture);
@@ -82,6 +84,8 @@ class _State:
     T: dict[str, np.ndarray] = field(default_factory=dict)  # the grown poses, common frame
     sums: dict[str, CellSums] = field(default_factory=dict)  # each pass's cells in the weld's reach
     joint_after: int = 0  # passes landed at the last joint solve
+    joint_seconds: float = 0.0  # what it took
+    add_seconds: float = 0.0  # what the last passes' adding took
 
 
 class ProvisionalWeld:
@@ -97,6 +101,7 @@ class ProvisionalWeld:
         self.state = _State()
         self.published: list[dict[str, Any]] = []
         self._queue: queue.Queue = queue.Queue()
+        self._landed_at: dict[str, float] = {}
         self._stop = threading.Event()
         context = contextvars.copy_context()  # the flow run's: Prefect artifacts from the thread
         self._thread = threading.Thread(target=context.run, args=(self._work,), name="provisional-weld", daemon=True)
@@ -107,6 +112,7 @@ class ProvisionalWeld:
         return self.manifest.weld is not None and any(s.T_world_specimen_nominal is not None for s in self.manifest.setups)
 
     def landed(self, entry: PassEntry, denoise, targets) -> None:
+        self._landed_at[entry.pass_id] = time.monotonic()
         self._queue.put(_Landed(entry, denoise, targets))
 
     def close(self, *, wait: bool = True) -> None:
@@ -159,16 +165,20 @@ class ProvisionalWeld:
                           self.total, str(exc).splitlines()[0])
             return
         reg = REGISTRATION.read(ref)
+        t_add = time.perf_counter()
         T = self._grown(ids, reg)
+        st.add_seconds = time.perf_counter() - t_add
         if self._stop.is_set():
             return
         self._verdict(manifest, ids, reg, T, last, t0)
         if len(ids) == self.total:  # the last verdict of the scan: its memory to the final run
-            self.state = _State(order=st.order, joint_after=st.joint_after)
+            self.state = _State(order=st.order)
+        elif self._joint_fits(ids):
+            self._joint(ids, reg)
 
-    def _grown(self, ids: list[str], reg) -> np.ndarray:
-        """The landed passes' poses: those solved before held, the new ones added to them (all
-        solved again together, warm, when nothing else is waiting)."""
+    def _grown(self, ids: list[str], reg, *, joint: bool = False) -> np.ndarray:
+        """The landed passes' poses: those solved before held, the new ones added to them;
+        ``joint``: every pass solved again together, warm, from there."""
         st, rc = self.state, self.config.refine
         T = np.array([st.T.get(p, reg.T_common_pass[k]) for k, p in enumerate(ids)])
         new = [k for k, p in enumerate(ids) if p not in st.T and k > 0]
@@ -176,13 +186,12 @@ class ProvisionalWeld:
         E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
         kw = refine_arguments(rc)
         samples = [st.samples[p] for p in ids]
-        if rc.enabled and len(ids) > 1:
+        if rc.enabled:
             try:
                 if new:
                     T = refine_poses(samples, T, E, A, B, **kw, free=new).T_common_pass
-                if self._queue.empty() and len(ids) - st.joint_after >= 4 and len(ids) < self.total:
+                if joint:
                     T = refine_poses(samples, T, E, A, B, **kw, warm=True).T_common_pass
-                    st.joint_after = len(ids)
             except NothingToRefine:  # nothing shared yet: the target poses stand
                 pass
         for k, p in enumerate(ids):
@@ -190,6 +199,30 @@ class ProvisionalWeld:
                 st.sums.pop(p, None)  # moved: its cells again
             st.T[p] = T[k]
         return T
+
+    def _joint_fits(self, ids: list[str]) -> bool:
+        """Whether every pass can be solved together again before the next pass is due: nothing
+        waits, 4 or more passes came since the last joint solve, and the time it took then (scaled
+        by the passes) fits in what is left of the next pass's scan at the pace the passes land."""
+        st = self.state
+        if not self._queue.empty() or len(ids) - st.joint_after < 4 or len(st.order) < 2:
+            return False
+        plan = {e.pass_id: e for _, e in self.manifest.passes()}
+        order = [e.pass_id for _, e in self.manifest.passes()]
+        a, b = st.order[-2], st.order[-1]
+        if order.index(b) + 1 >= len(order):
+            return False
+        planned = max(plan[b].duration_s, 1e-3)
+        pace = max(self._landed_at[b] - self._landed_at[a], 0.0) / planned  # seconds per planned second
+        due = self._landed_at[b] + pace * plan[order[order.index(b) + 1]].duration_s
+        cost = st.joint_seconds * len(ids) / st.joint_after if st.joint_after else 10.0 * st.add_seconds
+        return time.monotonic() + 1.5 * cost < due
+
+    def _joint(self, ids: list[str], reg) -> None:
+        st = self.state
+        t0 = time.perf_counter()
+        self._grown(ids, reg, joint=True)
+        st.joint_after, st.joint_seconds = len(ids), time.perf_counter() - t0
 
     def _verdict(self, manifest: SampleManifest, ids: list[str], reg, T: np.ndarray, last: str, t0: float) -> None:
         st, config = self.state, self.config
