@@ -6,7 +6,7 @@ before it solved, in a thread beside the flow's own work:
 
 - the target registration of the passes landed so far (stage ``registration`` on them, in
   ``provisional/stages``: the common frame is the first pass's, as in the whole run; while the
-  setups cannot be matched yet, the verdict waits and says why);
+  setups cannot be matched yet, the first setup's passes alone: a verdict on its weld lines);
 - the new passes' poses refined on targets and overlapping surfaces against the passes already
   solved, those held (``tasks.refine.refine_poses(free=...)``: the last pass of a 32-pass scan in
   about 1/14 of the whole problem's time, ``bench/bench_growing_refine.py``); after a verdict, when
@@ -15,10 +15,14 @@ before it solved, in a thread beside the flow's own work:
   ever added alone drift: 82 um worst on demo against 29);
 - each pass's points within the weld's reach of its lines (``weld.reach_mm`` and the placement
   tolerance) and inside the part's drawing box, summed per ``merge.cell_mm`` cell once, with the
-  pose it had then (``tasks.merge.cell_sums``; no coarse cells, no fixture);
+  pose it had then (``tasks.merge.cell_sums``; no coarse cells, no fixture; summed again only where
+  a later solve moves the pass by more than a quarter cell);
 - stage ``weld``'s own body on those points: the verdict, published to
-  ``provisional/weld_verdict.json`` (``ProvisionalVerdict``: marked provisional, with the passes
-  it holds), an audit entry ``provisional-published``, a Prefect artifact and a log line.
+  ``provisional/weld_verdict.json`` (marked provisional, with the passes it holds and what each
+  part of its step took), an audit entry ``provisional-published``, a Prefect artifact and a line
+  on the terminal. A verdict is made after the last pass, after each setup's last pass, and after
+  any other pass where the last verdict's time fits before the next pass is due, so that the one
+  the lab waits for, after the last pass, does not wait behind a verdict between passes.
 
 The final results are the whole run's, made as if the scan had been finished when the run started
 (the same bytes): the provisional verdict never feeds them, and the run's ``run-finished`` entry
@@ -86,6 +90,7 @@ class _State:
     joint_after: int = 0  # passes landed at the last joint solve
     joint_seconds: float = 0.0  # what it took
     add_seconds: float = 0.0  # what the last passes' adding took
+    verdict_seconds: float = 0.0  # what the last verdict took (its points combined, the weld measured)
 
 
 class ProvisionalWeld:
@@ -146,6 +151,7 @@ class ProvisionalWeld:
 
     def _step(self, batch: list[_Landed]) -> None:
         st, rc = self.state, self.config.refine
+        done_before = self._setups_landed()
         for item in batch:
             pid = item.entry.pass_id
             st.denoise[pid], st.targets[pid] = item.denoise.result(), item.targets.result()
@@ -154,27 +160,60 @@ class ProvisionalWeld:
         if not self.measurable or self._stop.is_set() or len(st.order) < 2:  # a lone pass: nothing to register
             return
         t0 = time.perf_counter()
+        self._phases: dict[str, float] = {}
         last = batch[-1].entry.pass_id
-        manifest = subset_manifest(self.manifest, set(st.order))
-        ids = [e.pass_id for _, e in manifest.passes()]
-        try:
-            ref = run_stage(stage("registration"), store=self.store, sample_dir=self.sample, manifest=manifest,
-                            config=self.config, inputs={"targets": [st.targets[p] for p in ids]})
-        except Exception as exc:  # noqa: BLE001 - e.g. the second setup not matched yet: wait for more passes
-            self.log.info("provisional weld verdict waits after pass %s (%d of %d landed): %s", last, len(ids),
-                          self.total, str(exc).splitlines()[0])
+        registered = self._registered(set(st.order), last)
+        if registered is None:
             return
-        reg = REGISTRATION.read(ref)
+        manifest, ids, reg = registered
         t_add = time.perf_counter()
+        self._phases["registration"] = t_add - t0
         T = self._grown(ids, reg)
-        st.add_seconds = time.perf_counter() - t_add
+        st.add_seconds = self._phases["poses"] = time.perf_counter() - t_add
         if self._stop.is_set():
             return
-        self._verdict(manifest, ids, reg, T, last, t0)
-        if len(ids) == self.total:  # the last verdict of the scan: its memory to the final run
+        placed = T_common_specimen(manifest, T)
+        if not placed:
+            return
+        t1 = time.perf_counter()
+        self._cells(manifest, ids, T, placed[0])
+        self._phases["cells"] = time.perf_counter() - t1
+        final = len(ids) == self.total
+        # the lab waits for the last pass's verdict: a verdict between passes only where it does not
+        # delay it, and at each setup's end (the first tells what a verdict costs)
+        if final or self._setups_landed() > done_before or not self.published or self._fits(st.verdict_seconds):
+            t2 = time.perf_counter()
+            self._verdict(manifest, ids, reg, T, last, t0)
+            st.verdict_seconds = time.perf_counter() - t2
+        if final:  # the last verdict of the scan: its memory to the final run
             self.state = _State(order=st.order)
-        elif self._joint_fits(ids):
+        elif len(ids) - st.joint_after >= 4 and self._fits(
+                st.joint_seconds * len(ids) / st.joint_after if st.joint_after else 10.0 * st.add_seconds):
             self._joint(ids, reg)
+
+    def _setups_landed(self) -> int:
+        landed = set(self.state.order)
+        return sum(all(p.pass_id in landed for p in s.passes) for s in self.manifest.setups)
+
+    def _registered(self, landed: set[str], last: str):
+        """(manifest, pass ids, registration) of the landed passes; while the setups cannot be
+        matched yet, of the first setup's passes alone (a verdict on its weld lines); None: neither."""
+        st = self.state
+        first = {p.pass_id for p in self.manifest.setups[0].passes} & landed
+        tries = [landed] + ([first] if len(first) >= 2 and first != landed else [])
+        for k, passes in enumerate(tries):
+            manifest = subset_manifest(self.manifest, passes)
+            ids = [e.pass_id for _, e in manifest.passes()]
+            try:
+                ref = run_stage(stage("registration"), store=self.store, sample_dir=self.sample, manifest=manifest,
+                                config=self.config, inputs={"targets": [st.targets[p] for p in ids]})
+            except Exception as exc:  # noqa: BLE001 - e.g. the second setup not matched yet: wait for more passes
+                self.log.info("provisional registration after pass %s (%d of %d landed) %s: %s", last, len(ids),
+                              self.total, "waits" if k == len(tries) - 1 else "falls back to the first setup",
+                              str(exc).splitlines()[0])
+                continue
+            return manifest, ids, REGISTRATION.read(ref)
+        return None
 
     def _grown(self, ids: list[str], reg, *, joint: bool = False) -> np.ndarray:
         """The landed passes' poses: those solved before held, the new ones added to them;
@@ -195,17 +234,19 @@ class ProvisionalWeld:
             except NothingToRefine:  # nothing shared yet: the target poses stand
                 pass
         for k, p in enumerate(ids):
-            if p in st.T and not np.array_equal(st.T[p], T[k]):
-                st.sums.pop(p, None)  # moved: its cells again
+            if p in st.T and len(samples[k].points_mm):
+                moved = np.abs(apply(T[k], samples[k].points_mm) - apply(st.T[p], samples[k].points_mm)).max()
+                if moved > 0.25 * self.config.merge.cell_mm:  # its cells again (a few um: kept as they are)
+                    st.sums.pop(p, None)
             st.T[p] = T[k]
         return T
 
-    def _joint_fits(self, ids: list[str]) -> bool:
-        """Whether every pass can be solved together again before the next pass is due: nothing
-        waits, 4 or more passes came since the last joint solve, and the time it took then (scaled
-        by the passes) fits in what is left of the next pass's scan at the pace the passes land."""
+    def _fits(self, cost_s: float) -> bool:
+        """Whether work of ``cost_s`` seconds ends before the next pass is due: nothing waits, and
+        it fits (with half again) in what is left of the next pass's scan at the pace the passes land
+        (the plan's durations)."""
         st = self.state
-        if not self._queue.empty() or len(ids) - st.joint_after < 4 or len(st.order) < 2:
+        if not self._queue.empty() or len(st.order) < 2:
             return False
         plan = {e.pass_id: e for _, e in self.manifest.passes()}
         order = [e.pass_id for _, e in self.manifest.passes()]
@@ -215,8 +256,7 @@ class ProvisionalWeld:
         planned = max(plan[b].duration_s, 1e-3)
         pace = max(self._landed_at[b] - self._landed_at[a], 0.0) / planned  # seconds per planned second
         due = self._landed_at[b] + pace * plan[order[order.index(b) + 1]].duration_s
-        cost = st.joint_seconds * len(ids) / st.joint_after if st.joint_after else 10.0 * st.add_seconds
-        return time.monotonic() + 1.5 * cost < due
+        return time.monotonic() + 1.5 * cost_s < due
 
     def _joint(self, ids: list[str], reg) -> None:
         st = self.state
@@ -224,12 +264,10 @@ class ProvisionalWeld:
         self._grown(ids, reg, joint=True)
         st.joint_after, st.joint_seconds = len(ids), time.perf_counter() - t0
 
-    def _verdict(self, manifest: SampleManifest, ids: list[str], reg, T: np.ndarray, last: str, t0: float) -> None:
+    def _cells(self, manifest: SampleManifest, ids: list[str], T: np.ndarray, placed) -> None:
+        """Each landed pass's cells within the weld's reach, where it has none yet (new, or moved)."""
         st, config = self.state, self.config
-        placed = T_common_specimen(manifest, T)
-        if not placed:
-            return
-        setup, T_part = placed[0]
+        setup, T_part = placed
         tolerance = float(setup.placement_tolerance_mm)
         zone = weld_zone([apply(T_part, np.asarray(line.points_mm, np.float64)) for line in manifest.weld_lines()],
                          config.weld.reach_mm + tolerance)
@@ -238,6 +276,10 @@ class ProvisionalWeld:
         for k, p in enumerate(ids):
             if p not in st.sums:
                 st.sums[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
+
+    def _verdict(self, manifest: SampleManifest, ids: list[str], reg, T: np.ndarray, last: str, t0: float) -> None:
+        st, config = self.state, self.config
+        t1 = time.perf_counter()
         parts = [st.sums[p] for p in ids if len(st.sums[p].keys)]
         if not parts:
             return
@@ -260,15 +302,19 @@ class ProvisionalWeld:
             folder.mkdir(exist_ok=True)
             file.write(folder, value)
             inputs[name] = StageRef(stage=name, item=None, key=key, path=str(folder), outputs={file.name: ""}, cached=False)
+        t2 = time.perf_counter()
+        self._phases["combine"] = t2 - t1
         context = StageContext(out=build, sample_dir=self.sample, manifest=manifest, config=config,
                                settings=config.weld, entry=None, inputs=inputs)
         stage("weld").body_for(manifest)(context)
+        self._phases["weld"] = time.perf_counter() - t2
         weld = WELD_GEOMETRY.read_path(build / WELD_GEOMETRY.name)
         seconds = time.perf_counter() - t0
         document = {"provisional": True, "sample_id": self.manifest.sample_id, "after_pass": last,
                     "passes": len(ids), "of_passes": self.total, "points": n,
                     "poses": "grown with the scan (flows.provisional): not the final refinement",
-                    "seconds_after_the_pass_was_processed": round(seconds, 1), "weld": json.loads(weld.model_dump_json())}
+                    "seconds": {"step": round(seconds, 1), **{k: round(v, 1) for k, v in self._phases.items()}},
+                    "weld": json.loads(weld.model_dump_json())}
         path = self.out / PROVISIONAL / VERDICT_NAME
         atomic_write_text(path, json.dumps(document, indent=1) + "\n")
         summary = weld.summary
