@@ -132,9 +132,9 @@ def tjoint_sample(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def tjoint_run(tjoint_sample, tmp_path_factory):
-    """The T-joint, both setups, reconstructed once with the ci settings up to the surface mesh (its
-    fillet welds measured on the way): (run folder, report as tests.flows.samples.as_published
-    gives it)."""
+    """The T-joint, both setups, reconstructed once with the ci settings up to the surface mesh (not
+    the weld stage, which a run stopped after mesh does not need: ``tjoint_weld`` makes it):
+    (run folder, report as tests.flows.samples.as_published gives it)."""
     return _reconstructed(tjoint_sample, tmp_path_factory.mktemp("recon-tjoint") / "run", stop_after="mesh",
                           lock=_SessionLock(tmp_path_factory, "tjoint-run"))
 
