@@ -72,6 +72,13 @@ def subset_manifest(manifest: SampleManifest, pass_ids: set[str]) -> SampleManif
     return manifest.model_copy(update={"setups": [s for s in setups if s.passes]})
 
 
+def _joined(parts: list[CellSums]) -> CellSums:
+    """Partial sums one after the other, in order (``combine_cell_sums`` adds equal keys)."""
+    if not parts:
+        return CellSums(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    return CellSums(*(np.concatenate([getattr(s, f) for s in parts]) for f in ("keys", "counts", "point_sums", "normal_sums")))
+
+
 @dataclass
 class _Landed:
     entry: PassEntry
@@ -283,9 +290,7 @@ class ProvisionalWeld:
         parts = [st.sums[p] for p in ids if len(st.sums[p].keys)]
         if not parts:
             return
-        every = CellSums(*(np.concatenate([getattr(s, f) for s in parts])
-                           for f in ("keys", "counts", "point_sums", "normal_sums")))
-        merged = combine_cell_sums(every, cell_mm=config.merge.cell_mm)
+        merged = combine_cell_sums(_joined(parts), cell_mm=config.merge.cell_mm)
         normals = np.nan_to_num(merged.normals)
         n = len(merged.points_mm)
         key = f"after-{len(ids):03d}-{last}"
@@ -341,10 +346,7 @@ class ProvisionalWeld:
                 keep &= inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
             if keep.any():
                 parts.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
-        if not parts:
-            return CellSums(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
-        return CellSums(*(np.concatenate([getattr(s, f) for s in parts])
-                          for f in ("keys", "counts", "point_sums", "normal_sums")))
+        return _joined(parts)
 
     def _artifact(self, document: dict[str, Any], verdict) -> None:
         try:
