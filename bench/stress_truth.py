@@ -141,7 +141,9 @@ _UNLOADED = 0.5
 def compare(run: Path, sample: Path, *, notch: bool = False, stress: Path | None = None,
             config: ReconstructionConfig | None = None) -> dict:
     """Per toe line: the run's and the truth's hot spot, their difference and how far apart along
-    the weld; and over every section and toe the median and worst difference (``notch``: of the
+    the weld, and the truth's factor in the run's hot-spot section against the truth's hot spot
+    (``truth_there``: 0 where they are the same section; how much a hot spot put in the wrong
+    section of a nearly even weld misses by); and over every section and toe the median and worst difference (``notch``: of the
     notch factors). Toes the load does not reach (true factor under 0.5: a T-joint's or a
     cruciform's stem toes when its base is pulled) are listed apart (``unloaded``), their largest factors only."""
     summary = STRESS_SUMMARY.read(StageFolder(stress) if stress else stage_folder(run, "stress"))
@@ -162,11 +164,11 @@ def compare(run: Path, sample: Path, *, notch: bool = False, stress: Path | None
         else:
             differences += [o / t - 1 for _, o, t in rows]
     for (line, side), rows in sorted(by_toe.items()):
-        o_at, o_hot, _ = max(rows, key=lambda r: r[1])
+        o_at, o_hot, t_there = max(rows, key=lambda r: r[1])
         t_at, _, t_hot = max(rows, key=lambda r: r[2])
         toes[f"{line} {side}"] = {"ours": round(o_hot, 4), "truth": round(t_hot, 4),
                                   "difference": round(o_hot / t_hot - 1, 4), "apart_mm": round(abs(o_at - t_at), 3),
-                                  "sections": len(rows)}
+                                  "truth_there": round(t_there / t_hot - 1, 4), "sections": len(rows)}
     d = np.abs(np.array(differences))
     return {"toes": toes, "median_difference": round(float(np.median(d)), 4), "worst_difference": round(float(d.max()), 4),
             "toe_sections": len(d), "unloaded": unloaded}

@@ -118,7 +118,7 @@ def test_the_cruciform_is_pulled_along_its_base_and_its_four_base_toes_carry_the
     # toe sections) median 2.8 %, worst 11.0 %, hot spots within 3.0 %; here (every 40 mm, 12) median
     # 2.3 %, worst 9.7 %. Three sections a toe line: its hot spot is one section's figure, held to
     # the sections' worst (measured: -1.3 %, +0.04 %, +7.2 %, +9.7 %), not to the T-joint's 6 %
-    # over twelve (tests/flows/test_reconstruct_tjoint.py)
+    # over six (tests/flows/test_reconstruct_tjoint.py)
     assert result["toe_sections"] >= 12 and result["median_difference"] < 0.05 and result["worst_difference"] < 0.16
     for name, toe in result["toes"].items():
         assert abs(toe["difference"]) < 0.13 and toe["apart_mm"] <= 40.0, (name, toe)
