@@ -4,6 +4,10 @@ The stages append to ``OUT/audit/trail.jsonl`` as they finish, from this process
 worker processes, so the display watches that file instead of hooking into Python calls. On a
 terminal it is a rich progress display, one bar per stage; elsewhere (CI, log files) one plain
 line per finished pass or stage. Entries written before the display started are ignored.
+
+A scan followed as it comes in (``plan``: ``tasks.pass_coverage.PlanCoverage``) also says, as each
+pass is in (its denoise stage done), what the next pass of the plan will add to the weld lines,
+predicted from its sweep and the drawing.
 """
 
 from __future__ import annotations
@@ -17,8 +21,39 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from data_catalog.audit import TRAIL
+from tasks.pass_coverage import PlanCoverage, intervals
 
-__all__ = ["TrailProgress"]
+__all__ = ["TrailProgress", "plan_text", "adds_text"]
+
+
+def _stretches(stretches) -> str:
+    return ", ".join(f"{a:.0f}-{b:.0f}" if b > a else f"{a:.0f}" for a, b in stretches)
+
+
+def adds_text(plan: PlanCoverage, index: int, landed: set[int]) -> str:
+    """What pass ``index`` of ``plan`` (``tasks.pass_coverage.PlanCoverage``) will add to the
+    weld lines after the passes ``landed``: "line top 8-52 mm (new: 25-52)"."""
+    adds = plan.adds(index, landed)
+    if not adds:
+        return "no weld line in its sweep"
+    return "; ".join(f"line {name} {_stretches(mine)} mm (" + (f"new: {_stretches(new)}" if new else "seen before") + ")"
+                     for name, mine, new in adds)
+
+
+def plan_text(plan: PlanCoverage) -> list[str]:
+    """The plan's predicted weld coverage, a line per weld line, and what no pass reaches."""
+    if not plan.predicted:
+        return [f"what each pass will add cannot be predicted: {plan.reason}"]
+    lines = []
+    for line in plan.lines:
+        count = int(line.seen.any(axis=1).sum())
+        reached = _stretches(intervals(line.along_mm, line.seen.any(axis=0))) or "nothing"
+        lines.append(f"the plan reaches weld line {line.name} ({line.along_mm[-1]:.0f} mm) at {reached} mm "
+                     f"with {count} of {len(plan.pass_ids)} passes (predicted from the sweeps and the drawing)")
+    for name, stretches in plan.unreached():
+        lines.append(f"no pass of the plan reaches weld line {name} at {_stretches(stretches)} mm")
+    return lines
+
 
 
 @dataclass
@@ -36,7 +71,7 @@ class TrailProgress:
     work took, until the block ends; then one line per stage that failed."""
 
     def __init__(self, out_dir: Path, expected: list[tuple[str, int]], *, stream: TextIO = sys.stderr,
-                 interval_s: float = 0.5) -> None:
+                 interval_s: float = 0.5, plan: PlanCoverage | None = None) -> None:
         self._path = Path(out_dir) / TRAIL
         self._counts = {name: _Count(n) for name, n in expected}
         self._stream, self._interval = stream, interval_s
@@ -49,6 +84,8 @@ class TrailProgress:
         self._rich: Any = None
         self._bars: dict[str, Any] = {}
         self._untrusted = 0  # stages set aside because the folder's trail did not verify
+        self._plan = plan if plan is not None and plan.predicted else None
+        self._landed: set[int] = set()
 
     def __enter__(self) -> "TrailProgress":
         self._offset = self._path.stat().st_size if self._path.is_file() else 0
@@ -62,6 +99,9 @@ class TrailProgress:
                                   console=Console(file=self._stream), transient=False)
             self._bars = {name: self._rich.add_task(name, total=c.expected, note="") for name, c in self._counts.items()}
             self._rich.start()
+        if self._plan is not None:
+            self._say(f"next: pass {self._plan.pass_ids[0]} (1 of {len(self._plan.pass_ids)}) adds "
+                      f"{adds_text(self._plan, 0, set())}", final=True)
         self._thread = threading.Thread(target=self._watch, name="trail-progress", daemon=True)
         self._thread.start()
         return self
@@ -145,6 +185,20 @@ class TrailProgress:
             self._say(f"{entry['stage']} {count.done}/{count.expected} {item} {took}")
         else:
             self._say(f"{entry['stage']} done {took}")
+        if self._plan is not None and entry["stage"] == "denoise" and item in self._plan.pass_ids:
+            self._next_pass(self._plan.pass_ids.index(item))
+
+    def _next_pass(self, landed: int) -> None:
+        """Pass ``landed`` is in: what the next pass of the plan will add (passes land in the plan's order)."""
+        self._landed.add(landed)
+        ids = self._plan.pass_ids
+        waiting = [k for k in range(len(ids)) if k not in self._landed]
+        if not waiting:
+            self._say(f"all {len(ids)} passes in: the whole-sample stages follow", final=True)
+            return
+        k = waiting[0]
+        self._say(f"next: pass {ids[k]} ({k + 1} of {len(ids)}) adds {adds_text(self._plan, k, self._landed)}",
+                  final=True)
 
     def _say(self, text: str, *, final: bool = False) -> None:
         if self._rich is not None and not final:

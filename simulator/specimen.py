@@ -15,6 +15,7 @@ from scipy.ndimage import gaussian_filter1d
 
 from schemas.simulation import TrueMeshConfig, SpecimenConfig, WeldConfig
 from simulator.weld import WeldCap, draw_weld_cap
+from tasks.pass_coverage import dog_bone_half_width
 
 __all__ = ["Face", "SurfaceMesh", "Specimen", "build_specimen"]
 
@@ -65,12 +66,8 @@ class Specimen:
 
 
 def _half_width(cfg: SpecimenConfig, x: np.ndarray) -> np.ndarray:
-    ax = np.abs(np.asarray(x, dtype=float))
-    g = cfg.gauge_length_mm / 2
-    r = cfg.transition_radius_mm
-    d = ax - g
-    arc = cfg.gauge_width_mm / 2 + r - np.sqrt(np.maximum(r * r - np.clip(d, 0, r) ** 2, 0.0))
-    return np.where(ax <= g, cfg.gauge_width_mm / 2, np.minimum(arc, cfg.grip_width_mm / 2))
+    return dog_bone_half_width(x, gauge_length_mm=cfg.gauge_length_mm, gauge_width_mm=cfg.gauge_width_mm,
+                               grip_width_mm=cfg.grip_width_mm, transition_radius_mm=cfg.transition_radius_mm)
 
 
 def _z_shift(x: np.ndarray, centre: float, axial_mm: float, angular_deg: float) -> np.ndarray:

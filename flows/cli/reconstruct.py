@@ -4,6 +4,7 @@ Everything a run needs is checked before Prefect and the compute stack are impor
 from __future__ import annotations
 
 import argparse
+import logging
 import contextlib
 import os
 import sys
@@ -98,7 +99,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         api = stack.enter_context(prefect_api_for_workers())
         if dask:
             print(f"Dask workers report to the Prefect API at {api}", file=sys.stderr, flush=True)
-        stack.enter_context(TrailProgress(out, expected, stream=sys.stderr))
+        stack.enter_context(TrailProgress(out, expected, stream=sys.stderr,
+                                          plan=_plan_of(manifest, sample) if follow is not None else None))
         run = reconstruct_sample(str(sample), str(out), args.config, started_by=f"cli ({getpass.getuser()})",
                                  dask=dask, follow_timeout_s=follow, stop_after=stop_after,
                                  trail_head=catalogued_head(args, out, manifest.sample_id))
@@ -107,3 +109,22 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         return 0
     print_run_summary(run, out)
     return 0
+
+
+def _plan_of(manifest, sample: Path):
+    """The plan's predicted weld coverage (``tasks.pass_coverage``), said on the terminal before
+    the passes come in; None, said in a line, where it cannot be predicted (advice only: the run
+    goes on; the traceback goes to the log)."""
+    from flows.progress import plan_text
+    from tasks.pass_coverage import plan_coverage
+
+    try:
+        plan = plan_coverage(manifest, sample)
+    except Exception as exc:  # noqa: BLE001 - a prediction that fails must not stop the reconstruction
+        logging.getLogger("weldrecon").exception("the plan's weld coverage could not be predicted")
+        print(f"the plan's weld coverage could not be predicted ({type(exc).__name__}: {exc}); the run goes on",
+              file=sys.stderr, flush=True)
+        return None
+    for line in plan_text(plan):
+        print(line, file=sys.stderr, flush=True)
+    return plan

@@ -22,7 +22,7 @@ import pytest
 
 from data_catalog.audit import read_trail
 from data_catalog.hashing import sha256_tree
-from data_catalog.manifests import MANIFEST_NAME
+from data_catalog.manifests import MANIFEST_NAME, load_manifest
 from tests.flows.cli import REPO, cli_env, weldrecon
 from tests.flows.samples import QUICK_CONFIG
 
@@ -102,6 +102,14 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     assert not any("provisional" in p.name for p in (out / "results").iterdir())
     err = (tmp_path / "follow.err").read_text()
     assert f"PROVISIONAL weld verdict after pass {early_verdicts[0]['after_pass']}" in err, err[-3000:]
+    # while it waits, what the plan reaches and what each next pass adds (tasks.pass_coverage,
+    # checked against the simulated passes in tests/tasks/test_pass_coverage.py): top-L02 sees the
+    # top line at 10-50 mm, top-L04 at 8-23 (new: 8-9)
+    ids = [entry.pass_id for _, entry in load_manifest(sample).passes()]  # the order the passes are taken in
+    assert "the plan reaches weld line top (60 mm) at 8-52 mm with 3 of 6 passes" in err, err[:3000]
+    assert f"next: pass {ids[0]} (1 of 6) adds line top 10-50 mm (new: 10-50)" in err, err[:3000]
+    assert f"next: pass {ids[1]} (2 of 6) adds line top 8-23 mm (new: 8-9)" in err, err[:3000]
+    assert "all 6 passes in: the whole-sample stages follow" in err, err[-3000:]
     # the same mesh as the run on the finished sample
     stl_live = out / "results" / f"{finished['sample_id']}.stl"
     stl_done = Path(finished["outputs"][f"{finished['sample_id']}.stl"]["path"])
