@@ -137,7 +137,7 @@ class CellSums:
         return len(self.keys)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _transform_measured(points, normals, R, t, out_p, out_n):
     m = 0
     for n in range(points.shape[0]):
@@ -182,7 +182,7 @@ def cell_index_of_keys(keys: np.ndarray) -> np.ndarray:
     return cells
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _unpack_keys(keys, cells):
     for m in range(len(keys)):
         key = keys[m]
@@ -191,7 +191,7 @@ def _unpack_keys(keys, cells):
         cells[m, 2] = (key & _KEY_MASK) - _KEY_OFFSET
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _run_sums(points, normals, cell, keys, counts, point_sums, normal_sums):
     """Packed (i, j, k) cell keys of the points, each run of equal keys in input order summed into
     one record; the number of runs, or -1 when a cell index is outside the packable range."""
@@ -219,7 +219,7 @@ def _run_sums(points, normals, cell, keys, counts, point_sums, normal_sums):
     return m + 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _gather_sums(order, keys, counts, point_sums, normal_sums, out_keys, out_counts, out_p, out_q):
     """Sum the records in ``order`` (a stable sort of ``keys``: each key's records in input order)
     per key; the number of distinct keys."""
@@ -288,7 +288,7 @@ def combine_cell_sums(parts: CellSums, *, cell_mm: float) -> MergeResult:
                        cells=cell_index_of_keys(unique), cell_mm=float(cell_mm))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _finish_cells(counts, point_sums, normal_sums, points, normals):
     """Per cell: the mean point and the normal sum renormalised (NaN where it cancels); one pass."""
     for m in range(len(counts)):

@@ -8,8 +8,11 @@ error, not a silently missing array.
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import dataclasses
 import json
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -20,14 +23,35 @@ from pydantic import BaseModel, ValidationError
 from data_catalog.atomic import atomic_write_text
 from data_catalog.stages import ArrayWriter, load_arrays, open_array, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "DocumentError", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS",
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "DocumentError", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS", "map_in_order",
            "block_rows"]
 
 A = TypeVar("A")
 
 # Points per block a stage reads of a pass or of a per-pass output (about 2**20): ~100 MB of working
 # arrays in the heaviest per-pass stage. Results do not depend on it.
+T_in = TypeVar("T_in")
+T_out = TypeVar("T_out")
 BLOCK_POINTS = 1 << 20
+
+
+def map_in_order(fn: Callable[[T_in], T_out], items: Iterable[T_in], *, workers: int = 2,
+                 ahead: int = 2) -> Iterator[T_out]:
+    """``fn`` of each item on ``workers`` threads, the results yielded in the items' order (what
+    ``fn`` makes does not depend on the thread or the timing: the same results as a plain loop),
+    at most ``workers + ahead`` items in flight (a stage's memory stays a few blocks). For work
+    that releases the GIL: zarr's decompression, numpy, Numba kernels compiled ``nogil``."""
+    if workers <= 1:
+        yield from map(fn, items)
+        return
+    with concurrent.futures.ThreadPoolExecutor(workers, thread_name_prefix="blocks") as pool:
+        pending: collections.deque = collections.deque()
+        for item in items:
+            pending.append(pool.submit(fn, item))
+            if len(pending) > workers + ahead - 1:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 def block_rows(n_columns: int, *, chunk_profiles: int = 1, points: int = BLOCK_POINTS) -> int:

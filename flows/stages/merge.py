@@ -6,10 +6,11 @@ placement tolerance of a line) stays at the fine resolution, flat or not (``plac
 
 Each pass is read in blocks of profiles; a block's points and normals go into the common frame and
 are summed per cell (``tasks.merge.cell_sums``, a few times fewer records than points at the
-paper's resolution); the partial sums are spilled to scratch files by slab of cells along x. Then
-each slab is combined (``combine_cell_sums``) and appended to the output, slab after slab, in
-(i, j, k) cell order. Memory: one block, the spill buffers and one slab, whatever the number of
-passes or points.
+paper's resolution), two blocks at once on two threads; the partial sums are spilled to scratch
+files by slab of cells along x, in the passes' and blocks' order whichever thread finishes first.
+Then each slab is combined (``combine_cell_sums``), two at once, and appended to the output, slab
+after slab, in (i, j, k) cell order. Memory: a few blocks, the spill buffers and a few slabs,
+whatever the number of passes or points.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 
 from data_catalog.atomic import owner_tag
 from flows.stages.outputs import CLOUD, MERGED, REFINED
-from flows.stages.contracts import block_rows, zarr_array
+from flows.stages.contracts import block_rows, map_in_order, zarr_array
 from flows.stages.placement import sample_weld_zone
 from tasks.merge import (CellSums, cell_index_of_keys, cell_sums, coarsen_flat_cells,
                          combine_cell_sums, transform_measured)
@@ -31,6 +32,7 @@ __all__ = ["merge"]
 
 
 SLAB_CELLS = 128  # fine cells along x per spill file (rounded down to a whole number of coarse cells)
+BLOCK_WORKERS = 2  # blocks read and summed at once (zarr decompression and the Numba kernels release the GIL)
 _BUFFER_RECORDS = 1 << 21  # spill buffers are flushed past this many records in all
 _RECORD = np.dtype([("key", "<i8"), ("count", "<i8"), ("p", "<f8", 3), ("q", "<f8", 3)])
 
@@ -44,17 +46,22 @@ class _Spill:
         self.buffered = 0
         self.records: dict[int, int] = {}
 
-    def add(self, part: CellSums, slab: np.ndarray) -> None:
-        rec = np.empty(len(part), _RECORD)
-        rec["key"], rec["count"], rec["p"], rec["q"] = part.keys, part.counts, part.point_sums, part.normal_sums
+    @staticmethod
+    def pieces(part: CellSums, slab: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """A block's partial sums as spill records, by slab (ascending), each slab's in input order
+        (on a block's own thread: the main thread only appends them)."""
         order = np.argsort(slab, kind="stable")
+        rec = np.empty(len(part), _RECORD)
+        rec["key"], rec["count"] = part.keys[order], part.counts[order]
+        rec["p"], rec["q"] = part.point_sums[order], part.normal_sums[order]
         bounds = np.flatnonzero(np.diff(slab[order])) + 1
-        for chunk in np.split(order, bounds):
-            if len(chunk):
-                s = int(slab[chunk[0]])
-                self.buffers.setdefault(s, []).append(rec[chunk])
-                self.records[s] = self.records.get(s, 0) + len(chunk)
-        self.buffered += len(rec)
+        return [(int(slab[order[a]]), chunk) for a, chunk in zip(np.r_[0, bounds], np.split(rec, bounds)) if len(chunk)]
+
+    def add(self, pieces: list[tuple[int, np.ndarray]]) -> None:
+        for s, chunk in pieces:
+            self.buffers.setdefault(s, []).append(chunk)
+            self.records[s] = self.records.get(s, 0) + len(chunk)
+            self.buffered += len(chunk)
         if self.buffered > _BUFFER_RECORDS:
             self.flush()
 
@@ -62,7 +69,7 @@ class _Spill:
         for s, parts in self.buffers.items():
             with open(self.folder / f"{s}.bin", "ab") as f:
                 for p in parts:
-                    f.write(p.tobytes())
+                    f.write(memoryview(p).cast("B"))
         self.buffers, self.buffered = {}, 0
 
     def slabs(self):
@@ -81,26 +88,38 @@ def merge(ctx) -> dict[str, Any]:
     points_in = 0
     with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         spill = _Spill(Path(scratch))
-        for ref, T in zip(ctx.inputs["denoise"], T_all):
-            points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
-            n, m = points.shape[:2]
-            step = block_rows(m, chunk_profiles=points.chunks[0])
-            for start in range(0, n, step):
-                p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
-                points_in += len(p)
-                part = cell_sums(p, q, cell_mm=s.cell_mm)
-                spill.add(part, np.floor_divide(cell_index_of_keys(part.keys)[:, 0], slab_cells))
+        def blocks():
+            for ref, T in zip(ctx.inputs["denoise"], T_all):
+                points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
+                n, m = points.shape[:2]
+                step = block_rows(m, chunk_profiles=points.chunks[0])
+                for start in range(0, n, step):
+                    yield points, normals, slice(start, start + step), T
+
+        def summed(block) -> tuple[int, list[tuple[int, np.ndarray]]]:
+            points, normals, rows, T = block
+            p, q = transform_measured(points[rows], normals[rows], T)
+            part = cell_sums(p, q, cell_mm=s.cell_mm)
+            return len(p), _Spill.pieces(part, np.floor_divide(cell_index_of_keys(part.keys)[:, 0], slab_cells))
+
+        # two blocks read and summed at once, spilled in the passes' and blocks' order (same bytes)
+        for count, pieces in map_in_order(summed, blocks(), workers=BLOCK_WORKERS):
+            points_in += count
+            spill.add(pieces)
         out = MERGED.writer(ctx.out, chunk_rows=1 << 18)
         points_out = fine_cells = fine_out = zone_out = 0
-        for part in spill.slabs():
+        def combined(part: CellSums):
             merged = combine_cell_sums(part, cell_mm=s.cell_mm)
-            cloud = coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
-                                       max_deviation_mm=s.flat_deviation_mm, fine_zone=zone)
+            return merged.n_points, coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
+                                                       max_deviation_mm=s.flat_deviation_mm, fine_zone=zone)
+
+        # two slabs combined at once, appended in slab order
+        for n_fine, cloud in map_in_order(combined, spill.slabs(), workers=BLOCK_WORKERS):
             out.append("points", cloud.points_mm)
             out.append("normals", cloud.normals.astype(np.float32))
             out.append("counts", cloud.counts.astype(np.int32))
             out.append("fine", cloud.fine)
-            fine_cells += merged.n_points
+            fine_cells += n_fine
             points_out += len(cloud.points_mm)
             fine_out += int(cloud.fine.sum())
             zone_out += int(cloud.in_zone.sum())
