@@ -28,13 +28,13 @@ import pypcd4
 from pye57.utils import convert_spherical_to_cartesian
 
 from data_catalog.paths import not_a_file_reason
+from schemas.manifest import UNITS_TO_MM
 
 MAX_POSE_REACH_MM = 50_000.0  # a scan's pose: no scanning set-up is 50 m across
 
 __all__ = ["UNITS_TO_MM", "MAX_POSE_REACH_MM", "POINT_CLOUD_SUFFIXES", "PointCloudFormatError", "ScanCloud", "read_point_clouds",
            "read_point_cloud", "read_conf_poses"]
 
-UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 _ASCII = (".xyz", ".csv", ".txt")
 POINT_CLOUD_SUFFIXES = (".ply", ".pcd", *_ASCII, *(s + ".gz" for s in _ASCII), ".e57", ".las", ".laz")
 # what a file of each format starts with (PCD and the ASCII formats are checked by their parser)

@@ -18,10 +18,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from data_catalog.audit import TRAIL
-from tasks.pass_coverage import PlanCoverage, intervals
+
+if TYPE_CHECKING:  # the display itself loads no processing code
+    from tasks.pass_coverage import PlanCoverage
 
 __all__ = ["TrailProgress", "plan_text", "adds_text"]
 
@@ -47,7 +49,7 @@ def plan_text(plan: PlanCoverage) -> list[str]:
     lines = []
     for line in plan.lines:
         count = int(line.seen.any(axis=1).sum())
-        reached = _stretches(intervals(line.along_mm, line.seen.any(axis=0))) or "nothing"
+        reached = _stretches(line.reached()) or "nothing"
         lines.append(f"the plan reaches weld line {line.name} ({line.along_mm[-1]:.0f} mm) at {reached} mm "
                      f"with {count} of {len(plan.pass_ids)} passes (predicted from the sweeps and the drawing)")
     for name, stretches in plan.unreached():

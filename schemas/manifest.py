@@ -34,6 +34,7 @@ __all__ = [
     "TJointSpecimen",
     "CruciformSpecimen",
     "DrawingSpecimen",
+    "UNITS_TO_MM",
     "SPECIMEN_KINDS",
     "SpecimenGeometry",
     "WeldLine",
@@ -190,6 +191,10 @@ class CruciformSpecimen(_StemmedPart):
     def bounds_mm(self) -> Bounds:
         x, y, z = self.base_length_mm / 2, self.base_width_mm / 2, self.base_thickness_mm / 2
         return (-x, -y, -z - self.stem_height_mm), (x, y, z + self.stem_height_mm)
+
+
+UNITS_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
+"""Millimetres per unit: a drawing's ``units``, an imported point cloud's (data_catalog.pointclouds)."""
 
 
 def _check_drawing_suffix(value: str) -> str:

@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 from scipy.ndimage import binary_opening
 
-from schemas.manifest import CruciformSpecimen, DogBoneSpecimen, DrawingSpecimen, PassEntry, SampleManifest, TJointSpecimen
+from schemas.manifest import (UNITS_TO_MM, CruciformSpecimen, DogBoneSpecimen, DrawingSpecimen, PassEntry, SampleManifest,
+                              TJointSpecimen)
 
 __all__ = ["LineCoverage", "PlanCoverage", "plan_coverage", "part_mesh", "intervals", "dog_bone_half_width"]
 
-_UNITS_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 _SIGHT_EPS_MM = 0.05  # a sight line starts this far off the surface point (toward its eye)
 
 
@@ -46,6 +46,10 @@ class LineCoverage:
     along_mm: np.ndarray
     seen: np.ndarray
     on_part: np.ndarray
+
+    def reached(self) -> list[tuple[float, float]]:
+        """The stretches some pass of the plan reaches, (from, to) mm along the line."""
+        return intervals(self.along_mm, self.seen.any(axis=0))
 
 
 @dataclass(frozen=True)
@@ -127,7 +131,7 @@ def part_mesh(manifest: SampleManifest, sample_dir: Path | None = None) -> tuple
         if sample_dir is None:
             raise ValueError("a drawing specimen's mesh is read from its sample folder: sample_dir is needed")
         mesh = o3d.io.read_triangle_mesh(str(Path(sample_dir) / spec.file))
-        return np.asarray(mesh.vertices) * _UNITS_MM[spec.units], np.asarray(mesh.triangles)
+        return np.asarray(mesh.vertices) * UNITS_TO_MM[spec.units], np.asarray(mesh.triangles)
     if isinstance(spec, (TJointSpecimen, CruciformSpecimen)):
         x, y, z = spec.base_length_mm / 2, spec.base_width_mm / 2, spec.base_thickness_mm / 2
         sx, st = spec.stem_x_mm, spec.stem_thickness_mm / 2

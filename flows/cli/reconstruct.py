@@ -4,8 +4,8 @@ Everything a run needs is checked before Prefect and the compute stack are impor
 from __future__ import annotations
 
 import argparse
-import logging
 import contextlib
+import logging
 import os
 import sys
 from pathlib import Path

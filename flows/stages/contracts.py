@@ -23,15 +23,15 @@ from pydantic import BaseModel, ValidationError
 from data_catalog.atomic import atomic_write_text
 from data_catalog.stages import ArrayWriter, load_arrays, open_array, save_arrays
 
-__all__ = ["StageRef", "ArrayFile", "JsonFile", "DocumentError", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS", "map_in_order",
-           "block_rows"]
+__all__ = ["StageRef", "ArrayFile", "JsonFile", "DocumentError", "MeshFile", "OutputFile", "each", "zarr_array", "BLOCK_POINTS",
+           "map_in_order", "block_rows"]
 
 A = TypeVar("A")
+T_in = TypeVar("T_in")
+T_out = TypeVar("T_out")
 
 # Points per block a stage reads of a pass or of a per-pass output (about 2**20): ~100 MB of working
 # arrays in the heaviest per-pass stage. Results do not depend on it.
-T_in = TypeVar("T_in")
-T_out = TypeVar("T_out")
 BLOCK_POINTS = 1 << 20
 
 

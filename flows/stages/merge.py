@@ -88,6 +88,7 @@ def merge(ctx) -> dict[str, Any]:
     points_in = 0
     with tempfile.TemporaryDirectory(prefix=f".scratch-{owner_tag()}-", dir=ctx.out.parent) as scratch:
         spill = _Spill(Path(scratch))
+
         def blocks():
             for ref, T in zip(ctx.inputs["denoise"], T_all):
                 points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
@@ -108,6 +109,7 @@ def merge(ctx) -> dict[str, Any]:
             spill.add(pieces)
         out = MERGED.writer(ctx.out, chunk_rows=1 << 18)
         points_out = fine_cells = fine_out = zone_out = 0
+
         def combined(part: CellSums):
             merged = combine_cell_sums(part, cell_mm=s.cell_mm)
             return merged.n_points, coarsen_flat_cells(merged, factor=s.coarse_factor, max_normal_deg=s.flat_normal_deg,
