@@ -62,14 +62,13 @@ def weldrecon(*args: str, env: dict[str, str] | None = None) -> subprocess.Compl
 
 def _logging_state() -> tuple:
     """Every logger's handlers and level, and where warnings go (what a command may change; a
-    logger it made is not compared). Collected first: a Dask nanny an earlier test left to the
-    garbage collector takes its handler off ``distributed.nanny`` when it is collected
-    (``weakref.finalize``), which, left to chance, happened during a later command."""
-    import gc
+    logger it made is not compared). A Dask nanny left to the garbage collector takes its handler
+    off ``distributed.nanny`` when it is collected (``weakref.finalize``), which, left to chance,
+    happened during a later command: the tests that start Dask clusters collect their garbage as
+    they end (tests/conftest.py ``collected_after``), not every command here (a full collection
+    twice a command was ~45 s of the suite's CPU)."""
     import logging
     import warnings
-
-    gc.collect()
 
     loggers = {"": logging.getLogger(), **{name: lg for name, lg in logging.root.manager.loggerDict.items()
                                             if isinstance(lg, logging.Logger)}}

@@ -10,6 +10,10 @@ QUICK_CONFIG = str(Path(__file__).resolve().parents[1] / "data" / "quick.yaml")
 """The ci settings with the weld read every 5 mm and the stress every 40 mm (tests/data/quick.yaml):
 for the tests that run a flow to test what is around the weld's and the stress's figures."""
 
+FILLET_CONFIG = str(Path(__file__).resolve().parents[1] / "data" / "fillet.yaml")
+"""The ci settings with the weld read every 2 mm (tests/data/fillet.yaml): for the T-joint's and the
+cruciform's fillet welds, checked as medians and percentiles over more than 100 sections a face."""
+
 
 def copy_sample(ci_sample: Path, dst: Path, keep: list[str] | None = None) -> Path:
     """A copy of the ci sample at ``dst`` (manifest and pass stores), optionally with only the

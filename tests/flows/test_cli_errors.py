@@ -192,7 +192,7 @@ def test_a_non_finite_acceptance_limit_is_refused_naming_the_field(tmp_path, val
                                  "  weld.acceptance.rules.0.toe_radius_mm.max: Input should be a finite number")
 
 
-def test_a_dask_scheduler_passes_the_check():
+def test_a_dask_scheduler_passes_the_check(collected_after):
     from distributed import LocalCluster
 
     from flows.preflight import check_dask_scheduler

@@ -30,7 +30,7 @@ def _servers_marked(marker: str) -> set[int]:
     return found
 
 
-def test_a_sample_on_a_local_dask_cluster(six_run, six_sample, tmp_path, monkeypatch):
+def test_a_sample_on_a_local_dask_cluster(six_run, six_sample, tmp_path, monkeypatch, collected_after):
     import threading
     import uuid
 

@@ -19,7 +19,7 @@ from flows.preflight import load_config
 from flows.stages.outputs import REFINED, REGISTRATION_SUMMARY, STRESS_SUMMARY, WELD_GEOMETRY
 from simulator.evaluate import T_true_specimen_nominal, fillet_errors
 
-from tests.conftest import CI_CONFIG
+from tests.flows.samples import FILLET_CONFIG
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 REPO = Path(__file__).resolve().parents[2]
@@ -44,7 +44,7 @@ def test_the_four_fillet_welds_are_measured_on_both_faces_against_the_drawn_ones
     for line in geometry.lines:  # the stem up from the base's face: +z above it, -z below
         assert line.face_normal == (0.0, 0.0, 1.0 if line.name in UPPER else -1.0), line
         assert line.across == (1.0 if line.name.endswith("pos") else -1.0, 0.0, 0.0), line
-    assert len(geometry.sections) > 400 and all(sec.toes.both() for sec in geometry.sections)
+    assert len(geometry.sections) > 200 and all(sec.toes.both() for sec in geometry.sections)
     T = T_true_specimen_nominal(cruciform_sample, load_manifest(cruciform_sample), REFINED.open(report["refs"]["refine"]))
     for sec in geometry.sections:  # each root, in the true frame, where its stem meets its face (x = +-5, z = +-6 mm)
         x, _, z = T[:3, :3] @ np.asarray(sec.centre_specimen_mm) + T[:3, 3]
@@ -67,16 +67,16 @@ def test_the_four_fillet_welds_are_measured_on_both_faces_against_the_drawn_ones
                                   ("toe angle against the face past the rounding (base)", 4.0, 10.0),
                                   ("toe angle against the face past the rounding (stem)", 4.0, 10.0)):
             e = errors[name]
-            assert len(e) > 200 and np.median(e) < median and np.percentile(e, 90) < p90, \
+            assert len(e) > 100 and np.median(e) < median and np.percentile(e, 90) < p90, \
                 (lines, name, np.median(e), np.percentile(e, 90))
         # a leg off by more than a millimetre would be a toe found on the wrong plate or face
         assert max(errors["leg_base_mm"].max(), errors["leg_stem_mm"].max()) < 1.0, lines
 
 
 def _sparse_config():
-    """The ci settings with a section every 40 mm (3 of them; ci.yaml: every 10 mm, 12, three
+    """The run's settings with a section every 40 mm (3 of them; ci.yaml: every 10 mm, 12, three
     minutes for the cruciform's eight toes a section on two cores)."""
-    config = load_config(CI_CONFIG)
+    config = load_config(FILLET_CONFIG)
     return config.model_copy(update={"stress": config.stress.model_copy(update={"section_step_mm": 40.0})})
 
 
