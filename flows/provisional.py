@@ -22,7 +22,12 @@ before it solved, in a thread beside the flow's own work:
   part of its step took), an audit entry ``provisional-published``, a Prefect artifact and a line
   on the terminal. A verdict is made after the last pass, after each setup's last pass, and after
   any other pass where the last verdict's time fits before the next pass is due, so that the one
-  the lab waits for, after the last pass, does not wait behind a verdict between passes.
+  the lab waits for, after the last pass, does not wait behind a verdict between passes;
+- after the last pass's verdict, the provisional mesh: each pass's points in the part's drawing box,
+  summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) as the pass landed, combined,
+  and stage mesh's screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
+  ``mesh.json`` beside it (marked provisional: the passes, the depth, what it took), an audit entry
+  ``provisional-mesh-published``, a Prefect artifact and a line on the terminal.
 
 The final results are the whole run's, made as if the scan had been finished when the run started
 (the same bytes): the provisional verdict never feeds them, and the run's ``run-finished`` entry
@@ -55,15 +60,23 @@ from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 from tasks.frames import apply
 from tasks.merge import CellSums, cell_sums, combine_cell_sums, transform_measured
+from tasks.mesh import screened_poisson, write_mesh
 from tasks.refine import NothingToRefine, SurfaceSample, refine_poses
 from tasks.single_setup import inside_drawing_box
 from tasks.weld_zone import weld_zone
 
-__all__ = ["PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld", "subset_manifest"]
+__all__ = ["MESH_NAME", "MESH_RECORD", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld", "subset_manifest"]
 
 PROVISIONAL = "provisional"  # the run folder's subfolder
 VERDICT_NAME = "weld_verdict.json"
+MESH_NAME = "mesh.ply"  # the provisional surface, and what it is made of beside it
+MESH_RECORD = "mesh.json"
 _BOX_MARGIN_MM = 2.0  # the drawing box grown beyond the placement tolerance (as stage segment)
+
+
+def _mesh_cell_mm(config: ReconstructionConfig) -> float:
+    """The provisional mesh's cells: stage merge's coarse cells (where the surface is flat)."""
+    return float(config.merge.cell_mm * config.merge.coarse_factor)
 
 
 def subset_manifest(manifest: SampleManifest, pass_ids: set[str]) -> SampleManifest:
@@ -94,6 +107,7 @@ class _State:
     samples: dict[str, SurfaceSample] = field(default_factory=dict)
     T: dict[str, np.ndarray] = field(default_factory=dict)  # the grown poses, common frame
     sums: dict[str, CellSums] = field(default_factory=dict)  # each pass's cells in the weld's reach
+    coarse: dict[str, CellSums] = field(default_factory=dict)  # each pass's cells of the whole part (the mesh's)
     joint_after: int = 0  # passes landed at the last joint solve
     joint_seconds: float = 0.0  # what it took
     add_seconds: float = 0.0  # what the last passes' adding took
@@ -103,7 +117,7 @@ class _State:
 class ProvisionalWeld:
     """The provisional weld verdict of a followed scan (module description). ``landed`` is called
     by the flow for each pass as its per-pass stages are submitted; ``close`` before the final
-    results are published (it stops the work and waits for it). Never raises into the flow: a
+    results are published (the passes landed worked through first). Never raises into the flow: a
     provisional step that fails is logged and the next pass tries again."""
 
     def __init__(self, *, sample: Path, out: Path, manifest: SampleManifest, config: ReconstructionConfig, log) -> None:
@@ -111,7 +125,8 @@ class ProvisionalWeld:
         self.total = len(manifest.passes())
         self.store = StageStore(out / PROVISIONAL, shared=False)
         self.state = _State()
-        self.published: list[dict[str, Any]] = []
+        self.published: list[dict[str, Any]] = []  # the verdicts published
+        self.meshes: list[dict[str, Any]] = []  # the provisional meshes published
         self._queue: queue.Queue = queue.Queue()
         self._landed_at: dict[str, float] = {}
         self._stop = threading.Event()
@@ -128,9 +143,13 @@ class ProvisionalWeld:
         self._queue.put(_Landed(entry, denoise, targets))
 
     def close(self, *, wait: bool = True) -> None:
-        """Stop after the step in progress; ``wait``: for it (not when the run is being stopped:
-        the thread is a daemon, its step's files are written atomically)."""
-        self._stop.set()
+        """``wait``: the passes landed so far are worked through first (the last pass's verdict and
+        the provisional mesh, begun when it landed, end long before a whole run's stages on any real
+        scan; the trail then always says which provisional results the final ones supersede).
+        Otherwise (the run is being stopped) stop after the step in progress, without waiting for
+        it: the thread is a daemon, its step's files are written atomically."""
+        if not wait:
+            self._stop.set()
         self._queue.put(None)
         if wait:
             self._thread.join()
@@ -142,19 +161,22 @@ class ProvisionalWeld:
             item = self._queue.get()
             if item is None:
                 return
-            batch = [item]
+            batch, closing = [item], False
             while True:  # every pass landed meanwhile: one step for all of them
                 try:
                     more = self._queue.get_nowait()
                 except queue.Empty:
                     break
                 if more is None:
-                    return
+                    closing = True
+                    break
                 batch.append(more)
             try:
                 self._step(batch)
             except Exception as exc:  # noqa: BLE001 - provisional: the final run decides, this one only tells early
                 self.log.warning("provisional weld verdict after pass %s not made: %s", batch[-1].entry.pass_id, exc)
+            if closing:
+                return
 
     def _step(self, batch: list[_Landed]) -> None:
         st, rc = self.state, self.config.refine
@@ -192,6 +214,8 @@ class ProvisionalWeld:
             t2 = time.perf_counter()
             self._verdict(manifest, ids, reg, T, last, t0)
             st.verdict_seconds = time.perf_counter() - t2
+        if final and not self._stop.is_set():  # then the mesh the lab looks at next
+            self._mesh(ids, last)
         if final:  # the last verdict of the scan: its memory to the final run
             self.state = _State(order=st.order)
         elif len(ids) - st.joint_after >= 4 and self._fits(
@@ -245,6 +269,7 @@ class ProvisionalWeld:
                 moved = np.abs(apply(T[k], samples[k].points_mm) - apply(st.T[p], samples[k].points_mm)).max()
                 if moved > 0.25 * self.config.merge.cell_mm:  # its cells again (a few um: kept as they are)
                     st.sums.pop(p, None)
+                    st.coarse.pop(p, None)
             st.T[p] = T[k]
         return T
 
@@ -281,8 +306,8 @@ class ProvisionalWeld:
         grow = np.full(3, tolerance + _BOX_MARGIN_MM)
         bounds = manifest.specimen.bounds_mm() if manifest.specimen is not None else None
         for k, p in enumerate(ids):
-            if p not in st.sums:
-                st.sums[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
+            if p not in st.sums or p not in st.coarse:
+                st.sums[p], st.coarse[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
 
     def _verdict(self, manifest: SampleManifest, ids: list[str], reg, T: np.ndarray, last: str, t0: float) -> None:
         st, config = self.state, self.config
@@ -333,20 +358,77 @@ class ProvisionalWeld:
                       "the final verdict follows the whole run", last, len(ids), self.total, verdict, seconds)
         self._artifact(document, verdict)
 
-    def _zone_sums(self, ref: StageRef, T: np.ndarray, zone, T_part: np.ndarray, bounds, grow) -> CellSums:
-        """A pass's points within the weld's reach (and the part's drawing box), summed per cell."""
+    def _mesh(self, ids: list[str], last: str) -> None:
+        """The provisional surface: screened Poisson (stage mesh's settings, two octree levels
+        coarser) on every landed pass's points in the part's drawing box, summed per coarse cell with
+        the grown poses; ``provisional/mesh.ply`` and ``mesh.json`` beside it (marked provisional),
+        an audit entry ``provisional-mesh-published``, a Prefect artifact and a terminal line."""
+        st, config = self.state, self.config
+        t0 = time.perf_counter()
+        parts = [st.coarse[p] for p in ids if p in st.coarse and len(st.coarse[p].keys)]
+        if not parts:
+            return
+        merged = combine_cell_sums(_joined(parts), cell_mm=_mesh_cell_mm(config))
+        normals = np.nan_to_num(merged.normals)
+        ok = np.linalg.norm(normals, axis=1) > 0
+        m = config.mesh
+        depth = max(m.poisson_depth - 2, 6)
+        surface = screened_poisson(merged.points_mm[ok], normals[ok].astype(np.float64), depth=depth,
+                                   samples_per_node=m.samples_per_node, point_weight=m.point_weight,
+                                   scale=m.poisson_scale)
+        folder = self.out / PROVISIONAL
+        folder.mkdir(parents=True, exist_ok=True)
+        partial = folder / f".{MESH_NAME}.partial.ply"
+        write_mesh(partial, surface.vertices, surface.triangles)
+        partial.replace(folder / MESH_NAME)
+        r = surface.report
+        seconds = time.perf_counter() - t0
+        document = {"provisional": True, "sample_id": self.manifest.sample_id, "after_pass": last,
+                    "passes": len(ids), "of_passes": self.total, "points": int(ok.sum()),
+                    "cell_mm": _mesh_cell_mm(config), "poisson_depth": depth,
+                    "poses": "grown with the scan (flows.provisional): not the final refinement",
+                    "vertices": r.n_vertices, "triangles": r.n_triangles, "watertight": r.watertight,
+                    "volume_mm3": r.volume_mm3, "seconds": round(seconds, 1)}
+        atomic_write_text(folder / MESH_RECORD, json.dumps(document, indent=1) + "\n")
+        entry = audit.append(self.out, "provisional-mesh-published", sample_id=self.manifest.sample_id, after_pass=last,
+                             passes=len(ids), of_passes=self.total, vertices=r.n_vertices, watertight=r.watertight,
+                             artefacts={f"{PROVISIONAL}/{name}": sha256_file(folder / name)
+                                        for name in (MESH_NAME, MESH_RECORD)})
+        self.meshes.append({"after_pass": last, "passes": len(ids), "seq": entry["seq"], "time": time.time()})
+        self.log.info("provisional mesh after pass %s (%d of %d passes): %d vertices, %s (%.1f s) - provisional, "
+                      "the final mesh follows the whole run", last, len(ids), self.total, r.n_vertices,
+                      "watertight" if r.watertight else "not watertight", seconds)
+        try:
+            from prefect.artifacts import create_markdown_artifact
+
+            rows = [("PROVISIONAL", "the final mesh follows the whole run"),
+                    ("after pass", f"{last} ({len(ids)} of {self.total})"), ("vertices", r.n_vertices),
+                    ("watertight", r.watertight), ("octree depth", depth)]
+            table = "\n".join(f"| {k} | {v} |" for k, v in rows)
+            create_markdown_artifact(markdown=f"## Provisional mesh\n\n| | |\n|---|---|\n{table}\n",
+                                     key=f"provisional-mesh-{len(ids):03d}", description="provisional: made while the scan came in")
+        except Exception:  # noqa: BLE001 - a convenience: the files and the trail hold it
+            pass
+
+    def _zone_sums(self, ref: StageRef, T: np.ndarray, zone, T_part: np.ndarray, bounds,
+                   grow) -> tuple[CellSums, CellSums]:
+        """A pass's points within the weld's reach (and the part's drawing box), summed per cell; and
+        all its points in the drawing box summed per coarse cell (the provisional mesh's)."""
         points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
         n, m = points.shape[:2]
         step = block_rows(m, chunk_profiles=points.chunks[0])
-        parts = []
+        parts, coarse = [], []
         for start in range(0, n, step):
             p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
-            keep = zone.contains(p)
+            keep = np.ones(len(p), bool)
             if bounds is not None:
-                keep &= inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
+                keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
+            if keep.any():
+                coarse.append(cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)))
+            keep &= zone.contains(p)
             if keep.any():
                 parts.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
-        return _joined(parts)
+        return _joined(parts), _joined(coarse)
 
     def _artifact(self, document: dict[str, Any], verdict) -> None:
         try:

@@ -23,7 +23,6 @@ from flows.stages.outputs import MESH, REFINED, REGISTRATION, REGISTRATION_SUMMA
 from simulator.evaluate import T_true_specimen_nominal, fillet_errors, fit_gauge, pass_misalignment
 from tasks.weld_zone import PolylineZone
 
-from tests.conftest import CI_CONFIG
 from tests.flows.samples import FILLET_CONFIG
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
