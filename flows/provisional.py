@@ -24,8 +24,9 @@ before it solved, in a thread beside the flow's own work:
   any other pass where the last verdict's time fits before the next pass is due, so that the one
   the lab waits for, after the last pass, does not wait behind a verdict between passes;
 - after the last pass's verdict, the provisional mesh: each pass's points in the part's drawing box,
-  summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) as the pass landed, combined,
-  and stage mesh's screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
+  summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) with its pose then, between
+  steps while no pass waits (what is left, after the last verdict), combined, and stage mesh's
+  screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
   ``mesh.json`` beside it (marked provisional: the passes, the depth, what it took), an audit entry
   ``provisional-mesh-published``, a Prefect artifact and a line on the terminal.
 
@@ -116,8 +117,8 @@ class _State:
 
 class ProvisionalWeld:
     """The provisional weld verdict of a followed scan (module description). ``landed`` is called
-    by the flow for each pass as its per-pass stages are submitted; ``close`` before the final
-    results are published (the passes landed worked through first). Never raises into the flow: a
+    by the flow for each pass as its per-pass stages are submitted; ``close`` once the last has
+    landed, before the whole-sample stages start (the passes landed worked through first). Never raises into the flow: a
     provisional step that fails is logged and the next pass tries again."""
 
     def __init__(self, *, sample: Path, out: Path, manifest: SampleManifest, config: ReconstructionConfig, log) -> None:
@@ -125,6 +126,7 @@ class ProvisionalWeld:
         self.total = len(manifest.passes())
         self.store = StageStore(out / PROVISIONAL, shared=False)
         self.state = _State()
+        self._placed = None  # the part's placement, drawing box and its margin, as the last step had them
         self.published: list[dict[str, Any]] = []  # the verdicts published
         self.meshes: list[dict[str, Any]] = []  # the provisional meshes published
         self._queue: queue.Queue = queue.Queue()
@@ -158,6 +160,8 @@ class ProvisionalWeld:
 
     def _work(self) -> None:
         while not self._stop.is_set():
+            while self._queue.empty() and not self._stop.is_set() and self._coarse_one():
+                pass  # the provisional mesh's cells, a pass at a time, only while no pass waits
             item = self._queue.get()
             if item is None:
                 return
@@ -215,6 +219,8 @@ class ProvisionalWeld:
             self._verdict(manifest, ids, reg, T, last, t0)
             st.verdict_seconds = time.perf_counter() - t2
         if final and not self._stop.is_set():  # then the mesh the lab looks at next
+            while self._coarse_one():
+                pass
             self._mesh(ids, last)
         if final:  # the last verdict of the scan: its memory to the final run
             self.state = _State(order=st.order)
@@ -305,9 +311,27 @@ class ProvisionalWeld:
                          config.weld.reach_mm + tolerance)
         grow = np.full(3, tolerance + _BOX_MARGIN_MM)
         bounds = manifest.specimen.bounds_mm() if manifest.specimen is not None else None
+        self._placed = (T_part, bounds, grow)
         for k, p in enumerate(ids):
-            if p not in st.sums or p not in st.coarse:
-                st.sums[p], st.coarse[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
+            if p not in st.sums:
+                st.sums[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
+
+    def _coarse_one(self) -> bool:
+        """One landed pass's cells for the provisional mesh (all its points in the drawing box, per
+        coarse cell, with its pose now), the first in the robot's order that has none; False: none
+        left (or no pose or placement yet). Never on the way of a verdict: between steps while no
+        pass waits, and after the last verdict."""
+        st, placed = self.state, self._placed
+        todo = [p for p in st.order if p in st.T and p not in st.coarse]
+        if placed is None or not todo:
+            return False
+        p = todo[0]
+        try:
+            st.coarse[p] = self._coarse_sums(st.denoise[p], st.T[p], *placed)
+        except Exception as exc:  # noqa: BLE001 - provisional: the mesh goes without this pass
+            self.log.warning("provisional mesh: pass %s left out: %s", p, exc)
+            st.coarse[p] = _joined([])
+        return True
 
     def _verdict(self, manifest: SampleManifest, ids: list[str], reg, T: np.ndarray, last: str, t0: float) -> None:
         st, config = self.state, self.config
@@ -410,25 +434,27 @@ class ProvisionalWeld:
         except Exception:  # noqa: BLE001 - a convenience: the files and the trail hold it
             pass
 
-    def _zone_sums(self, ref: StageRef, T: np.ndarray, zone, T_part: np.ndarray, bounds,
-                   grow) -> tuple[CellSums, CellSums]:
-        """A pass's points within the weld's reach (and the part's drawing box), summed per cell; and
-        all its points in the drawing box summed per coarse cell (the provisional mesh's)."""
+    def _zone_sums(self, ref: StageRef, T: np.ndarray, zone, T_part: np.ndarray, bounds, grow) -> CellSums:
+        """A pass's points within the weld's reach (and the part's drawing box), summed per cell."""
+        return self._sums(ref, T, T_part, bounds, grow, self.config.merge.cell_mm, zone)
+
+    def _coarse_sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow) -> CellSums:
+        """All a pass's points in the part's drawing box, summed per coarse cell (the provisional mesh's)."""
+        return self._sums(ref, T, T_part, bounds, grow, _mesh_cell_mm(self.config), None)
+
+    def _sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow, cell_mm: float, zone) -> CellSums:
         points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
         n, m = points.shape[:2]
         step = block_rows(m, chunk_profiles=points.chunks[0])
-        parts, coarse = [], []
+        parts = []
         for start in range(0, n, step):
             p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
-            keep = np.ones(len(p), bool)
+            keep = np.ones(len(p), bool) if zone is None else zone.contains(p)
             if bounds is not None:
-                keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
+                keep &= inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
             if keep.any():
-                coarse.append(cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)))
-            keep &= zone.contains(p)
-            if keep.any():
-                parts.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
-        return _joined(parts), _joined(coarse)
+                parts.append(cell_sums(p[keep], q[keep], cell_mm=cell_mm))
+        return _joined(parts)
 
     def _artifact(self, document: dict[str, Any], verdict) -> None:
         try:

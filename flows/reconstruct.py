@@ -365,6 +365,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
     try:
         if follow_timeout_s is not None:
             pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log, provisional))
+        if provisional is not None:
+            # what the lab needs first, with the machine to itself: the verdict on every pass and the
+            # provisional mesh, then the whole-sample stages (on the paper preset 114 and 158 s after
+            # the last pass with them running beside it; the final results a minute later of twenty)
+            provisional.close()
         for stage in needed_for(stop_after) if stop_after else STAGES:
             if stage.name in pending:  # submitted as its passes landed
                 continue
