@@ -24,9 +24,9 @@ before it solved, in a thread beside the flow's own work:
   any other pass where the last verdict's time fits before the next pass is due, so that the one
   the lab waits for, after the last pass, does not wait behind a verdict between passes;
 - after the last pass's verdict, the provisional mesh: each pass's points in the part's drawing box,
-  summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) with its pose then, between
-  steps while no pass waits (what is left, after the last verdict), combined, and stage mesh's
-  screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
+  summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) from the same read as its
+  weld cells as it is added (the last pass's after its verdict; a pass moved since, between steps
+  while no pass waits), combined, and stage mesh's screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
   ``mesh.json`` beside it (marked provisional: the passes, the depth, what it took), an audit entry
   ``provisional-mesh-published``, a Prefect artifact and a line on the terminal.
 
@@ -209,7 +209,7 @@ class ProvisionalWeld:
         if not placed:
             return
         t1 = time.perf_counter()
-        self._cells(manifest, ids, T, placed[0])
+        self._cells(manifest, ids, T, placed[0], coarse=len(ids) < self.total)
         self._phases["cells"] = time.perf_counter() - t1
         final = len(ids) == self.total
         # the lab waits for the last pass's verdict: a verdict between passes only where it does not
@@ -302,8 +302,10 @@ class ProvisionalWeld:
         self._grown(ids, reg, joint=True)
         st.joint_after, st.joint_seconds = len(ids), time.perf_counter() - t0
 
-    def _cells(self, manifest: SampleManifest, ids: list[str], T: np.ndarray, placed) -> None:
-        """Each landed pass's cells within the weld's reach, where it has none yet (new, or moved)."""
+    def _cells(self, manifest: SampleManifest, ids: list[str], T: np.ndarray, placed, *, coarse: bool) -> None:
+        """Each landed pass's cells within the weld's reach, where it has none yet (new, or moved);
+        ``coarse``: its cells for the provisional mesh too, from the same read (not in the last
+        pass's step: its verdict first, then those)."""
         st, config = self.state, self.config
         setup, T_part = placed
         tolerance = float(setup.placement_tolerance_mm)
@@ -314,7 +316,10 @@ class ProvisionalWeld:
         self._placed = (T_part, bounds, grow)
         for k, p in enumerate(ids):
             if p not in st.sums:
-                st.sums[p] = self._zone_sums(st.denoise[p], T[k], zone, T_part, bounds, grow)
+                want = coarse and p not in st.coarse
+                st.sums[p], found = self._sums(st.denoise[p], T[k], T_part, bounds, grow, zone=zone, coarse=want)
+                if want:
+                    st.coarse[p] = found
 
     def _coarse_one(self) -> bool:
         """One landed pass's cells for the provisional mesh (all its points in the drawing box, per
@@ -327,7 +332,7 @@ class ProvisionalWeld:
             return False
         p = todo[0]
         try:
-            st.coarse[p] = self._coarse_sums(st.denoise[p], st.T[p], *placed)
+            st.coarse[p] = self._sums(st.denoise[p], st.T[p], *placed, zone=None, coarse=True)[1]
         except Exception as exc:  # noqa: BLE001 - provisional: the mesh goes without this pass
             self.log.warning("provisional mesh: pass %s left out: %s", p, exc)
             st.coarse[p] = _joined([])
@@ -434,27 +439,27 @@ class ProvisionalWeld:
         except Exception:  # noqa: BLE001 - a convenience: the files and the trail hold it
             pass
 
-    def _zone_sums(self, ref: StageRef, T: np.ndarray, zone, T_part: np.ndarray, bounds, grow) -> CellSums:
-        """A pass's points within the weld's reach (and the part's drawing box), summed per cell."""
-        return self._sums(ref, T, T_part, bounds, grow, self.config.merge.cell_mm, zone)
-
-    def _coarse_sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow) -> CellSums:
-        """All a pass's points in the part's drawing box, summed per coarse cell (the provisional mesh's)."""
-        return self._sums(ref, T, T_part, bounds, grow, _mesh_cell_mm(self.config), None)
-
-    def _sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow, cell_mm: float, zone) -> CellSums:
+    def _sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow, *, zone,
+              coarse: bool) -> tuple[CellSums, CellSums | None]:
+        """A pass's points within the weld's reach (``zone``; None: none wanted) and the part's
+        drawing box, summed per cell; and (``coarse``) all its points in the drawing box summed per
+        coarse cell (the provisional mesh's), from the same read."""
         points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
         n, m = points.shape[:2]
         step = block_rows(m, chunk_profiles=points.chunks[0])
-        parts = []
+        fine, rough = [], []
         for start in range(0, n, step):
             p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
-            keep = np.ones(len(p), bool) if zone is None else zone.contains(p)
+            keep = np.ones(len(p), bool)
             if bounds is not None:
-                keep &= inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
-            if keep.any():
-                parts.append(cell_sums(p[keep], q[keep], cell_mm=cell_mm))
-        return _joined(parts)
+                keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
+            if coarse and keep.any():
+                rough.append(cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)))
+            if zone is not None:
+                keep &= zone.contains(p)
+                if keep.any():
+                    fine.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
+        return _joined(fine), (_joined(rough) if coarse else None)
 
     def _artifact(self, document: dict[str, Any], verdict) -> None:
         try:
