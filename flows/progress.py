@@ -155,9 +155,10 @@ class TrailProgress:
                       "the final verdict follows the whole run)", final=True)
             return
         if entry.get("kind") == "provisional-mesh-published":  # the surface while the final run goes on
+            closed = "watertight" if entry.get("watertight") else "not watertight"
             self._say(f"PROVISIONAL mesh after pass {entry['after_pass']} ({entry['passes']} of {entry['of_passes']} "
-                      f"passes): {entry['vertices']:,} vertices, {'watertight' if entry.get('watertight') else 'not watertight'} "
-                      "(provisional/mesh.ply; the final mesh follows the whole run)", final=True)
+                      f"passes): {entry['vertices']:,} vertices, {closed} (provisional/mesh.ply; the final mesh follows "
+                      "the whole run)", final=True)
             return
         count = self._counts.get(entry.get("stage"))
         if count is None:

@@ -26,9 +26,10 @@ before it solved, in a thread beside the flow's own work:
 - after the last pass's verdict, the provisional mesh: each pass's points in the part's drawing box,
   summed per coarse cell (``merge.cell_mm`` x ``merge.coarse_factor``) from the same read as its
   weld cells as it is added (the last pass's after its verdict; a pass moved since, between steps
-  while no pass waits), combined, and stage mesh's screened Poisson two octree levels coarser: ``provisional/mesh.ply`` with
-  ``mesh.json`` beside it (marked provisional: the passes, the depth, what it took), an audit entry
-  ``provisional-mesh-published``, a Prefect artifact and a line on the terminal.
+  while no pass waits), combined, and stage mesh's screened Poisson two octree levels coarser:
+  ``provisional/mesh.ply`` with ``mesh.json`` beside it (marked provisional: the passes, the depth,
+  what it took), an audit entry ``provisional-mesh-published``, a Prefect artifact and a line on
+  the terminal.
 
 The final results are the whole run's, made as if the scan had been finished when the run started
 (the same bytes): the provisional verdict never feeds them, and the run's ``run-finished`` entry
@@ -118,8 +119,8 @@ class _State:
 class ProvisionalWeld:
     """The provisional weld verdict of a followed scan (module description). ``landed`` is called
     by the flow for each pass as its per-pass stages are submitted; ``close`` once the last has
-    landed, before the whole-sample stages start (the passes landed worked through first). Never raises into the flow: a
-    provisional step that fails is logged and the next pass tries again."""
+    landed, before the whole-sample stages start (the passes landed worked through first). Never
+    raises into the flow: a provisional step that fails is logged and the next pass tries again."""
 
     def __init__(self, *, sample: Path, out: Path, manifest: SampleManifest, config: ReconstructionConfig, log) -> None:
         self.sample, self.out, self.manifest, self.config, self.log = sample, out, manifest, config, log
@@ -219,9 +220,12 @@ class ProvisionalWeld:
             self._verdict(manifest, ids, reg, T, last, t0)
             st.verdict_seconds = time.perf_counter() - t2
         if final and not self._stop.is_set():  # then the mesh the lab looks at next
-            while self._coarse_one():
-                pass
-            self._mesh(ids, last)
+            try:
+                while self._coarse_one():
+                    pass
+                self._mesh(ids, last)
+            except Exception as exc:  # noqa: BLE001 - provisional: the final mesh follows
+                self.log.warning("provisional mesh after pass %s not made: %s", last, exc)
         if final:  # the last verdict of the scan: its memory to the final run
             self.state = _State(order=st.order)
         elif len(ids) - st.joint_after >= 4 and self._fits(
@@ -435,7 +439,8 @@ class ProvisionalWeld:
                     ("watertight", r.watertight), ("octree depth", depth)]
             table = "\n".join(f"| {k} | {v} |" for k, v in rows)
             create_markdown_artifact(markdown=f"## Provisional mesh\n\n| | |\n|---|---|\n{table}\n",
-                                     key=f"provisional-mesh-{len(ids):03d}", description="provisional: made while the scan came in")
+                                     key=f"provisional-mesh-{len(ids):03d}",
+                                     description="provisional: made while the scan came in")
         except Exception:  # noqa: BLE001 - a convenience: the files and the trail hold it
             pass
 
@@ -452,7 +457,8 @@ class ProvisionalWeld:
             p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
             keep = np.ones(len(p), bool)
             if bounds is not None:
-                keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow, grow_hi_mm=grow)
+                keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow,
+                                          grow_hi_mm=grow)
             if coarse and keep.any():
                 rough.append(cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)))
             if zone is not None:
