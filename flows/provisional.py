@@ -81,6 +81,19 @@ def _mesh_cell_mm(config: ReconstructionConfig) -> float:
     return float(config.merge.cell_mm * config.merge.coarse_factor)
 
 
+def _artifact(title: str, key: str, rows: list[tuple[str, Any]]) -> None:
+    """A Prefect markdown artifact of the flow run: ``title`` over a table of ``rows``, marked as
+    made while the scan came in. A convenience: the files and the trail hold what it shows."""
+    try:
+        from prefect.artifacts import create_markdown_artifact
+
+        table = "\n".join(f"| {k} | {v} |" for k, v in rows)
+        create_markdown_artifact(markdown=f"## {title}\n\n| | |\n|---|---|\n{table}\n", key=key,
+                                 description="provisional: made while the scan came in")
+    except Exception:  # noqa: BLE001 - never in the way of the run
+        pass
+
+
 def subset_manifest(manifest: SampleManifest, pass_ids: set[str]) -> SampleManifest:
     """``manifest`` with only the passes ``pass_ids`` (setups left without a pass dropped)."""
     setups = [s.model_copy(update={"passes": [p for p in s.passes if p.pass_id in pass_ids]}) for s in manifest.setups]
@@ -389,7 +402,7 @@ class ProvisionalWeld:
                                "time": time.time()})
         self.log.info("provisional weld verdict after pass %s (%d of %d passes): %s (%.1f s) - provisional, "
                       "the final verdict follows the whole run", last, len(ids), self.total, verdict, seconds)
-        self._artifact(document, verdict)
+        self._verdict_artifact(document, verdict)
 
     def _mesh(self, ids: list[str], last: str) -> None:
         """The provisional surface: screened Poisson (stage mesh's settings, two octree levels
@@ -431,18 +444,10 @@ class ProvisionalWeld:
         self.log.info("provisional mesh after pass %s (%d of %d passes): %d vertices, %s (%.1f s) - provisional, "
                       "the final mesh follows the whole run", last, len(ids), self.total, r.n_vertices,
                       "watertight" if r.watertight else "not watertight", seconds)
-        try:
-            from prefect.artifacts import create_markdown_artifact
-
-            rows = [("PROVISIONAL", "the final mesh follows the whole run"),
-                    ("after pass", f"{last} ({len(ids)} of {self.total})"), ("vertices", r.n_vertices),
-                    ("watertight", r.watertight), ("octree depth", depth)]
-            table = "\n".join(f"| {k} | {v} |" for k, v in rows)
-            create_markdown_artifact(markdown=f"## Provisional mesh\n\n| | |\n|---|---|\n{table}\n",
-                                     key=f"provisional-mesh-{len(ids):03d}",
-                                     description="provisional: made while the scan came in")
-        except Exception:  # noqa: BLE001 - a convenience: the files and the trail hold it
-            pass
+        _artifact("Provisional mesh", f"provisional-mesh-{len(ids):03d}",
+                  [("PROVISIONAL", "the final mesh follows the whole run"),
+                   ("after pass", f"{last} ({len(ids)} of {self.total})"), ("vertices", r.n_vertices),
+                   ("watertight", r.watertight), ("octree depth", depth)])
 
     def _sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow, *, zone,
               coarse: bool) -> tuple[CellSums, CellSums | None]:
@@ -467,18 +472,9 @@ class ProvisionalWeld:
                     fine.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
         return _joined(fine), (_joined(rough) if coarse else None)
 
-    def _artifact(self, document: dict[str, Any], verdict) -> None:
-        try:
-            from prefect.artifacts import create_markdown_artifact
-
-            weld = document["weld"]
-            summary = weld.get("summary") or {}
-            rows = [("PROVISIONAL", "the final verdict follows the whole run"),
-                    ("after pass", f"{document['after_pass']} ({document['passes']} of {document['of_passes']})"),
-                    ("verdict", verdict), ("sections", summary.get("sections")), ("failing", summary.get("failing"))]
-            table = "\n".join(f"| {k} | {v} |" for k, v in rows)
-            create_markdown_artifact(markdown=f"## Provisional weld verdict\n\n| | |\n|---|---|\n{table}\n",
-                                     key=f"provisional-weld-{document['passes']:03d}",
-                                     description="provisional: made while the scan came in")
-        except Exception:  # noqa: BLE001 - a convenience: the file and the trail hold it
-            pass
+    def _verdict_artifact(self, document: dict[str, Any], verdict) -> None:
+        summary = document["weld"].get("summary") or {}
+        _artifact("Provisional weld verdict", f"provisional-weld-{document['passes']:03d}",
+                  [("PROVISIONAL", "the final verdict follows the whole run"),
+                   ("after pass", f"{document['after_pass']} ({document['passes']} of {document['of_passes']})"),
+                   ("verdict", verdict), ("sections", summary.get("sections")), ("failing", summary.get("failing"))])
