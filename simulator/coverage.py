@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from simulator.specimen import Face
+from tasks.arrays import distinct
 
 __all__ = ["face_params", "cell_keys", "CoverageMap", "spread_off_line_mm"]
 
@@ -40,12 +41,12 @@ class CoverageMap:
         self._seen: dict[int, np.ndarray] = {}
 
     def add(self, pass_index: int, face: np.ndarray, points: np.ndarray) -> None:
-        keys = np.unique(cell_keys(face, face_params(face, points), self.cell_mm))
+        keys = distinct(cell_keys(face, face_params(face, points), self.cell_mm))
         old = self._seen.get(pass_index)
         self._seen[pass_index] = keys if old is None else np.union1d(old, keys)
 
     def _table(self) -> tuple[np.ndarray, np.ndarray]:
-        all_keys = np.unique(np.concatenate(list(self._seen.values()))) if self._seen else np.zeros(0, np.int64)
+        all_keys = distinct(np.concatenate(list(self._seen.values()))) if self._seen else np.zeros(0, np.int64)
         masks = np.zeros(all_keys.size, np.uint64)
         for index, keys in self._seen.items():
             masks[np.searchsorted(all_keys, keys)] |= np.uint64(1) << np.uint64(index)

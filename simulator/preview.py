@@ -13,6 +13,7 @@ from schemas.manifest import SampleManifest
 from schemas.simulation import SimulationConfig
 from schemas.truth import GroundTruth, PointLabel
 from simulator.scanner import fan_directions
+from tasks.arrays import distinct
 from tasks.frames import apply, invert
 
 __all__ = ["write_previews", "project_to_pass"]
@@ -66,7 +67,7 @@ def _intensity_png(sample: Path, manifest: SampleManifest, truth: GroundTruth, p
     truth_store = zarr.open_group(str(sample / "truth" / "passes" / f"{pass_id}.zarr"), mode="r")
     T_true = np.asarray(truth_store["T_world_sensor"][...])
     reported = np.asarray(truth_store["label"][...]) == PointLabel.VALID
-    seen = set(np.unique(np.asarray(truth_store["sticker_id"][...])[reported]).tolist())
+    seen = set(distinct(np.asarray(truth_store["sticker_id"][...])[reported]).tolist())
     uv = project_to_pass(_sticker_world(truth, setup), T_true, config.scanner.x_spacing_mm,
                          config.scanner.reference_distance_mm, config.scanner.points_per_profile)
     radius = max(3, int(round(config.stickers.diameter_mm / 2 / px_mm)))

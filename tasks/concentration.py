@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tasks.arrays import distinct
 from tasks.fe_solve import max_principal
 from tasks.weld_zone import polyline_projection
 
@@ -69,7 +70,7 @@ def concentration_along(points_mm: np.ndarray, stress_mpa: np.ndarray, lines: Ma
     for name, value in (("nominal_mpa", nominal_mpa), ("reach_mm", reach_mm), ("step_mm", step_mm)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"concentration_along: {name} must be a positive number; got {value}")
-    chosen = np.arange(len(points)) if nodes is None else np.unique(np.asarray(nodes, np.int64))
+    chosen = np.arange(len(points)) if nodes is None else distinct(np.asarray(nodes, np.int64))
     if len(chosen) and (chosen[0] < 0 or chosen[-1] >= len(points)):
         raise ValueError(f"concentration_along: nodes must index the {len(points)} points; "
                          f"got {chosen[0]}..{chosen[-1]}")

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tasks.arrays import distinct
 from tasks.volume_mesh import ONE_THREAD_ENV, dies_with_parent
 
 __all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
@@ -235,7 +236,7 @@ def _frd_values(block: bytes) -> tuple[np.ndarray, np.ndarray]:
         width = min(len(v) for v in parsed)
         nodes = np.array([int(line[3:13]) for line in lines], np.int64)
         values = np.array([v[:width] for v in parsed], np.float64).reshape(len(lines), width)
-    if len(np.unique(nodes)) < len(nodes):  # the last line of each node
+    if len(distinct(nodes)) < len(nodes):  # the last line of each node
         _, last = np.unique(nodes[::-1], return_index=True)
         nodes, values = nodes[::-1][last], values[::-1][last]
     return nodes, values

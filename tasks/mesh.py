@@ -26,6 +26,7 @@ import open3d as o3d
 import pymeshlab
 from scipy.spatial import cKDTree
 
+from tasks.arrays import distinct
 from tasks.checks import check_points
 
 _MESHLAB = threading.Lock()
@@ -120,7 +121,7 @@ def mesh_report(vertices: np.ndarray, triangles: np.ndarray) -> MeshReport:
     directed = a * nv + b
     undirected = np.minimum(a, b) * nv + np.maximum(a, b)
     _, uses = np.unique(undirected, return_counts=True)
-    consistent = len(np.unique(directed)) == len(directed)
+    consistent = len(distinct(directed)) == len(directed)
     if len(t):
         p0, p1, p2 = (v[t[:, i]] - v.mean(axis=0) for i in range(3))
         cross = np.cross(p1 - p0, p2 - p0)

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from schemas.stage_documents import SurfacePair
+from tasks.arrays import distinct
 from tasks.coverage import FaceGrid
 from tasks.frames import apply, invert, make_pose, rotate
 from tasks.report_figures import ViewedFace
@@ -319,7 +320,7 @@ def mesh_in_view(vertices_mm: np.ndarray, triangles: np.ndarray, *, zone: WeldZo
     keep = near & up & (corners[:, :, 2].mean(axis=1) > np.median(v[:, 2]))  # the upper face's weld
     close_up = None
     if keep.sum() > min_close_up_faces and lines_view:
-        used = np.unique(triangles[keep])
+        used = distinct(triangles[keep])
         remap = np.full(len(v), -1, np.int64)
         remap[used] = np.arange(len(used))
         d = lines_view[0][-1] - lines_view[0][0]

@@ -32,6 +32,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from tasks.arrays import distinct
 from tasks.cells import ReachGrid, first_in_each_cell
 from tasks.checks import check_points
 from tasks.frames import apply
@@ -258,7 +259,7 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
 
     def planes(k: int, idx: np.ndarray) -> np.ndarray:
         """Local planes at pass k's dense points idx (see _planes_at), each computed once."""
-        todo = np.unique(idx[np.isnan(cache[k][idx, 0])])
+        todo = distinct(idx[np.isnan(cache[k][idx, 0])])
         if len(todo):
             cache[k][todo] = _planes_at(samples[k].dense_mm, trees[k], todo, normal_neighbours)
             if samples[k].view_direction is not None:  # oriented toward the pass's sensor

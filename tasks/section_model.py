@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from tasks.arrays import distinct
 from tasks.fe_solve import DisplacementCase, FESolution, Material, max_principal, solve_static
 from tasks.volume_mesh import run_gmsh_child
 
@@ -127,7 +128,7 @@ def boundary_nodes(triangles: np.ndarray) -> np.ndarray:
     edges = np.concatenate([t[:, [0, 1, 3]], t[:, [1, 2, 4]], t[:, [2, 0, 5]]])
     key = np.sort(edges[:, :2], axis=1)
     _, first, count = np.unique(key, axis=0, return_index=True, return_counts=True)
-    return np.unique(edges[first[count == 1]])
+    return distinct(edges[first[count == 1]])
 
 
 def pull_sections(meshes: Sequence[SectionMesh], *, stretch_mm: float = 0.01, plane: str = "strain",

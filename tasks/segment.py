@@ -21,6 +21,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from tasks.arrays import distinct
 from tasks.checks import check_points
 
 __all__ = ["SegmentResult", "keep_specimen_components"]
@@ -160,7 +161,7 @@ def keep_specimen_components(points_mm: np.ndarray, *, link_mm: float, target_po
         cell_label = np.zeros(len(cells.keys), np.int64)
         cell_label[cells.inverse] = labels
         hit_cells = np.concatenate(near) if near else np.zeros(0, np.int64)
-        kept_labels = np.unique(cell_label[hit_cells])
+        kept_labels = distinct(cell_label[hit_cells])
     else:
         kept_labels = np.flatnonzero(extent >= min_extent_mm).astype(np.int64)
     kept = np.zeros(count, bool)

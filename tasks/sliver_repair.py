@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tasks.arrays import distinct
+
 __all__ = ["SliverRepair", "repair_boundary_slivers", "MIN_DIHEDRAL_DEG", "MAX_ASPECT_RATIO"]
 
 # the limits FE programs accept without warnings (issue 26): the repair's aim, the stage's defaults,
@@ -134,7 +136,7 @@ def _boundary_nodes(tets: np.ndarray) -> np.ndarray:
     base = int(tets.max()) + 1
     if base ** 3 >= 2 ** 63:  # no one int64 key a face
         unique, counts = np.unique(faces, axis=0, return_counts=True)
-        return np.unique(unique[counts == 1])
+        return distinct(unique[counts == 1])
     keys = (faces[:, 0] * base + faces[:, 1]) * base + faces[:, 2]
     unique, counts = np.unique(keys, return_counts=True)
     once = unique[counts == 1]
@@ -307,8 +309,8 @@ class _Surface:
     def around(self, node: int) -> np.ndarray:
         """The faces (numbers) at ``node`` and at its neighbours on the surface."""
         own = self._order[self._starts[node]:self._starts[node + 1]]
-        near = np.unique(self.faces[own])
-        return np.unique(np.concatenate([self._order[self._starts[n]:self._starts[n + 1]] for n in near]))
+        near = distinct(self.faces[own])
+        return distinct(np.concatenate([self._order[self._starts[n]:self._starts[n + 1]] for n in near]))
 
     def distance(self, q: np.ndarray, faces: np.ndarray) -> tuple[float, np.ndarray]:
         """How far ``q`` is from the given faces, and the closest point on them."""
@@ -438,7 +440,7 @@ def repair_boundary_slivers(points: np.ndarray, tetrahedra: np.ndarray, *, min_d
         dihedral[changed], aspect[changed], _ = _quality(points[tets[changed]])
     if peeled + collapsed + slid == 0:  # nothing changed: the same arrays back
         return SliverRepair(points=points, tetrahedra=tets, peeled=0, collapsed=0, slid=0, left=len(bad))
-    used = np.unique(tets)
+    used = distinct(tets)
     renumber = np.full(len(points), -1, np.int64)
     renumber[used] = np.arange(len(used))
     return SliverRepair(points=points[used], tetrahedra=renumber[tets], peeled=peeled, collapsed=collapsed, slid=slid,

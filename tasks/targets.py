@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from tasks.arrays import distinct
 from tasks.target_search import GridSpacing, HoughImage, SearchGrid, find_circles, search_grid
 
 __all__ = ["Target", "TargetDetection", "TargetRefinement", "SearchGrid", "GridSpacing", "HoughImage",
@@ -285,7 +286,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         return TargetRefinement(None, "points")
     _, free_r, _ = _fit_circle(uv, None)
     angles = np.arctan2(rim_uv[:, 1] - centre_uv[1], rim_uv[:, 0] - centre_uv[0])
-    coverage = np.unique(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
+    coverage = distinct(((angles + np.pi) / (2 * np.pi) * _RIM_BINS).astype(int) % _RIM_BINS).size / _RIM_BINS
     if coverage < min_rim_coverage:
         return TargetRefinement(None, "rim")
     if rms > max(max_rms_mm, 0.45 * max(grid.spacing_mm)):  # edges are quantised to the grid

@@ -29,6 +29,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from schemas.stage_documents import ElementQuality, QualityStatistics, SolidChecks
+from tasks.arrays import distinct
 from tasks.gmsh_volume import RESULT
 from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG, repair_boundary_slivers
 from tasks.weld_zone import weld_zone
@@ -77,12 +78,12 @@ class VolumeMesh:
         """Abaqus face number -> the elements (sorted, 0-based) whose face of that number is a
         boundary face in the weld zone: the element-face surface for sub-modelling."""
         zone = self.weld_zone_face
-        chosen = {n: np.unique(self.boundary_element[zone & (self.boundary_face == n)]) for n in _FACE_NUMBER}
+        chosen = {n: distinct(self.boundary_element[zone & (self.boundary_face == n)]) for n in _FACE_NUMBER}
         return {n: e for n, e in chosen.items() if len(e)}
 
     def weld_zone_nodes(self) -> np.ndarray:
         """The nodes (sorted, 0-based) of the weld zone's boundary faces."""
-        return np.unique(self.boundary_triangles()[self.weld_zone_face])
+        return distinct(self.boundary_triangles()[self.weld_zone_face])
 
 
 def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
@@ -148,7 +149,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                               "more than one body)")
     coords = np.asarray(coords, np.float64).reshape(-1, 3)
     tets_by_tag = np.asarray(element_nodes, np.int64).reshape(-1, 4)
-    used = np.unique(tets_by_tag)  # nodes no tetrahedron uses (gmsh's own) are left out
+    used = distinct(tets_by_tag)  # nodes no tetrahedron uses (gmsh's own) are left out
     index = np.full(int(np.max(node_tags)) + 1, -1, np.int64)
     index[np.asarray(node_tags, np.int64)] = np.arange(len(node_tags))
     keep = index[used]

@@ -47,7 +47,7 @@ STAGES: tuple[Stage, ...] = (
     Stage("export", False, ("mesh",), None, (outputs.STL, outputs.PLY), "flows.stages.export:export", "flows.stages.views:sample_wide",
           "binary STL and PLY"),
     Stage("volume", False, ("refine", "weld", "mesh"), "volume", (outputs.VOLUME_INP, outputs.VOLUME_VTU, outputs.VOLUME_SUMMARY,
-                                                     outputs.ELEMENT_QUALITY),
+                                                     outputs.ELEMENT_QUALITY, outputs.MODEL_SURFACE),
           "flows.stages.volume:volume", "flows.stages.views:weld_lines_view", "the FE model: gmsh tetrahedra graded toward the weld lines and finer at the "
           "measured toes, one checked solid; "
           "Abaqus .inp and VTU with the weld zone as a named set"),

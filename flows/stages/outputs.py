@@ -14,6 +14,8 @@ from flows.stages.contracts import ArrayFile, JsonFile, MeshFile, TextFile
 from schemas.stage_documents import FEModelSummary, RefineSummary, RegistrationSummary, Report, StressSummary
 from schemas.weld_document import WeldGeometry
 
+from tasks.arrays import distinct
+
 
 # --- stage denoise ---
 @dataclass(frozen=True)
@@ -104,7 +106,7 @@ class WeldToes:
 
     def polylines(self) -> list[np.ndarray]:
         """The toes as polylines (k >= 2, 3), common frame, mm."""
-        return [self.points_mm[self.polyline == k] for k in np.unique(self.polyline)]
+        return [self.points_mm[self.polyline == k] for k in distinct(self.polyline)]
 
 WELD_TOES = ArrayFile("toes.zarr", WeldToes)
 
@@ -153,6 +155,11 @@ class ElementQualityArrays:
 
 # beside the model files: the per-element quality as arrays (empty when no model was made)
 ELEMENT_QUALITY = ArrayFile("quality.zarr", ElementQualityArrays)
+
+# the surface the model was filled from: the Poisson mesh simplified to volume.max_surface_triangles
+# (common frame, mm; empty when the Poisson mesh was open and nothing was simplified). The QA page
+# draws the mesh from it: simplifying the paper preset's 4.8 M triangles again took 166 s of 209.
+MODEL_SURFACE = ArrayFile("surface.zarr", Mesh)
 
 
 # --- stage report ---

@@ -36,9 +36,9 @@ from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescap
 
 from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
-from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, QA_REPORT, REFINE_SUMMARY, REFINED,
-                                  REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY, TARGETS,
-                                  VOLUME_SUMMARY, WELD_GEOMETRY)
+from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, MODEL_SURFACE, QA_REPORT, REFINE_SUMMARY,
+                                  REFINED, REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY,
+                                  TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, FilletWeldSection, Finding, WeldGeometry
@@ -134,10 +134,12 @@ def _graph(ctx) -> tuple[list[dict[str, str]], list[PassRow]]:
 
 
 def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
-    mesh = MESH.read(ctx.inputs["mesh"])
-    vertices, triangles = simplify_surface(mesh.vertices, mesh.triangles, max_triangles=ctx.settings.mesh_triangles)
+    poisson_triangles = MESH.open(ctx.inputs["mesh"]).triangles.shape[0]
+    simplified = MODEL_SURFACE.read(ctx.inputs["volume"])  # the FE model's, simplified already (none: open)
+    drawn = simplified if len(simplified.triangles) else MESH.read(ctx.inputs["mesh"])
+    vertices, triangles = simplify_surface(drawn.vertices, drawn.triangles, max_triangles=ctx.settings.mesh_triangles)
     seen = mesh_in_view(vertices, triangles, zone=zone, T_view_common=T_view_common)  # the zone as the FE model's
-    caption = (f"The Poisson mesh ({len(mesh.triangles):,} triangles) simplified to {len(triangles):,} for the picture; "
+    caption = (f"The Poisson mesh ({poisson_triangles:,} triangles) simplified to {len(triangles):,} for the picture; "
                f"orange: the weld zone ({seen.zone_radius_mm:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
     out = [_picture(mesh_view(seen.vertices_mm, triangles, azimuth_deg=-60, elevation_deg=35, title="The mesh from above",
                               highlight=seen.in_zone), "mesh from above", caption),

@@ -39,6 +39,7 @@ from flows.stages.placement import weld_frame
 from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, StressConvergence, StressSection,
                                      StressSummary, ToeHotSpot, ToeStress)
 from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
+from tasks.arrays import distinct
 from tasks.frames import apply, invert, rotate
 from tasks.plate_section import (PlateProfile, SectionFrame, TeeProfile, drawn_profile, plate_profile,
                                  profile_section, rounded_notches, rounded_tee, tee_profile, tee_section,
@@ -419,10 +420,10 @@ def _point_spacing(points: np.ndarray, frames: list[SectionFrame], half_width_mm
     """The measured points' median spacing (to the nearest other point) in the sections' slabs
     (a margin of a millimetre either side kept, so that a slab's edge does not lengthen it)."""
     slabs = [np.flatnonzero(np.abs((points - f.origin) @ f.along) <= half_width_mm + 1.0) for f in frames]
-    inside = np.unique(np.concatenate(slabs)) if slabs else np.zeros(0, np.int64)
+    inside = distinct(np.concatenate(slabs)) if slabs else np.zeros(0, np.int64)
     if len(inside) < 10:
         return None
-    mine = np.unique(np.concatenate([k[np.abs((points[k] - f.origin) @ f.along) <= half_width_mm]
+    mine = distinct(np.concatenate([k[np.abs((points[k] - f.origin) @ f.along) <= half_width_mm]
                                      for k, f in zip(slabs, frames)]))
     mine = mine[:: max(1, len(mine) // 20000)]
     distance, _ = cKDTree(points[inside]).query(points[mine], k=2)

@@ -5,7 +5,8 @@ surface simplified to ``volume.max_surface_triangles`` (quadric edge collapse; a
 lines to as many triangles of edge ``volume.size_mm`` as cover it: its elements are no finer), checked to be
 one positively oriented solid of the surface's volume, written as Abaqus ``.inp`` and VTU (quadratic
 tetrahedra, C3D10, by default: ``volume.element_order``) with
-the element quality figures (``tasks.volume_mesh``). An open surface (a scan that left the part
+the element quality figures (``tasks.volume_mesh``) and the simplified surface (``surface.zarr``, which
+the QA page draws). An open surface (a scan that left the part
 unclosed), one gmsh cannot fill, or a fill that is not one solid of the surface's volume makes no
 model: ``volume.json`` says why, the report flags it, the model files are left out and the run
 publishes the rest (the STL is the deliverable a fatigue model cannot do without)."""
@@ -17,10 +18,11 @@ from typing import Any
 import numpy as np
 
 from data_catalog.volume_meshes import WELD_ZONE_NODES, WELD_ZONE_SURFACE, write_abaqus, write_vtu
-from flows.stages.outputs import (ELEMENT_QUALITY, MESH, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, WELD_TOES,
-                                  ElementQualityArrays)
+from flows.stages.outputs import (ELEMENT_QUALITY, MESH, MODEL_SURFACE, REFINED, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU,
+                                  WELD_TOES, ElementQualityArrays, Mesh)
 from flows.stages.placement import model_weld_zone
 from schemas.stage_documents import FEModelSummary, SolidChecks, VolumeSets
+from tasks.arrays import distinct
 from tasks.mesh import mesh_report, simplify_surface
 from tasks.volume_mesh import (VolumeMeshError, element_face_nodes, element_quality, quadratic_tetrahedra,
                                quality_summary, solid_checks, tetrahedralize)
@@ -45,6 +47,7 @@ def volume(ctx) -> dict[str, Any]:
         # as many equilateral triangles of edge size_mm as cover the surface's area
         budget = max(1000, min(budget, int(np.ceil(closed.surface_area_mm2 / (np.sqrt(3) / 4 * s.size_mm ** 2)))))
     vertices, triangles = simplify_surface(surface.vertices, surface.triangles, max_triangles=budget)
+    MODEL_SURFACE.write(ctx.out, Mesh(vertices=vertices, triangles=triangles))  # the QA page draws it
     try:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
@@ -71,7 +74,7 @@ def volume(ctx) -> dict[str, Any]:
     if s.element_order == 2:  # C3D10: the same elements with a node at each edge's midpoint
         points, elements = quadratic_tetrahedra(solid.points, solid.tetrahedra)
     zone = solid.weld_zone_face
-    zone_nodes = np.unique(element_face_nodes(elements, solid.boundary_element[zone], solid.boundary_face[zone]))
+    zone_nodes = distinct(element_face_nodes(elements, solid.boundary_element[zone], solid.boundary_face[zone]))
     write_abaqus(ctx.out / VOLUME_INP.name, points, elements, zone_faces=zone_faces, zone_nodes=zone_nodes)
     in_zone = np.zeros(len(solid.tetrahedra), np.uint8)
     in_zone[np.concatenate(list(zone_faces.values()) or [np.zeros(0, np.int64)])] = 1
@@ -101,6 +104,8 @@ def _not_made(ctx, why: str) -> dict[str, Any]:
     """No FE model: why, in volume.json (the report's check and the terminal say it); the model
     files left out, the run goes on and publishes the rest."""
     VOLUME_SUMMARY.write(ctx.out, FEModelSummary(made=False, why=why))
+    if not (ctx.out / MODEL_SURFACE.name).exists():  # open: nothing simplified
+        MODEL_SURFACE.write(ctx.out, Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64)))
     ELEMENT_QUALITY.write(ctx.out, ElementQualityArrays(min_dihedral_deg=np.zeros(0, np.float32),
                                                         aspect_ratio=np.zeros(0, np.float32)))
     return {"made": False, "why": why}

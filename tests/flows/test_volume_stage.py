@@ -16,7 +16,7 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import load_manifest
 from data_catalog.stages import StageStore
 from flows.stages import StageRef, run_stage, stage
-from flows.stages.outputs import ELEMENT_QUALITY, MESH, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, Mesh
+from flows.stages.outputs import ELEMENT_QUALITY, MESH, MODEL_SURFACE, VOLUME_INP, VOLUME_SUMMARY, VOLUME_VTU, Mesh
 from flows.stages.report import fe_model_check, publish
 from schemas.reconstruction import ReconstructionConfig
 from tests.tasks.test_volume_mesh import box_surface
@@ -42,7 +42,9 @@ def test_an_open_surface_gets_no_model_and_says_why(ci_inputs, ci_sample, tmp_pa
     mesh = _mesh_ref(tmp_path / "mesh" / "open", vertices, triangles[~top])
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=ReconstructionConfig(), inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name])  # the model files left out, the stage recorded
+    # the model files left out, the stage recorded; nothing simplified to draw
+    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name, MODEL_SURFACE.name])
+    assert MODEL_SURFACE.read(ref).triangles.shape == (0, 3)
     summary = VOLUME_SUMMARY.read(ref)
     assert summary.made is False and "not closed" in summary.why and "16 boundary edges" in summary.why
     assert ref.metrics["made"] is False
@@ -71,9 +73,15 @@ def test_a_closed_surface_becomes_the_model_files(ci_inputs, ci_sample, tmp_path
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 4.0, "weld_size_mm": 2.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == sorted([VOLUME_INP.name, VOLUME_VTU.name, VOLUME_SUMMARY.name, ELEMENT_QUALITY.name])
+    assert sorted(ref.outputs) == sorted([VOLUME_INP.name, VOLUME_VTU.name, VOLUME_SUMMARY.name, ELEMENT_QUALITY.name,
+                                          MODEL_SURFACE.name])
     summary = VOLUME_SUMMARY.read(ref)
     assert summary.made and summary.solid.components == 1
+    # the surface it was filled from, which the QA page draws: the box's, no more triangles than the budget
+    surface = MODEL_SURFACE.read(ref)
+    assert len(surface.triangles) == summary.meshed_triangles <= len(triangles)
+    assert np.allclose(surface.vertices.min(axis=0), vertices.min(axis=0)) and np.allclose(surface.vertices.max(axis=0),
+                                                                                          vertices.max(axis=0))
     assert abs(summary.solid.volume_difference) < 1e-6
     assert summary.weld_lines == len(manifest.weld_lines())  # where the first placed setup puts them
     # quadratic by default: C3D10 in the .inp, tetra10 in the VTU, the quality of the corners within the limits
@@ -95,7 +103,8 @@ def test_a_model_whose_volume_is_off_is_not_published_and_says_why(ci_inputs, ci
     config = ReconstructionConfig.model_validate({"volume": {"size_mm": 8.0, "weld_size_mm": 8.0}})
     ref = run_stage(stage("volume"), store=StageStore(tmp_path / "store"), sample_dir=ci_sample, manifest=manifest,
                     config=config, inputs={"refine": refine, "weld": weld, "mesh": mesh})
-    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name])  # no model files
+    assert sorted(ref.outputs) == sorted([ELEMENT_QUALITY.name, VOLUME_SUMMARY.name, MODEL_SURFACE.name])  # no model files
+    assert len(MODEL_SURFACE.read(ref).triangles) > 0  # the surface gmsh could not fill into one solid
     summary = VOLUME_SUMMARY.read(ref)
     assert summary.made is False
     assert re.search(r"not one valid solid: volume .* mm3 differs from the surface's .* mm3 by .* %, over "
