@@ -29,6 +29,10 @@ class DenoiseConfig(InputModel):
     scan_normal_neighbours: int = Field(default=16, ge=3, le=200, description=(
         "imported scans (no grid; the outliers by k and alpha on the k nearest points): each normal "
         "from this many nearest points, turned toward the scan's view direction"))
+    preview_cell_mm: float = Field(default=1.0, gt=0, le=50, description=(
+        "the pass's thinned copy (preview.zarr) that the QA page's maps read instead of the whole pass: every "
+        "k-th profile and column, k as for qa_report.cell_mm (tasks.qa_views.thinning_steps); a page whose "
+        "thinning is a multiple of the copy's reads the copy (the paper preset: 1/48 of the points)"))
 
 
 class TargetsConfig(InputModel):

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["first_in_each_cell", "ReachGrid"]
+__all__ = ["first_in_each_cell", "grid_thinning_steps", "ReachGrid"]
+
+
+def grid_thinning_steps(cell_mm: float, grid_pitch_mm) -> tuple[int, int]:
+    """Every how many profiles and columns a grid pass (``grid_pitch_mm``: its spacing between
+    profiles and between columns, mm) is thinned to for cells of ``cell_mm``: k per axis as large
+    as keeps its points at most a third of a cell apart, about nine to a cell."""
+    return tuple(max(1, int(cell_mm / (3 * p))) for p in grid_pitch_mm)  # type: ignore[return-value]
 
 
 def first_in_each_cell(cells: np.ndarray) -> np.ndarray:

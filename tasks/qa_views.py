@@ -19,6 +19,7 @@ import numpy as np
 
 from schemas.stage_documents import SurfacePair
 from tasks.arrays import distinct
+from tasks.cells import grid_thinning_steps
 from tasks.coverage import FaceGrid
 from tasks.frames import apply, invert, make_pose, rotate
 from tasks.report_figures import ViewedFace
@@ -119,7 +120,7 @@ def thinning_steps(shape: tuple[int, ...], *, cell_mm: float, points_per_pass: i
         if len(shape) != 3 or len(grid_pitch_mm) != 2 or min(grid_pitch_mm) <= 0:
             raise ValueError(f"a grid pass is (profiles, columns, 3) with two positive pitches; got shape {shape}, "
                              f"grid_pitch_mm {tuple(grid_pitch_mm)}")
-        return tuple(max(1, int(cell_mm / (3 * p))) for p in grid_pitch_mm)
+        return grid_thinning_steps(cell_mm, grid_pitch_mm)
     return (max(1, shape[0] // points_per_pass),)
 
 

@@ -18,7 +18,7 @@ __all__ = ["STAGES", "STAGE_NAMES", "stage", "run_stage", "Stage", "StageContext
 
 
 STAGES: tuple[Stage, ...] = (
-    Stage("denoise", True, (), "denoise", (outputs.CLOUD,), "flows.stages.denoise:denoise", "flows.stages.views:pass_view",
+    Stage("denoise", True, (), "denoise", (outputs.CLOUD, outputs.PREVIEW), "flows.stages.denoise:denoise", "flows.stages.views:pass_view",
           "ingest the pass (robot poses), remove statistical outliers, fit normals on the grid; streamed in blocks"),
     Stage("targets", True, (), "targets", (outputs.TARGETS,), "flows.stages.targets:targets", "flows.stages.views:targets_view",
           "sticker targets: Hough circles, sub-pixel 3-D rim fit; streamed in blocks"),

@@ -18,9 +18,10 @@ import numpy as np
 
 from data_catalog.atomic import owner_tag
 from data_catalog.scans import read_scan
-from flows.stages.outputs import CLOUD
+from flows.stages.outputs import CLOUD, PREVIEW, PassPreview
 from flows.stages.passes import block_rows, open_entry, pass_blocks
 from schemas.manifest import ScanEntry
+from tasks.cells import grid_thinning_steps
 from tasks.consistency import MotionCheck, chunk_jumps, profile_steps
 from tasks.denoise import DistanceStats, check_window, mean_knn_distance, relative_neighbour_distance
 from tasks.mesh import estimate_normals
@@ -65,6 +66,8 @@ def _denoise_scan(ctx) -> dict[str, Any]:
     out.write("normals", 0, normals[:, None, :])
     out.write("sensor_origins", 0, sensors)
     out.close()
+    PREVIEW.write(ctx.out, PassPreview(points=np.zeros((0, 0, 3), np.float32), normals=np.zeros((0, 0, 3), np.float32),
+                                       steps=np.zeros(2, np.int64)))  # no grid to thin by: the page reads the scan
     return {"points_in": int(len(points)), "points_out": int(len(kept)), "removed": int(len(points) - len(kept)),
             "threshold_ratio": threshold, "pose": "given" if scan.T_world_pass is not None else "none"}
 
@@ -107,6 +110,13 @@ def denoise(ctx) -> dict[str, Any]:
         out.create("points", (n, m, 3), np.float32)
         out.create("normals", (n, m, 3), np.float32)
         out.create("sensor_origins", (n, 3), np.float64)
+        # the thinned copy for the QA page: every a-th profile from the first, every b-th column
+        a, b = grid_thinning_steps(s.preview_cell_mm, pitch)
+        preview = PREVIEW.writer(ctx.out, chunk_rows=max(1, reader.chunk_profiles // a))
+        preview.create("points", (-(-n // a), -(-m // b), 3), np.float32)
+        preview.create("normals", (-(-n // a), -(-m // b), 3), np.float32)
+        preview.create("steps", (2,), np.int64)
+        preview.write("steps", 0, np.array([a, b], np.int64))
         kept_total = 0
         for block in pass_blocks(ctx.sample_dir, ctx.manifest, ctx.entry, halo_rows=nr, rows=rows, reader=reader):
             md = np.fromfile(distances, dtype=np.float64, count=(block.stop - block.start) * m,
@@ -118,8 +128,13 @@ def denoise(ctx) -> dict[str, Any]:
             out.write("points", block.core_start, kept[block.core])
             out.write("normals", block.core_start, normals)
             out.write("sensor_origins", block.core_start, block.T_world_sensor[block.core, :3, 3])
+            first = -(-block.core_start // a) * a - block.core_start  # the core's first row on the copy's grid
+            if first < len(normals):
+                preview.write("points", (block.core_start + first) // a, kept[block.core][first::a, ::b])
+                preview.write("normals", (block.core_start + first) // a, normals[first::a, ::b])
             kept_total += int(keep[block.core].sum())
         out.close()
+        preview.close()
     return {"points_in": points_in, "points_out": kept_total, "removed": points_in - kept_total,
             "threshold_mm": threshold, "normal_window": [2 * nr + 1, 2 * nc + 1],
             "checks": {"motion": motion.summary(), "chunk_jumps": chunk_jumps(steps, reader.chunk_profiles)}}

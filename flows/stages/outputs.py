@@ -27,6 +27,16 @@ class DenoisedPass:
 CLOUD = ArrayFile("cloud.zarr", DenoisedPass)
 
 
+@dataclass(frozen=True)
+class PassPreview:
+    points: np.ndarray  # (p, c, 3) float32, mm: the denoised points[::steps[0], ::steps[1]]; (0, 0, 3): none
+    normals: np.ndarray  # (p, c, 3) float32, the same points' normals
+    steps: np.ndarray  # (2,) int64: every how many profiles and columns; (0, 0): no copy (an imported scan)
+
+# the thinned copy the QA page's maps read (denoise.preview_cell_mm): made as the pass lands
+PREVIEW = ArrayFile("preview.zarr", PassPreview)
+
+
 # --- stage targets ---
 @dataclass(frozen=True)
 class PassTargets:

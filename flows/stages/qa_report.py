@@ -36,8 +36,8 @@ from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescap
 
 from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
-from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, MODEL_SURFACE, QA_REPORT, REFINE_SUMMARY,
-                                  REFINED, REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY,
+from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, MODEL_SURFACE, PREVIEW, QA_REPORT,
+                                  REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY,
                                   TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
@@ -52,7 +52,7 @@ from tasks.report_figures import toe_closeups as closeup_picture
 from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut, toe_closeups
 from tasks.weld_zone import WeldZone
 
-__all__ = ["qa_report", "TEMPLATES", "section_pictures", "along_weld_pictures"]
+__all__ = ["qa_report", "TEMPLATES", "section_pictures", "along_weld_pictures", "steps_on_copy"]
 
 TEMPLATES = Environment(loader=PackageLoader("flows", "templates"), autoescape=select_autoescape(["html", "j2"]),
                    undefined=StrictUndefined, keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
@@ -74,12 +74,8 @@ def _maps(ctx, view: SurfaceView, T_common_pass: np.ndarray,
     paths: dict[str, list[tuple[str, np.ndarray]]] = {"top": [], "bottom": []}
     entries = [e for _, e in ctx.manifest.passes()]
     for k, (name, ref) in enumerate(zip(ctx.names, ctx.inputs["denoise"])):
-        stored_points, stored_normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
-        grid = len(stored_points.shape) == 3 and ctx.manifest.scanner is not None
-        steps = thinning_steps(stored_points.shape, cell_mm=s.cell_mm, points_per_pass=s.points_per_pass,
-                               grid_pitch_mm=ctx.manifest.grid_pitch_mm(entries[k]) if grid else None)
-        step = tuple(slice(None, None, n) for n in steps)
-        seen = pass_in_view(stored_points[step], stored_normals[step], zarr_array(ref, CLOUD, "sensor_origins")[...],
+        points, normals = _thinned(ctx, ref, entries[k])
+        seen = pass_in_view(points, normals, zarr_array(ref, CLOUD, "sensor_origins")[...],
                             T_view_common=view.T_view_common, T_common_pass=T_common_pass[k])
         faces.add(seen.points_mm, seen.normals)
         if seen.sweep_mm is not None:
@@ -96,6 +92,31 @@ def _maps(ctx, view: SurfaceView, T_common_pass: np.ndarray,
                          "disagreement of overlapping passes", "Where two or more passes measured a cell: the largest minus the "
                          "smallest of their mean distances to the merged surface (colour scale to the 99th percentile).")]
     return pictures, coverage_figures(grids)
+
+
+def steps_on_copy(steps, copy_steps) -> tuple[slice, ...] | None:
+    """The slices of a thinned copy (every ``copy_steps`` of the whole) that give every ``steps``
+    of the whole; None where a step is not a multiple of the copy's, or there is no copy (0)."""
+    if min(copy_steps) < 1 or any(n % c for n, c in zip(steps, copy_steps)):
+        return None
+    return tuple(slice(None, None, n // c) for n, c in zip(steps, copy_steps))
+
+
+def _thinned(ctx, ref, entry) -> tuple[np.ndarray, np.ndarray]:
+    """A pass's points and normals thinned for the maps (``tasks.qa_views.thinning_steps``): from
+    the denoise stage's thinned copy where the page's steps are multiples of the copy's (the same
+    values; the paper preset: 0.27 M points of 12.9 M read a pass), else from the whole pass."""
+    s = ctx.settings
+    stored_points = zarr_array(ref, CLOUD, "points")
+    grid = len(stored_points.shape) == 3 and ctx.manifest.scanner is not None
+    steps = thinning_steps(stored_points.shape, cell_mm=s.cell_mm, points_per_pass=s.points_per_pass,
+                           grid_pitch_mm=ctx.manifest.grid_pitch_mm(entry) if grid else None)
+    if PREVIEW.name in ref.outputs and grid:
+        step = steps_on_copy(steps, [int(n) for n in zarr_array(ref, PREVIEW, "steps")[...]])
+        if step is not None:
+            return zarr_array(ref, PREVIEW, "points")[step], zarr_array(ref, PREVIEW, "normals")[step]
+    step = tuple(slice(None, None, n) for n in steps)
+    return stored_points[step], zarr_array(ref, CLOUD, "normals")[step]
 
 
 def _pass_images(ctx) -> list[dict[str, str]]:

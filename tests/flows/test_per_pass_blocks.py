@@ -16,9 +16,10 @@ from data_catalog.manifests import load_manifest
 from data_catalog.stages import StageStore
 from flows.stages import denoise as denoise_body
 from flows.stages import run_stage, stage
-from flows.stages.outputs import CLOUD
+from flows.stages.outputs import CLOUD, PREVIEW
 from flows.stages.passes import load_pass_points
 from schemas.reconstruction import ReconstructionConfig
+from tasks.cells import grid_thinning_steps
 from tasks.denoise import remove_statistical_outliers
 from tests.flows.synthetic import write_plate_sample
 
@@ -79,16 +80,24 @@ def test_denoise_blocks_give_the_whole_pass_bytes(tmp_path, monkeypatch):
     manifest = load_manifest(sample / "manifest.json")
     entry = manifest.passes()[0][1]
     config = ReconstructionConfig()
-    outputs = {}
+    outputs, previews = {}, {}
     for rows in (None, 64, 7):  # one block (the pass fits), blocks of a chunk, blocks of 7 profiles
         monkeypatch.setattr(denoise_body, "BLOCK_ROWS", rows)
         ref = run_stage(stage("denoise"), store=StageStore(tmp_path / f"store-{rows}"), sample_dir=sample,
                         manifest=manifest, config=config, inputs={}, entry=entry)
         outputs[rows] = CLOUD.read(ref)
+        previews[rows] = PREVIEW.read(ref)
     for rows in (64, 7):
         for field in ("points", "normals", "sensor_origins"):
             assert np.array_equal(getattr(outputs[rows], field), getattr(outputs[None], field), equal_nan=True), \
                 (rows, field)
+    # the thinned copy the QA page reads: every a-th profile and b-th column of the outputs, whichever
+    # rows each block began on (blocks of 7 and 64 against the copy's a)
+    a, b = grid_thinning_steps(config.denoise.preview_cell_mm, manifest.grid_pitch_mm(entry))
+    assert (a, b) == (16, 3) and previews[None].steps.tolist() == [a, b]  # 0.02 x 0.1 mm grid, 1 mm cells
+    for rows in (None, 64, 7):
+        assert np.array_equal(previews[rows].points, outputs[None].points[::a, ::b], equal_nan=True), rows
+        assert np.array_equal(previews[rows].normals, outputs[None].normals[::a, ::b], equal_nan=True), rows
     # and the same points as the whole-pass function of tasks.denoise
     _, _, grid = load_pass_points(sample, manifest, entry)
     s = config.denoise

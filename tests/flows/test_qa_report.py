@@ -142,3 +142,36 @@ def test_the_flow_run_links_its_report_in_prefect(ci_run):
     assert f"({(out / 'results' / 'report.html').resolve().as_uri()})" in str(by_key[key].data)
     summary = str(by_key[f"{key}-summary"].data)
     assert "QA report" in summary and f"{len(report['checks'])} of {len(report['checks'])} ok" in summary
+
+
+
+def test_a_thinned_copy_serves_the_steps_that_are_multiples_of_its_own():
+    from flows.stages.qa_report import steps_on_copy
+
+    assert steps_on_copy((16, 3), (16, 3)) == (slice(None, None, 1), slice(None, None, 1))
+    assert steps_on_copy((32, 6), (16, 3)) == (slice(None, None, 2), slice(None, None, 2))
+    assert steps_on_copy((24, 3), (16, 3)) is None and steps_on_copy((8, 3), (16, 3)) is None
+    assert steps_on_copy((16, 3), (0, 0)) is None  # an imported scan: no copy
+
+
+def test_the_maps_get_the_whole_passes_values_from_the_thinned_copies(ci_run, ci_sample):
+    """Each pass's thinned copy (stage denoise's preview.zarr) gives the page's maps the values the
+    whole pass gives, at the page's cells and at twice and 1.5 times them."""
+    import types
+
+    import numpy as np
+
+    from flows.stages.outputs import PREVIEW
+    from flows.stages.qa_report import _thinned
+
+    _, report = ci_run
+    manifest = load_manifest(ci_sample / "manifest.json")
+    config = load_config(CI_CONFIG)
+    entries = [e for _, e in manifest.passes()]
+    for cell_mm in (config.qa_report.cell_mm, 2 * config.qa_report.cell_mm, 1.5 * config.qa_report.cell_mm):
+        ctx = types.SimpleNamespace(settings=config.qa_report.model_copy(update={"cell_mm": cell_mm}), manifest=manifest)
+        for ref, entry in zip(report["refs"]["denoise"], entries):
+            whole = dataclasses.replace(ref, outputs={k: v for k, v in ref.outputs.items() if k != PREVIEW.name})
+            read, expected = _thinned(ctx, ref, entry), _thinned(ctx, whole, entry)
+            assert len(read[0]) > 0 and all(np.array_equal(a, b, equal_nan=True) for a, b in zip(read, expected))
+    assert [int(s) for s in PREVIEW.read(report["refs"]["denoise"][0]).steps] == [2, 2]  # 0.32 mm points, 2 mm cells
