@@ -94,7 +94,7 @@ def test_denoise_blocks_give_the_whole_pass_bytes(tmp_path, monkeypatch):
     # the thinned copy the QA page reads: every a-th profile and b-th column of the outputs, whichever
     # rows each block began on (blocks of 7 and 64 against the copy's a)
     a, b = grid_thinning_steps(config.denoise.preview_cell_mm, manifest.grid_pitch_mm(entry))
-    assert (a, b) == (16, 3) and previews[None].steps.tolist() == [a, b]  # 0.02 x 0.1 mm grid, 1 mm cells
+    assert (a, b) == (3, 16) and previews[None].steps.tolist() == [a, b]  # profiles 0.1 mm apart, columns 0.02; 1 mm cells
     for rows in (None, 64, 7):
         assert np.array_equal(previews[rows].points, outputs[None].points[::a, ::b], equal_nan=True), rows
         assert np.array_equal(previews[rows].normals, outputs[None].normals[::a, ::b], equal_nan=True), rows
