@@ -106,7 +106,7 @@ def _gather(stage: str, pending) -> Any:
 def _run_when_ready(stages: list[Stage], done: dict[str, Any], submit) -> dict[str, Any]:
     """Run the whole-sample ``stages``, each submitted (``submit(stage, inputs)``: a future) as soon
     as every stage it needs is in ``done`` or has finished here, so that independent stages run side
-    by side (the stress beside the mesh, on the paper preset ~150 s of the final results' wait);
+    by side (the stress beside the mesh: 131 s of the paper preset's final wait);
     their refs by name. A failure submits nothing more, lets the running stages end, and raises
     the failure of the first failed stage in registry order. Each stage's outputs are a function of
     its inputs alone: the order they finish in changes no byte."""

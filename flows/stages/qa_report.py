@@ -37,8 +37,8 @@ from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescap
 from flows.stages.contracts import zarr_array
 from flows.stages.qa_audit import AUDIT_MARK
 from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, MODEL_SURFACE, PREVIEW, QA_REPORT,
-                                  REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN, STRESS_SUMMARY,
-                                  TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
+                                  REFINE_SUMMARY, REFINED, REGISTRATION, REGISTRATION_SUMMARY, REPORT, SPECIMEN,
+                                  STRESS_SUMMARY, TARGETS, VOLUME_SUMMARY, WELD_GEOMETRY)
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, FilletWeldSection, Finding, WeldGeometry

@@ -35,6 +35,7 @@ def volume(ctx) -> dict[str, Any]:
     surface = MESH.read(ctx.inputs["mesh"])
     closed = mesh_report(surface.vertices, surface.triangles)
     if not (closed.watertight and closed.consistently_oriented):
+        MODEL_SURFACE.write(ctx.out, Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64)))  # none
         return _not_made(ctx, f"the surface mesh is not closed ({closed.n_boundary_edges} boundary edges, "
                               f"{closed.n_non_manifold_edges} non-manifold edges): no solid to fill")
     # the weld zone (placement.model_weld_zone, the weld frame's lines; the QA page colours the same):
@@ -102,10 +103,9 @@ def volume(ctx) -> dict[str, Any]:
 
 def _not_made(ctx, why: str) -> dict[str, Any]:
     """No FE model: why, in volume.json (the report's check and the terminal say it); the model
-    files left out, the run goes on and publishes the rest."""
+    files left out (the surface simplified for it, ``surface.zarr``, written by the caller), the run
+    goes on and publishes the rest."""
     VOLUME_SUMMARY.write(ctx.out, FEModelSummary(made=False, why=why))
-    if not (ctx.out / MODEL_SURFACE.name).exists():  # open: nothing simplified
-        MODEL_SURFACE.write(ctx.out, Mesh(vertices=np.zeros((0, 3)), triangles=np.zeros((0, 3), np.int64)))
     ELEMENT_QUALITY.write(ctx.out, ElementQualityArrays(min_dihedral_deg=np.zeros(0, np.float32),
                                                         aspect_ratio=np.zeros(0, np.float32)))
     return {"made": False, "why": why}
