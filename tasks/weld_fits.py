@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from tasks.arrays import row_medians
+
 __all__ = ["TOE_RADIUS_BOUNDS_MM", "Measured", "SectionSettings", "PlateFit", "GrooveFit", "ToeFit", "fit_plate_line",
            "fit_robust_line", "fit_toe", "fit_groove", "propagate", "toe_radius_range", "toe_at_radius", "running_median"]
 
@@ -191,8 +193,10 @@ def _pair_lines(uk: np.ndarray, hk: np.ndarray):
         return None
     slopes = (hk[j[ok]] - hk[i[ok]]) / (uk[j[ok]] - uk[i[ok]])
     offsets = hk[i[ok]] - slopes * uk[i[ok]]
-    resid = hk[None, :] - (slopes[:, None] * uk[None, :] + offsets[:, None])
-    return slopes, offsets, resid, np.median(np.abs(resid), axis=1)
+    resid = np.multiply.outer(slopes, uk)  # h - (slope * u + offset), in place: (lines, points) is large
+    resid += offsets[:, None]
+    np.subtract(hk[None, :], resid, out=resid)
+    return slopes, offsets, resid, row_medians(np.abs(resid), overwrite=True)
 
 
 def fit_plate_line(u: np.ndarray, h: np.ndarray, *, min_points: int) -> PlateFit | None:

@@ -26,6 +26,7 @@ sections are cut again across it.
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
 from dataclasses import dataclass, field
 
@@ -248,12 +249,15 @@ def _frame(points_line: np.ndarray, normals_near: np.ndarray,
 
 def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: np.ndarray, *, name: str,
                       step_mm: float, section_half_width_mm: float, reach_mm: float, end_margin_mm: float,
-                      min_normal_cos: float, settings: SectionSettings, treated: bool) -> WeldLineMeasurement:
+                      min_normal_cos: float, settings: SectionSettings, treated: bool,
+                      workers: int = 1) -> WeldLineMeasurement:
     """Sections every ``step_mm`` across one weld line. ``points``, ``normals``: (n, 3) float64, mm,
     unit, the measured surface in the frame of ``line_points_mm`` ((k, 3), a straight line: its
     first and last point), normals outward. Points within ``reach_mm`` across the line, facing
     its face (normal . n > ``min_normal_cos``) are read; sections run where they reach, less
-    ``end_margin_mm`` at each end."""
+    ``end_margin_mm`` at each end. ``workers``: sections measured at once on that many threads
+    (numpy's partitions and arithmetic release the GIL; each section's fit is its own, so the
+    result does not depend on it)."""
     points = np.asarray(points, np.float64)
     normals = np.asarray(normals, np.float64)
     line = np.asarray(line_points_mm, np.float64)
@@ -284,23 +288,28 @@ def measure_weld_line(points: np.ndarray, normals: np.ndarray, line_points_mm: n
         lo, hi = float(s.min()) + end_margin_mm, float(s.max()) - end_margin_mm
         order = np.argsort(s)
         s, u, h = s[order], u[order], h[order]
-        out = []
         if hi < lo:
-            return out
-        for pos in np.arange(np.ceil(lo / step_mm) * step_mm, hi + 1e-9, step_mm):
+            return []
+
+        def one(pos):
             i0, i1 = np.searchsorted(s, [pos - section_half_width_mm, pos + section_half_width_mm])
 
-            def to_frame(uu, hh, pos=pos):
+            def to_frame(uu, hh):
                 return origin + pos * t + uu * a + hh * n
 
             try:
-                out.append(measure_section(u[i0:i1], h[i0:i1], s[i0:i1] - pos, settings=settings, treated=treated,
-                                           line=name, position_mm=float(pos), to_frame=to_frame))
+                return measure_section(u[i0:i1], h[i0:i1], s[i0:i1] - pos, settings=settings, treated=treated,
+                                       line=name, position_mm=float(pos), to_frame=to_frame)
             except (ValueError, np.linalg.LinAlgError) as exc:  # one section's fit, not the weld's
                 none = Measured.none()
-                out.append(SectionMeasurement(name, float(pos), tuple(float(x) for x in to_frame(0.0, 0.0)), none,
-                                              none, none, none, (None, None), int(i1 - i0), f"fit failed: {exc}"))
-        return out
+                return SectionMeasurement(name, float(pos), tuple(float(x) for x in to_frame(0.0, 0.0)), none,
+                                          none, none, none, (None, None), int(i1 - i0), f"fit failed: {exc}")
+
+        positions = np.arange(np.ceil(lo / step_mm) * step_mm, hi + 1e-9, step_mm)
+        if workers <= 1 or len(positions) < 2:
+            return [one(pos) for pos in positions]
+        with concurrent.futures.ThreadPoolExecutor(workers, thread_name_prefix="sections") as pool:
+            return list(pool.map(one, positions))  # in the positions' order, each its own (no shared state)
 
     first = cut(s, u, h, origin, t, a, n)
     # the line refined on the data: a robust line through the sections' centres, in the face

@@ -46,6 +46,7 @@ __all__ = ["weld", "MEASURABLE_JOINTS", "FILLET_JOINTS", "section_settings", "ju
 
 MEASURABLE_JOINTS = ("double-sided butt", "single-V butt", "double-V butt")  # a cap between two plates
 FILLET_JOINTS = ("fillet", "double fillet", "cruciform fillet")  # between a base plate and a stem on it
+SECTION_WORKERS = 2  # weld sections measured at once (numpy releases the GIL; the result does not depend on it)
 
 
 def _figure(m: Measured, digits: int = 4) -> Figure:
@@ -338,7 +339,7 @@ def weld(ctx) -> dict[str, Any]:
     found_lines = [measure_weld_line(points, normals, np.asarray(line.points_mm, np.float64), name=line.name,
                                      step_mm=s.section_step_mm, section_half_width_mm=s.section_half_width_mm,
                                      reach_mm=s.reach_mm, end_margin_mm=s.end_margin_mm, min_normal_cos=s.min_normal_cos,
-                                     settings=settings, treated=treated)
+                                     settings=settings, treated=treated, workers=SECTION_WORKERS)
                    for line in manifest.weld_lines()]
     lines = [WeldLineFound(name=f.line, sections=len(f.sections), offset_mm=round(f.offset_mm, 4),
                            turn_deg=round(f.turn_deg, 4), face_normal=tuple(round(v, 5) for v in f.normal),

@@ -146,6 +146,11 @@ def test_a_weld_line_in_3d_refined_on_the_data():
     with pytest.raises(ValueError, match="points and normals"):
         measure_weld_line(points, normals[:-1], line, name="top", step_mm=2.0, section_half_width_mm=0.5,
                           reach_mm=32.0, end_margin_mm=2.0, min_normal_cos=0.2, settings=SETTINGS, treated=False)
+    # sections measured on three threads: the same measurement, section for section
+    threaded = measure_weld_line(points, normals, line, name="top", step_mm=2.0, section_half_width_mm=0.5,
+                                 reach_mm=32.0, end_margin_mm=2.0, min_normal_cos=0.2, settings=SETTINGS,
+                                 treated=False, workers=3)
+    assert threaded == found
 
 
 @pytest.mark.parametrize("face", [1.0, -1.0])
