@@ -54,7 +54,8 @@ from data_catalog.atomic import atomic_write_text
 from data_catalog.hashing import sha256_file
 from data_catalog.stages import StageStore
 from flows.stages import StageContext, StageRef, run_stage, stage
-from flows.stages.contracts import block_rows, zarr_array
+from flows.stages.contracts import block_rows, map_in_order, zarr_array
+from flows.stages.merge import BLOCK_WORKERS
 from flows.stages.outputs import CLOUD, REFINED, REGISTRATION, SPECIMEN, WELD_GEOMETRY, RefinedPoses, SpecimenCloud
 from flows.stages.placement import T_common_specimen
 from flows.stages.refine import pass_surface_sample, refine_arguments
@@ -457,19 +458,25 @@ class ProvisionalWeld:
         points, normals = zarr_array(ref, CLOUD, "points"), zarr_array(ref, CLOUD, "normals")
         n, m = points.shape[:2]
         step = block_rows(m, chunk_profiles=points.chunks[0])
-        fine, rough = [], []
-        for start in range(0, n, step):
+
+        def block(start: int) -> tuple[CellSums | None, CellSums | None]:
             p, q = transform_measured(points[start:start + step], normals[start:start + step], T)
             keep = np.ones(len(p), bool)
             if bounds is not None:
                 keep = inside_drawing_box(p, T_frame_part=T_part, part_bounds_mm=bounds, grow_lo_mm=grow,
                                           grow_hi_mm=grow)
-            if coarse and keep.any():
-                rough.append(cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)))
+            rough = cell_sums(p[keep], q[keep], cell_mm=_mesh_cell_mm(self.config)) if coarse and keep.any() else None
+            fine = None
             if zone is not None:
                 keep &= zone.contains(p)
                 if keep.any():
-                    fine.append(cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm))
+                    fine = cell_sums(p[keep], q[keep], cell_mm=self.config.merge.cell_mm)
+            return fine, rough
+
+        # the blocks read and summed on two threads, joined in their order: the same sums as a loop
+        found = list(map_in_order(block, range(0, n, step), workers=BLOCK_WORKERS))
+        fine = [f for f, _ in found if f is not None]
+        rough = [r for _, r in found if r is not None]
         return _joined(fine), (_joined(rough) if coarse else None)
 
     def _verdict_artifact(self, document: dict[str, Any], verdict) -> None:
