@@ -79,7 +79,7 @@ class FaceAccumulator:
         if not len(p):
             return
         # the nearest surface point within reach (beyond it: not the part; the bound prunes the search)
-        dist, nearest = self._tree.query(p, distance_upper_bound=self.max_distance_mm, workers=1)
+        dist, nearest = self._tree.query(p, distance_upper_bound=self.max_distance_mm, workers=2)  # the same answer on any number
         found = np.isfinite(dist)
         p, nz, dist, nearest = p[found], nz[found], dist[found], nearest[found]
         signed = np.einsum("ij,ij->i", p - self._surface[nearest], self._normals[nearest])

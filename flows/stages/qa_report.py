@@ -11,7 +11,8 @@ FE model's element quality; the provenance (settings, inputs, code, every stage'
 The numbers behind each picture are ``tasks.qa_views`` (the view frame, the passes on the coverage maps,
 the stickers, the registration graph, the mesh and its weld zone), ``tasks.coverage`` and
 ``tasks.weld_views`` (the sections drawn, the figures along the weld); the pictures are
-``tasks.report_figures``. This body reads the inputs, calls those, renders the template, writes the page.
+``tasks.report_figures``, drawn on worker processes (``tasks.drawing``) while this body reads the
+rest of its inputs. This body reads the inputs, calls those, renders the template, writes the page.
 
 The file is a function of the stages' outputs and records (same inputs, same bytes): the other
 stages' settings it shows or draws with (the weld's section step, width and reach, the FE model's
@@ -23,7 +24,6 @@ verification.
 
 from __future__ import annotations
 
-import base64
 import dataclasses
 import importlib.metadata
 import json
@@ -42,6 +42,7 @@ from flows.stages.outputs import (CLOUD, ELEMENT_QUALITY, HOT_SECTION, MESH, MOD
 from flows.stages.placement import model_weld_zone, weld_frame, weld_lines_common
 from schemas.reconstruction import ReconstructionConfig, WeldGeometryConfig
 from schemas.weld_document import Figure, FilletWeldSection, Finding, WeldGeometry
+from tasks.drawing import Drawing
 from tasks.coverage import CoverageFigures, FaceAccumulator, coverage_figures
 from tasks.mesh import simplify_surface
 from tasks.qa_views import (PassRow, SurfaceView, coverage_maps, mesh_in_view, overlap_edges, pass_in_view, pass_rows,
@@ -58,15 +59,10 @@ TEMPLATES = Environment(loader=PackageLoader("flows", "templates"), autoescape=s
                    undefined=StrictUndefined, keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
 
 
-def _uri(png: bytes) -> str:
-    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+PICTURE_WORKERS = 2  # processes drawing the page's pictures while it reads its inputs (tasks.drawing)
 
 
-def _picture(png: bytes, alt: str, caption: str = "") -> dict[str, str]:
-    return {"src": _uri(png), "alt": alt, "caption": caption}
-
-
-def _maps(ctx, view: SurfaceView, T_common_pass: np.ndarray,
+def _maps(ctx, draw: Drawing, view: SurfaceView, T_common_pass: np.ndarray,
           lines_view: list[np.ndarray]) -> tuple[list[dict[str, str]], CoverageFigures]:
     """The scan plan over the coverage, and the passes' disagreement, on the part's two faces."""
     s = ctx.settings
@@ -82,15 +78,14 @@ def _maps(ctx, view: SurfaceView, T_common_pass: np.ndarray,
             paths[seen.face].append((name, seen.sweep_mm))
     grids = faces.faces()
     maps = coverage_maps(grids)
-    pictures = [_picture(face_map(maps.coverage, title="Scan plan and coverage", unit="passes", cmap="viridis",
-                                  discrete=True, vmax=maps.most_passes, paths=[paths[g.name] for g in grids],
-                                  lines=lines_view),
-                         "scan plan and coverage", "Arrows: each pass's sweep, start to end, over the number of passes that "
-                         "measured each cell; dashed: the weld lines."),
-                _picture(face_map(maps.spread, title="Disagreement of overlapping passes", unit="um", cmap="magma",
-                                  vmax=maps.spread_top_um, lines=lines_view),
-                         "disagreement of overlapping passes", "Where two or more passes measured a cell: the largest minus the "
-                         "smallest of their mean distances to the merged surface (colour scale to the 99th percentile).")]
+    pictures = [draw.picture(face_map, maps.coverage, title="Scan plan and coverage", unit="passes", cmap="viridis",
+                             discrete=True, vmax=maps.most_passes, paths=[paths[g.name] for g in grids], lines=lines_view,
+                             alt="scan plan and coverage", caption="Arrows: each pass's sweep, start to end, over the "
+                             "number of passes that measured each cell; dashed: the weld lines."),
+                draw.picture(face_map, maps.spread, title="Disagreement of overlapping passes", unit="um", cmap="magma",
+                             vmax=maps.spread_top_um, lines=lines_view, alt="disagreement of overlapping passes",
+                             caption="Where two or more passes measured a cell: the largest minus the smallest of their "
+                             "mean distances to the merged surface (colour scale to the 99th percentile).")]
     return pictures, coverage_figures(grids)
 
 
@@ -119,7 +114,7 @@ def _thinned(ctx, ref, entry) -> tuple[np.ndarray, np.ndarray]:
     return stored_points[step], zarr_array(ref, CLOUD, "normals")[step]
 
 
-def _pass_images(ctx) -> list[dict[str, str]]:
+def _pass_images(ctx, draw: Drawing) -> list[dict[str, str]]:
     """Each pass's searched intensity image with the stickers found on it."""
     out = []
     radius = (ctx.manifest.sticker_diameter_mm or 0) / 2
@@ -130,14 +125,14 @@ def _pass_images(ctx) -> list[dict[str, str]]:
         marks = sticker_marks(found.pixel, found.rms_mm, grid_spacing_mm=found.grid_spacing_mm,
                               grid_shape=found.grid_shape)
         median_rms = f", rim fit RMS median {marks.median_rms_um:.0f} um" if marks.median_rms_um is not None else ""
-        out.append(_picture(intensity_image(found.preview, extent_mm=marks.extent_mm,
-                                            title=f"{name}: {len(found.pixel)} stickers",
-                                            stickers_mm=marks.centres_mm, radius_mm=radius),
-                            f"pass {name} intensity", f"{name}: {len(found.pixel)} stickers{median_rms}"))
+        out.append(draw.picture(intensity_image, found.preview, extent_mm=marks.extent_mm,
+                                title=f"{name}: {len(found.pixel)} stickers", stickers_mm=marks.centres_mm,
+                                radius_mm=radius, alt=f"pass {name} intensity",
+                                caption=f"{name}: {len(found.pixel)} stickers{median_rms}"))
     return out
 
 
-def _graph(ctx) -> tuple[list[dict[str, str]], list[PassRow]]:
+def _graph(ctx, draw: Drawing) -> tuple[list[dict[str, str]], list[PassRow]]:
     """The registration graph: pass pairs by their common targets' residuals; per-pass rows."""
     reg = REGISTRATION.open(ctx.inputs["registration"])
     summary = REGISTRATION_SUMMARY.read(ctx.inputs["registration"])
@@ -145,16 +140,18 @@ def _graph(ctx) -> tuple[list[dict[str, str]], list[PassRow]]:
     edges = registration_edges(reg.edge_passes[...], reg.residual_mm[...], reg.inlier[...])
     surface = overlap_edges(ctx.names, refine.surface_pairs)
     groups = [setup for setup, _ in ctx.manifest.passes()]
-    picture = _picture(registration_graph(ctx.names, groups, edges, surface,
-                                          title="Registration graph: pass pairs joined by common stickers"),
-                       "registration graph", "Passes around the circle in scan order, coloured by setup; a line per "
-                       "pass pair with common stickers, coloured by their median residual after the solve, wider for "
-                       "more stickers; grey: surface overlaps the refinement used.")
     rows = pass_rows(ctx.names, groups, edges, summary.pass_rms_mm)
-    return ([picture] if edges or surface else []), rows
+    if not (edges or surface):
+        return [], rows
+    picture = draw.picture(registration_graph, ctx.names, groups, edges, surface,
+                           title="Registration graph: pass pairs joined by common stickers", alt="registration graph",
+                           caption="Passes around the circle in scan order, coloured by setup; a line per pass pair "
+                           "with common stickers, coloured by their median residual after the solve, wider for more "
+                           "stickers; grey: surface overlaps the refinement used.")
+    return [picture], rows
 
 
-def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
+def _mesh_pictures(ctx, draw: Drawing, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
     poisson_triangles = MESH.open(ctx.inputs["mesh"]).triangles.shape[0]
     simplified = MODEL_SURFACE.read(ctx.inputs["volume"])  # the FE model's, simplified already (none: open)
     drawn = simplified if len(simplified.triangles) else MESH.read(ctx.inputs["mesh"])
@@ -162,29 +159,32 @@ def _mesh_pictures(ctx, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[
     seen = mesh_in_view(vertices, triangles, zone=zone, T_view_common=T_view_common)  # the zone as the FE model's
     caption = (f"The Poisson mesh ({poisson_triangles:,} triangles) simplified to {len(triangles):,} for the picture; "
                f"orange: the weld zone ({seen.zone_radius_mm:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
-    out = [_picture(mesh_view(seen.vertices_mm, triangles, azimuth_deg=-60, elevation_deg=35, title="The mesh from above",
-                              highlight=seen.in_zone), "mesh from above", caption),
-           _picture(mesh_view(seen.vertices_mm, triangles, azimuth_deg=120, elevation_deg=-35, title="The mesh from below",
-                              highlight=seen.in_zone), "mesh from below", caption)]
+    out = [draw.picture(mesh_view, seen.vertices_mm, triangles, azimuth_deg=-60, elevation_deg=35,
+                        title="The mesh from above", highlight=seen.in_zone, alt="mesh from above", caption=caption),
+           draw.picture(mesh_view, seen.vertices_mm, triangles, azimuth_deg=120, elevation_deg=-35,
+                        title="The mesh from below", highlight=seen.in_zone, alt="mesh from below", caption=caption)]
     close = seen.close_up
     if close is not None:
-        out.append(_picture(mesh_view(close.vertices_mm, close.triangles, azimuth_deg=close.azimuth_deg, elevation_deg=22,
-                                      title="The weld zone, close up", highlight=close.in_zone,
-                                      height_in=3.0), "mesh weld zone",
-                            "The upward faces of the weld zone alone, seen low and nearly along the weld."))
+        out.append(draw.picture(mesh_view, close.vertices_mm, close.triangles, azimuth_deg=close.azimuth_deg,
+                                elevation_deg=22, title="The weld zone, close up", highlight=close.in_zone, height_in=3.0,
+                                alt="mesh weld zone",
+                                caption="The upward faces of the weld zone alone, seen low and nearly along the weld."))
     return out
 
 
-def along_weld_pictures(geometry: WeldGeometry, *, error_bars: bool = False) -> list[dict[str, str]]:
+def along_weld_pictures(geometry: WeldGeometry, *, error_bars: bool = False,
+                        draw: Drawing | None = None) -> list[dict[str, str]]:
     """The weld's figures along it (``tasks.weld_views.along_weld_series``), four panels a
-    picture; each 1-sigma a band, or an error bar at each section (``error_bars``)."""
+    picture; each 1-sigma a band, or an error bar at each section (``error_bars``). ``draw``: where
+    the pictures are drawn (None: here, at once)."""
+    draw = draw or Drawing()
     series = along_weld_series(geometry)
     sigma = "bars" if error_bars else "band"
     pictures = []
     for start in range(0, len(series), 4):  # at most four panels a picture
-        pictures.append(_picture(along_weld(series[start:start + 4], title=f"Along the weld ({sigma}: 1 sigma; dashed red: "
-                                            "the acceptance limits; x: a failing section)", error_bars=error_bars),
-                                 "weld figures along the weld"))
+        pictures.append(draw.picture(along_weld, series[start:start + 4], title=f"Along the weld ({sigma}: 1 sigma; "
+                                     "dashed red: the acceptance limits; x: a failing section)", error_bars=error_bars,
+                                     alt="weld figures along the weld"))
     return pictures
 
 
@@ -199,22 +199,23 @@ def _findings(found: list[Finding]) -> str:
     return "; ".join(f"{v.figure} {v.value} (limit {v.limit})" for v in found)
 
 
-def _section_pictures(ctx, geometry: WeldGeometry, points_specimen: np.ndarray,
+def _section_pictures(ctx, draw: Drawing, geometry: WeldGeometry, points_specimen: np.ndarray,
                       weld: WeldGeometryConfig) -> list[dict[str, str]]:
     """Cross-sections measured over the drawing's plate faces (``points_specimen``: the specimen's
     measured points in the frame the weld was measured in; ``weld``: the settings it was measured with)."""
     bounds = ctx.manifest.specimen.bounds_mm() if ctx.manifest.specimen is not None else None
     return section_pictures(geometry, points_specimen, per_line=ctx.settings.sections_per_line,
-                            half_width_mm=weld.section_half_width_mm, reach_mm=weld.reach_mm, bounds_mm=bounds)
+                            half_width_mm=weld.section_half_width_mm, reach_mm=weld.reach_mm, bounds_mm=bounds, draw=draw)
 
 
 def section_pictures(geometry: WeldGeometry, points_mm: np.ndarray, *, per_line: int, half_width_mm: float,
-                     reach_mm: float, bounds_mm=None) -> list[dict[str, str]]:
+                     reach_mm: float, bounds_mm=None, draw: Drawing | None = None) -> list[dict[str, str]]:
     """Up to ``per_line`` sections per weld line (``tasks.weld_views.chosen_sections``), each its
     measured points (``points_mm`` (n, 3): the frame the weld was measured in, read within
     ``half_width_mm`` along the weld and ``reach_mm`` across it) with its toes, its figures and
     verdict in the caption, over the drawing's plate face (``bounds_mm``; None: no drawing), and
-    its toes close up."""
+    its toes close up. ``draw``: where the pictures are drawn (None: here, at once)."""
+    draw = draw or Drawing()
     out = []
     for sec in chosen_sections(geometry, per_line):
         cut = section_cut(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm,
@@ -242,27 +243,28 @@ def section_pictures(geometry: WeldGeometry, points_mm: np.ndarray, *, per_line:
             verdict = "UNCERTAIN (within 1 sigma of a limit, or not measured): " + _findings(sec.uncertain)
         else:
             verdict = "within the limits" if sec.passed else (sec.note or "not judged")
-        out.append(_picture(weld_section(cut.u_mm, cut.h_mm, title=title, toes=cut.toes, nominal=cut.plate,
-                                         failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points),
-                            f"weld section {sec.line} {sec.position_mm:g} mm", f"{verdict}. " + "; ".join(notes)))
+        out.append(draw.picture(weld_section, cut.u_mm, cut.h_mm, title=title, toes=cut.toes, nominal=cut.plate,
+                                failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points,
+                                alt=f"weld section {sec.line} {sec.position_mm:g} mm",
+                                caption=f"{verdict}. " + "; ".join(notes)))
         closeups = toe_closeups(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm)
         if closeups:
-            out.append(_picture(closeup_picture(closeups, title=f"{sec.line} at {sec.position_mm:g} mm: the toes close, "
-                                                                "height exaggerated"),
-                                f"toe close-up {sec.line} {sec.position_mm:g} mm",
-                                "Each toe's measured points and the fitted toe (its rounding of the measured radius "
-                                "and its flank at the measured angle), the height drawn taller than true scale."))
+            out.append(draw.picture(closeup_picture, closeups,
+                                    title=f"{sec.line} at {sec.position_mm:g} mm: the toes close, height exaggerated",
+                                    alt=f"toe close-up {sec.line} {sec.position_mm:g} mm",
+                                    caption="Each toe's measured points and the fitted toe (its rounding of the measured "
+                                    "radius and its flank at the measured angle), the height drawn taller than true "
+                                    "scale."))
     return out
 
 
-def _quality_picture(ctx) -> list[dict[str, str]]:
+def _quality_picture(ctx, draw: Drawing) -> list[dict[str, str]]:
     angles = np.asarray(ELEMENT_QUALITY.open(ctx.inputs["volume"]).min_dihedral_deg[...], np.float64)
     if not len(angles):  # no model made
         return []
-    return [_picture(histogram(angles, bins=np.arange(0, 72, 2.0), title="Element quality",
-                               xlabel="min dihedral angle, deg", mark=10.0),
-                     "FE model element quality", f"The smallest dihedral angle of each of the {len(angles):,} tetrahedra; "
-                     "dashed: 10 deg")]
+    return [draw.picture(histogram, angles, bins=np.arange(0, 72, 2.0), title="Element quality",
+                         xlabel="min dihedral angle, deg", mark=10.0, alt="FE model element quality",
+                         caption=f"The smallest dihedral angle of each of the {len(angles):,} tetrahedra; dashed: 10 deg")]
 
 
 def _along_toes(rows) -> list[tuple[str, np.ndarray, np.ndarray]]:
@@ -275,7 +277,7 @@ def _along_toes(rows) -> list[tuple[str, np.ndarray, np.ndarray]]:
     return [(label, np.array([p for p, _ in r]), np.array([v for _, v in r])) for label, r in sorted(found.items())]
 
 
-def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
+def _stress_pictures(ctx, draw: Drawing, geometry: WeldGeometry) -> list[dict[str, str]]:
     """The stress concentration along every toe beside the measured toe radius, and the stress map
     of the hot spot's section (the stress stage's stress.json and hot_section.zarr)."""
     stress = STRESS_SUMMARY.read(ctx.inputs["stress"])
@@ -289,62 +291,74 @@ def _stress_pictures(ctx, geometry: WeldGeometry) -> list[dict[str, str]]:
     radii = _along_toes((f"{sec.line} {side}", sec.position_mm, toe.toe_radius_mm.value)
                         for sec in geometry.sections for side, toe in sec.toes.sides() if toe is not None)
     hot = stress.hot_spot
-    pictures = [_picture(stress_along_toes(factors, radii, hot=(hot.position_mm, hot.factor), notch=notch, drawn=drawn),
-                         "stress concentration along the toes",
-                         f"{len(stress.sections)} sections, each a 2-D plane-strain model of the measured part pulled "
-                         f"across the weld (CalculiX); factor: the highest maximum principal stress within reach of the "
-                         f"toe over the force per area of the toe's plate"
-                         + (f"; dashed: the toes rounded to r = {stress.notch_radius_mm:g} mm (IIW notch stress)"
-                            if notch else "")
-                         + ("; dotted: the drawn weld, toes rounded likewise" if drawn else ""))]
+    pictures = [draw.picture(stress_along_toes, factors, radii, hot=(hot.position_mm, hot.factor), notch=notch,
+                             drawn=drawn, alt="stress concentration along the toes",
+                             caption=(f"{len(stress.sections)} sections, each a 2-D plane-strain model of the measured "
+                                      f"part pulled across the weld (CalculiX); factor: the highest maximum principal "
+                                      f"stress within reach of the toe over the force per area of the toe's plate"
+                                      + (f"; dashed: the toes rounded to r = {stress.notch_radius_mm:g} mm (IIW notch "
+                                         f"stress)" if notch else "")
+                                      + ("; dotted: the drawn weld, toes rounded likewise" if drawn else "")))]
     section = HOT_SECTION.read(ctx.inputs["stress"])
     if len(section.triangles):
-        pictures.append(_picture(
-            stress_field(section.points_mm, section.triangles, section.factor, toe=section.toe_mm,
-                         title=f"Hot spot: {hot.line} weld, {hot.side} toe, {hot.position_mm:g} mm along it, "
-                               f"factor {hot.factor:.2f}"),
-            "stress map of the hot spot's section",
-            "The section's maximum principal stress over the nominal stress, around the hot toe (+)"))
+        pictures.append(draw.picture(
+            stress_field, section.points_mm, section.triangles, section.factor, toe=section.toe_mm,
+            title=f"Hot spot: {hot.line} weld, {hot.side} toe, {hot.position_mm:g} mm along it, factor {hot.factor:.2f}",
+            alt="stress map of the hot spot's section",
+            caption="The section's maximum principal stress over the nominal stress, around the hot toe (+)"))
     return pictures
 
 
 def qa_report(ctx) -> dict[str, Any]:
+    with Drawing(PICTURE_WORKERS) as draw:  # the pictures drawn beside what follows, filled in at the block's end
+        page_arguments = _page(ctx, draw)
+    page = TEMPLATES.get_template("qa_report.html.j2").render(**page_arguments)
+    QA_REPORT.write_text(ctx.out, page)
+    return {"pictures": page.count('<img '), "bytes": len(page.encode()),
+            **dataclasses.asdict(page_arguments["map_figures"])}
+
+
+def _page(ctx, draw: Drawing) -> dict[str, Any]:
+    """The template's arguments, the pictures asked of ``draw``: those whose inputs are quick to
+    read first, so that they are drawn while the coverage maps are summed."""
     inputs = ctx.inputs
     report = REPORT.read(inputs["report"])
     # the other stages' settings as the run recorded them (report.json), so the page is a function of its inputs
     recorded = ReconstructionConfig.model_validate(report.config)
     T_common_pass = np.asarray(REFINED.open(inputs["refine"]).T_common_pass[...], np.float64)
+    pass_images = _pass_images(ctx, draw)
+    graph, pass_rows = _graph(ctx, draw)
+    geometry = WELD_GEOMETRY.read(inputs["weld"])
+    stress_pictures = _stress_pictures(ctx, draw, geometry) if geometry.measured else []
+    quality = _quality_picture(ctx, draw)
     specimen = SPECIMEN.read(inputs["segment"])
     view = surface_view(specimen.points, specimen.normals, specimen.measured,
                         T_common_specimen=weld_frame(ctx.manifest, T_common_pass))
     frame = "the specimen frame (the drawing's)" if view.placed else "the points' principal axes (no nominal placement)"
     zone = model_weld_zone(ctx.manifest, T_common_pass, recorded)  # the FE model's WELD_ZONE_SURFACE
-    lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
-    lines_view = plan_view_lines(lines_common[: len(ctx.manifest.weld_lines())], view.T_view_common)
-    maps, map_figures = _maps(ctx, view, T_common_pass, lines_view)
-    graph, pass_rows = _graph(ctx)
-    geometry = WELD_GEOMETRY.read(inputs["weld"])
-    weld = report.weld
     weld_pictures = []
     if geometry.measured:
-        weld_pictures = _section_pictures(ctx, geometry, view.points_mm, recorded.weld) + along_weld_pictures(geometry)
+        weld_pictures = (_section_pictures(ctx, draw, geometry, view.points_mm, recorded.weld)
+                         + along_weld_pictures(geometry, draw=draw))
+    mesh_pictures = _mesh_pictures(ctx, draw, view.T_view_common, zone)
+    lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
+    lines_view = plan_view_lines(lines_common[: len(ctx.manifest.weld_lines())], view.T_view_common)
+    maps, map_figures = _maps(ctx, draw, view, T_common_pass, lines_view)
     volume = VOLUME_SUMMARY.read(inputs["volume"])
     checks = report.checks
     try:
         version = importlib.metadata.version("weldrecon")
     except importlib.metadata.PackageNotFoundError:
         version = "unknown"
-    page = TEMPLATES.get_template("qa_report.html.j2").render(
+    return dict(
         sample_id=ctx.manifest.sample_id, version=version, frame=frame, audit_mark=AUDIT_MARK,
         manifest=ctx.manifest, passes=len(ctx.names), setups=len(ctx.manifest.setups),
-        checks=checks, flagged=[c for c in checks if c.result != "ok"], weld=weld, volume=volume,
+        checks=checks, flagged=[c for c in checks if c.result != "ok"], weld=report.weld, volume=volume,
         method_counts=sorted(Counter(report.registration_method.values()).items()),
         weld_step=recorded.weld.section_step_mm,
-        mesh=report.mesh, maps=maps, map_figures=map_figures, pass_images=_pass_images(ctx), graph=graph,
-        pass_rows=pass_rows, mesh_pictures=_mesh_pictures(ctx, view.T_view_common, zone),
-        weld_pictures=weld_pictures, quality=_quality_picture(ctx), deliverables=report.deliverables,
-        stress=report.stress, stress_pictures=_stress_pictures(ctx, geometry) if geometry.measured else [],
+        mesh=report.mesh, maps=maps, map_figures=map_figures, pass_images=pass_images, graph=graph,
+        pass_rows=pass_rows, mesh_pictures=mesh_pictures,
+        weld_pictures=weld_pictures, quality=quality, deliverables=report.deliverables,
+        stress=report.stress, stress_pictures=stress_pictures,
         stage_keys=report.stage_keys, config=json.dumps(report.config, indent=1, sort_keys=True),
         report_sha256=inputs["report"].outputs[REPORT.name])
-    QA_REPORT.write_text(ctx.out, page)
-    return {"pictures": page.count('<img '), "bytes": len(page.encode()), **dataclasses.asdict(map_figures)}
