@@ -15,10 +15,13 @@ import numpy as np
 
 from schemas.acceptance import AcceptanceRule
 from schemas.weld_document import Figure, FilletWeldSection, WeldGeometry, WeldLineFound, WeldSection
+from tasks.arrays import distinct
 from tasks.report_figures import AlongWeldSeries
 
 __all__ = ["TOE_SERIES", "SECTION_SERIES", "FILLET_SERIES", "figure_value", "along_weld_series", "chosen_sections", "SectionCut",
-           "section_cut", "ToeCloseup", "toe_closeups"]
+           "section_cut", "ToeCloseup", "toe_closeups", "near_sections", "CLOSEUP_REACH_MM"]
+
+CLOSEUP_REACH_MM = 2.5  # a toe's close-up: its points this far along its plate and over it
 
 # the figures drawn along the weld: (name in the document, label, unit)
 TOE_SERIES = (("toe_radius_mm", "toe radius", "mm"), ("flank_angle_deg", "flank angle", "deg"),
@@ -196,16 +199,10 @@ def _toe_model(radius_mm: float, angle_deg: float, reach_mm: float) -> tuple[np.
     return t, n
 
 
-def toe_closeups(points_mm: np.ndarray, section: WeldSection | FilletWeldSection, line: WeldLineFound, *,
-                 half_width_mm: float, reach_mm: float = 2.5) -> list[ToeCloseup]:
-    """Each measured toe of ``section`` seen close (``ToeCloseup``), from the points of
-    ``points_mm`` ((n, 3), specimen frame) within ``half_width_mm`` of the section along the weld;
-    a butt weld's toes along the plate across the weld, a fillet weld's base toe along the base
-    and its stem toe along the stem. The plate's level near the toe (the median over its plate's
-    side, 1-2.5 mm out) is taken off, so that a misaligned plate is drawn level."""
-    points = np.asarray(points_mm, np.float64)
+def _closeup_frames(section: WeldSection | FilletWeldSection, line: WeldLineFound) -> list[tuple]:
+    """Each toe drawn close: (side, toe, where it is (specimen frame), outward along its plate,
+    toward the weld's side over it)."""
     normal, across = np.asarray(line.face_normal, np.float64), np.asarray(line.across, np.float64)
-    along = np.cross(normal, across)
     centre = np.asarray(section.centre_specimen_mm, np.float64)
     toes = []
     if isinstance(section, FilletWeldSection):
@@ -219,8 +216,64 @@ def toe_closeups(points_mm: np.ndarray, section: WeldSection | FilletWeldSection
         for side, toe in section.toes.sides():
             sign = -1.0 if side == "minus" else 1.0
             toes.append((side, toe, centre + (toe.position_u_mm - mid) * across, sign * across, normal))
+    return toes
+
+
+def _box_bound(axes: list[np.ndarray], limits: list[float]) -> float:
+    """How far from its centre a point can be whose components along ``axes`` (3 vectors, not
+    necessarily orthonormal) are within ``limits``: |d| <= ||E^-1|| ||limits||; inf where the
+    axes do not span space."""
+    E = np.array(axes, np.float64)
+    if abs(np.linalg.det(E)) < 1e-9:
+        return math.inf
+    return float(np.linalg.norm(np.linalg.inv(E), 2) * np.linalg.norm(limits))
+
+
+def near_sections(points_mm: np.ndarray, sections: Sequence[WeldSection | FilletWeldSection], line: WeldLineFound, *,
+                  half_width_mm: float, reach_mm: float,
+                  closeup_reach_mm: float = CLOSEUP_REACH_MM) -> list[np.ndarray]:
+    """For each of ``sections`` (of ``line``), the points of ``points_mm`` ((n, 3)) that
+    ``section_cut`` (``half_width_mm``, ``reach_mm``) and ``toe_closeups`` (``half_width_mm``,
+    ``closeup_reach_mm``) can select, in their order: those within a box around each selection's
+    bounding sphere (a superset; both give the same answer on it as on all points, and read a
+    section's few thousand points instead of a specimen's millions). The points are projected on
+    the line once; a section tests only the slab of them across the line its spheres reach."""
+    points = np.asarray(points_mm, np.float64)
+    n, a = np.asarray(line.face_normal, np.float64), np.asarray(line.across, np.float64)
+    t = np.cross(n, a)
+    along = points @ t
+    slack = float(np.linalg.norm(t))  # |(p - c) . t| <= |p - c| |t|
     out = []
-    for side, toe, at, outward, up in toes:
+    for section in sections:
+        centre = np.asarray(section.centre_specimen_mm, np.float64)
+        spheres = [(centre, _box_bound([t, a, n], [half_width_mm, reach_mm, reach_mm / 2]))]
+        spheres += [(np.asarray(at, np.float64),
+                     _box_bound([t, outward, up], [half_width_mm, closeup_reach_mm, closeup_reach_mm]))
+                    for _, _, at, outward, up in _closeup_frames(section, line)]
+        if not all(math.isfinite(r) for _, r in spheres):
+            out.append(points)
+            continue
+        found = []
+        for at, radius in spheres:
+            radius = radius * (1 + 1e-9) + 1e-9  # the bound's own rounding
+            slab = np.flatnonzero(np.abs(along - float(at @ t)) <= radius * slack * (1 + 1e-9) + 1e-9)
+            inside = np.all(np.abs(points[slab] - at) <= radius, axis=1)
+            found.append(slab[inside])
+        out.append(points[distinct(np.concatenate(found))])
+    return out
+
+
+def toe_closeups(points_mm: np.ndarray, section: WeldSection | FilletWeldSection, line: WeldLineFound, *,
+                 half_width_mm: float, reach_mm: float = CLOSEUP_REACH_MM) -> list[ToeCloseup]:
+    """Each measured toe of ``section`` seen close (``ToeCloseup``), from the points of
+    ``points_mm`` ((n, 3), specimen frame) within ``half_width_mm`` of the section along the weld;
+    a butt weld's toes along the plate across the weld, a fillet weld's base toe along the base
+    and its stem toe along the stem. The plate's level near the toe (the median over its plate's
+    side, 1-2.5 mm out) is taken off, so that a misaligned plate is drawn level."""
+    points = np.asarray(points_mm, np.float64)
+    along = np.cross(np.asarray(line.face_normal, np.float64), np.asarray(line.across, np.float64))
+    out = []
+    for side, toe, at, outward, up in _closeup_frames(section, line):
         d = points - at
         sel = (np.abs(d @ along) <= half_width_mm) & (np.abs(d @ outward) <= reach_mm) & (np.abs(d @ up) <= reach_mm)
         t, n = d[sel] @ outward, d[sel] @ up

@@ -50,7 +50,8 @@ from tasks.qa_views import (PassRow, SurfaceView, coverage_maps, mesh_in_view, o
 from tasks.report_figures import (along_weld, face_map, histogram, intensity_image, mesh_view, registration_graph,
                                   stress_along_toes, stress_field, weld_section)
 from tasks.report_figures import toe_closeups as closeup_picture
-from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut, toe_closeups
+from tasks.weld_views import (along_weld_series, chosen_sections, figure_value, near_sections, section_cut,
+                              toe_closeups)
 from tasks.weld_zone import WeldZone
 
 __all__ = ["qa_report", "TEMPLATES", "section_pictures", "along_weld_pictures", "steps_on_copy"]
@@ -217,8 +218,14 @@ def section_pictures(geometry: WeldGeometry, points_mm: np.ndarray, *, per_line:
     its toes close up. ``draw``: where the pictures are drawn (None: here, at once)."""
     draw = draw or Drawing()
     out = []
-    for sec in chosen_sections(geometry, per_line):
-        cut = section_cut(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm,
+    chosen = chosen_sections(geometry, per_line)
+    near: dict[int, np.ndarray] = {}  # each section's neighbourhood of the points, a line's sections at once
+    for name in dict.fromkeys(sec.line for sec in chosen):
+        ks = [k for k, sec in enumerate(chosen) if sec.line == name]
+        near.update(zip(ks, near_sections(points_mm, [chosen[k] for k in ks], geometry.line(name),
+                                          half_width_mm=half_width_mm, reach_mm=reach_mm)))
+    for k, sec in enumerate(chosen):
+        cut = section_cut(near[k], sec, geometry.line(sec.line), half_width_mm=half_width_mm,
                           reach_mm=reach_mm, bounds_mm=bounds_mm)
         if isinstance(sec, FilletWeldSection):
             notes = [f"legs {_fmt(sec.leg_base_mm, 'mm')} on the base, {_fmt(sec.leg_stem_mm, 'mm')} on the stem",
@@ -247,7 +254,7 @@ def section_pictures(geometry: WeldGeometry, points_mm: np.ndarray, *, per_line:
                                 failing=failing, half_span_mm=cut.half_span_mm, toe_points=cut.toe_points,
                                 alt=f"weld section {sec.line} {sec.position_mm:g} mm",
                                 caption=f"{verdict}. " + "; ".join(notes)))
-        closeups = toe_closeups(points_mm, sec, geometry.line(sec.line), half_width_mm=half_width_mm)
+        closeups = toe_closeups(near[k], sec, geometry.line(sec.line), half_width_mm=half_width_mm)
         if closeups:
             out.append(draw.picture(closeup_picture, closeups,
                                     title=f"{sec.line} at {sec.position_mm:g} mm: the toes close, height exaggerated",
