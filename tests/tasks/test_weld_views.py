@@ -11,9 +11,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from schemas.acceptance import AcceptanceRule, FigureLimits
-from schemas.weld_document import (Figure, Finding, SectionToes, ToeFigures, WeldGeometry, WeldLineFound,
-                                   WeldSection)
-from tasks.weld_views import along_weld_series, chosen_sections, figure_value, section_cut
+from schemas.weld_document import (FilletToes, FilletWeldSection, Figure, Finding, SectionToes, ToeFigures, WeldGeometry,
+                                   WeldLineFound, WeldSection)
+from tasks.weld_views import (along_weld_series, chosen_sections, figure_value, near_sections, section_cut,
+                              toe_closeups)
 
 
 def _f(value: float | None, sigma: float | None = 0.1) -> Figure:
@@ -147,3 +148,36 @@ def test_a_section_cut_without_toes_width_or_drawing():
         section_cut(np.zeros((1, 3)), section, _LINE, half_width_mm=0.0, reach_mm=10.0)
     with pytest.raises(ValueError, match=r"points_mm must be \(n, 3\)"):
         section_cut(np.zeros(3), section, _LINE, half_width_mm=0.5, reach_mm=10.0)
+
+
+def _fillet(position_mm: float, centre) -> FilletWeldSection:
+    none = Figure(value=None, sigma=None)
+    return FilletWeldSection(line="tilted", position_mm=position_mm, centre_specimen_mm=centre, points=500,
+                             base_direction=(0.0, math.cos(0.3), math.sin(0.3)), stem_direction=(0.0, -math.sin(0.3),
+                                                                                                  math.cos(0.3)),
+                             plates_angle_deg=90.0, leg_base_mm=none, leg_stem_mm=none, throat_mm=none, convexity_mm=none,
+                             toes=FilletToes(base=_toe("base", 6.0), stem=_toe("stem", 7.0)), passed=None, verdict=None,
+                             violations=[], uncertain=[])
+
+
+def test_each_sections_neighbourhood_gives_the_cut_and_close_ups_all_points_give():
+    """A line along x on a face tilted 0.3 rad about x: butt and fillet sections' cuts and toe
+    close-ups from their neighbourhoods are those from the whole cloud, from a small part of it."""
+    rng = np.random.default_rng(4)
+    points = np.c_[rng.uniform(-100, 100, 1_000_000), rng.uniform(-30, 30, 1_000_000), rng.uniform(-30, 30, 1_000_000)]
+    c, s_ = math.cos(0.3), math.sin(0.3)
+    line = WeldLineFound(name="tilted", sections=3, offset_mm=0.0, turn_deg=0.0, face_normal=(0.0, -s_, c),
+                         across=(0.0, c, s_), measured_extent_mm=(-80.0, 80.0))
+    sections = [_section("tilted", x, centre=(x, 1.0, 2.0), toes=(-4.0, 5.0)) for x in (-60.0, 0.0, 55.5)]
+    sections.append(_fillet(20.0, (20.0, -3.0, 1.0)))
+    near = near_sections(points, sections, line, half_width_mm=0.5, reach_mm=15.0)
+    assert len(near) == len(sections)
+    for section, part in zip(sections, near):
+        assert len(part) < len(points) / 10  # a 34 mm box of a 200 x 60 x 60 mm block of points
+        whole = section_cut(points, section, line, half_width_mm=0.5, reach_mm=15.0)
+        cut = section_cut(part, section, line, half_width_mm=0.5, reach_mm=15.0)
+        assert len(whole.u_mm) > 100 and np.array_equal(cut.u_mm, whole.u_mm) and np.array_equal(cut.h_mm, whole.h_mm)
+        close, close_whole = (toe_closeups(p, section, line, half_width_mm=0.5) for p in (part, points))
+        assert len(close) == 2
+        for a, b in zip(close, close_whole):
+            assert len(b.t_mm) > 10 and np.array_equal(a.t_mm, b.t_mm) and np.array_equal(a.n_mm, b.n_mm)
