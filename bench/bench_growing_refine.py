@@ -37,7 +37,7 @@ from data_catalog.stages import StageStore  # noqa: E402
 from flows.preflight import load_config  # noqa: E402
 from flows.stages import run_in_process  # noqa: E402
 from flows.stages.outputs import REGISTRATION  # noqa: E402
-from flows.stages.refine import pass_surface_sample, refine_arguments  # noqa: E402
+from flows.stages.refine import pass_surface_sample, refine_arguments, target_pairs  # noqa: E402
 from tasks.frames import apply  # noqa: E402
 from tasks.refine import NothingToRefine, refine_poses  # noqa: E402
 
@@ -55,12 +55,12 @@ def main() -> int:
                           upto="refine")
     rc = config.refine
     reg = REGISTRATION.read(refs["registration"])
-    inlier = reg.inlier.astype(bool)
-    E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
+    E, A, B, sigma = target_pairs(reg, rc)
     t0 = time.perf_counter()
     samples = [pass_surface_sample(manifest, entry, ref, rc) for (_, entry), ref in zip(manifest.passes(), refs["denoise"])]
     sampling_s = time.perf_counter() - t0
-    kw = refine_arguments(rc)
+    sigma = np.broadcast_to(np.asarray(sigma, np.float64), (len(E),)).copy()  # each pair's, subset with it
+    kw = {k: v for k, v in refine_arguments(rc).items() if k != "target_sigma_mm"}
     n, last = len(samples), len(samples) - 1
     names = [entry.pass_id for _, entry in manifest.passes()]
     rows = []
@@ -72,16 +72,17 @@ def main() -> int:
         return T
 
     def whole():
-        r = refine_poses(samples, reg.T_common_pass, E, A, B, **kw)
+        r = refine_poses(samples, reg.T_common_pass, E, A, B, **kw, target_sigma_mm=sigma)
         return r.T_common_pass, len(r.step_mm)
 
     T_whole = timed("whole", whole)
     before = ~(E == last).any(axis=1)
-    first = refine_poses(samples[:last], reg.T_common_pass[:last], E[before], A[before], B[before], **kw)
+    first = refine_poses(samples[:last], reg.T_common_pass[:last], E[before], A[before], B[before], **kw,
+                         target_sigma_mm=sigma[before])
 
     def last_added():
         held = np.concatenate([first.T_common_pass, reg.T_common_pass[last:]])
-        r = refine_poses(samples, held, E, A, B, **kw, free=[last], warm=True)
+        r = refine_poses(samples, held, E, A, B, **kw, target_sigma_mm=sigma, free=[last], warm=True)
         return r.T_common_pass, len(r.step_mm)
 
     timed("last added", last_added)
@@ -93,7 +94,8 @@ def main() -> int:
         for k in range(1, n):
             sel = (E <= k).all(axis=1)
             try:
-                r = refine_poses(samples[:k + 1], grown[:k + 1], E[sel], A[sel], B[sel], **kw, free=[k], warm=True)
+                r = refine_poses(samples[:k + 1], grown[:k + 1], E[sel], A[sel], B[sel], **kw, target_sigma_mm=sigma[sel],
+                                 free=[k], warm=True)
             except NothingToRefine:  # nothing shared with the passes before it yet: its target pose stays
                 left_at_targets.append(names[k])
                 continue
@@ -104,7 +106,7 @@ def main() -> int:
     timed("pass by pass", pass_by_pass)
 
     def joint():
-        r = refine_poses(samples, grown, E, A, B, **kw, warm=True)
+        r = refine_poses(samples, grown, E, A, B, **kw, target_sigma_mm=sigma, warm=True)
         return r.T_common_pass, len(r.step_mm)
 
     timed("pass by pass + joint, warm", joint)

@@ -58,7 +58,7 @@ from flows.stages.contracts import block_rows, map_in_order, zarr_array
 from flows.stages.merge import BLOCK_WORKERS
 from flows.stages.outputs import CLOUD, REFINED, REGISTRATION, SPECIMEN, WELD_GEOMETRY, RefinedPoses, SpecimenCloud
 from flows.stages.placement import T_common_specimen
-from flows.stages.refine import pass_surface_sample, refine_arguments
+from flows.stages.refine import pass_surface_sample, refine_arguments, target_pairs
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
 from tasks.frames import apply
@@ -276,9 +276,8 @@ class ProvisionalWeld:
         st, rc = self.state, self.config.refine
         T = np.array([st.T.get(p, reg.T_common_pass[k]) for k, p in enumerate(ids)])
         new = [k for k, p in enumerate(ids) if p not in st.T and k > 0]
-        inlier = reg.inlier.astype(bool)
-        E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
-        kw = refine_arguments(rc)
+        E, A, B, sigma = target_pairs(reg, rc)
+        kw = {**refine_arguments(rc), "target_sigma_mm": sigma}
         samples = [st.samples[p] for p in ids]
         if rc.enabled:
             try:

@@ -201,7 +201,7 @@ def _priority(normals: np.ndarray, *, seed: int, normal_space: bool) -> np.ndarr
 def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_passes: np.ndarray,
                  points_a: np.ndarray, points_b: np.ndarray, *, max_iterations: int, tolerance_mm: float,
                  max_distance_mm: float, final_distance_mm: float, neighbour_mm: float, normal_neighbours: int,
-                 target_sigma_mm: float, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
+                 target_sigma_mm: float | np.ndarray, surface_sigma_mm: float, max_points_per_pair: int, min_normal_cos: float,
                  max_plane_rms_mm: float, normal_space: bool, fixed: int = 0, free: Sequence[int] | None = None,
                  warm: bool = False) -> RefineResult:
     """Refine ``T_common_pass`` (n, 4, 4; pass frame -> common frame, from target registration).
@@ -237,10 +237,18 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
             raise ValueError(f"free must name 1 to {n - 1} of the {n} passes (0..{n - 1}), got {free.tolist()}")
         moving = np.isin(np.arange(n), free)
     free = np.flatnonzero(moving)
+    pair_sigma = np.asarray(target_sigma_mm, dtype=np.float64)
+    if pair_sigma.ndim:  # each pair its own
+        if pair_sigma.shape != (len(edge_passes),) or not (np.isfinite(pair_sigma).all() and (pair_sigma > 0).all()):
+            raise ValueError(f"target_sigma_mm must be one positive value or one per target pair "
+                             f"({len(edge_passes)}), got shape {pair_sigma.shape}")
     all_pairs = edge_passes, points_a, points_b  # every pair's residual is returned
     if len(edge_passes):  # a pair of two held passes adds a constant: left out
         touching = moving[edge_passes].any(axis=1)
         edge_passes, points_a, points_b = edge_passes[touching], points_a[touching], points_b[touching]
+        if pair_sigma.ndim:
+            pair_sigma = pair_sigma[touching]
+    sigma_rows = pair_sigma[:, None] if pair_sigma.ndim else pair_sigma  # per pair's three rows, or one for all
     column = np.full(n, -1)
     column[free] = np.arange(len(free))
     # the pose increment rotates about this centre, which keeps the normal equations well scaled
@@ -315,9 +323,10 @@ def refine_poses(samples: list[SurfaceSample], T_common_pass: np.ndarray, edge_p
         if len(edge_passes):
             P = np.einsum("nij,nj->ni", T[edge_passes[:, 0], :3, :3], points_a) + T[edge_passes[:, 0], :3, 3] - centre
             Q = np.einsum("nij,nj->ni", T[edge_passes[:, 1], :3, :3], points_b) + T[edge_passes[:, 1], :3, 3] - centre
-            r = (P - Q) / target_sigma_mm
+            r = (P - Q) / sigma_rows
             eye = np.broadcast_to(np.eye(3), (len(P), 3, 3))
-            J = np.concatenate([_skew_rows(P), eye, -_skew_rows(Q), -eye], axis=2) / target_sigma_mm
+            J = np.concatenate([_skew_rows(P), eye, -_skew_rows(Q), -eye], axis=2) / (
+                sigma_rows[:, :, None] if pair_sigma.ndim else sigma_rows)
             rows_j.append(J.reshape(-1, 12))
             rows_r.append(r.reshape(-1))
             blocks_ab.append(np.repeat(edge_passes, 3, axis=0))

@@ -65,6 +65,8 @@ class Registration:
     specimen_track: np.ndarray  # (t,) bool: seen from more than one setup (so on the specimen)
     track_members: np.ndarray  # (m, 2) int64: (track, pass) of every observation
     track_centres_mm: np.ndarray  # (m, 3) float64: that observation's centre, coarse frame
+    rim_rms_a_mm: np.ndarray  # (e,) float64: the rim fit RMS of the pair's target in pass a (stage targets' rms_mm)
+    rim_rms_b_mm: np.ndarray  # (e,) float64: in pass b
 
 REGISTRATION = ArrayFile("registration.zarr", Registration)
 REGISTRATION_SUMMARY = JsonFile("registration.json", RegistrationSummary)  # pairs, weak pairs, per-pass RMS

@@ -13,7 +13,7 @@ from schemas.stage_documents import RefineSummary, SurfacePair
 from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import SurfaceSample, refine_poses, surface_sample
 
-__all__ = ["refine", "refine_arguments", "pass_surface_sample"]
+__all__ = ["refine", "refine_arguments", "pass_surface_sample", "target_pairs"]
 
 
 def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
@@ -45,6 +45,19 @@ def refine_arguments(rc) -> dict[str, Any]:
                 max_plane_rms_mm=rc.max_plane_rms_mm)
 
 
+def target_pairs(reg, rc) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | np.ndarray]:
+    """The registration's inlier target pairs (passes, centre in a, centre in b) and each pair's
+    expected error (``rc.target_sigma_rim_factor`` x each centre's rim fit RMS, at least
+    ``rc.target_sigma_floor_mm``, the two combined; or ``rc.target_sigma_mm`` for all)."""
+    inlier = reg.inlier.astype(bool)
+    E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
+    if rc.target_sigma_rim_factor is None:
+        return E, A, B, rc.target_sigma_mm
+    a = np.maximum(rc.target_sigma_rim_factor * reg.rim_rms_a_mm[inlier], rc.target_sigma_floor_mm)
+    b = np.maximum(rc.target_sigma_rim_factor * reg.rim_rms_b_mm[inlier], rc.target_sigma_floor_mm)
+    return E, A, B, np.sqrt(a * a + b * b)
+
+
 def refine(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
     reg = REGISTRATION.read(ctx.inputs["registration"])
@@ -62,8 +75,8 @@ def refine(ctx) -> dict[str, Any]:
                 f"(refine.normal_neighbours) within {rc.neighbour_mm} mm (refine.neighbour_mm) on a plane within "
                 f"{rc.max_plane_rms_mm} mm (refine.max_plane_rms_mm) at this sample's point spacing; widen "
                 f"refine.neighbour_mm or lower refine.normal_neighbours, or set refine.enabled: false")
-        result = refine_poses(samples, T_targets, reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier],
-                              **refine_arguments(rc))
+        E, A, B, sigma = target_pairs(reg, rc)
+        result = refine_poses(samples, T_targets, E, A, B, **{**refine_arguments(rc), "target_sigma_mm": sigma})
         T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
         target_res = result.target_residual_mm
     # each physical target where the refined poses put it: the mean of its observations

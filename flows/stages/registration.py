@@ -23,17 +23,30 @@ def no_target_registration(ctx) -> dict[str, Any]:
     REGISTRATION.write(ctx.out, Registration(
         T_common_pass=np.tile(np.eye(4), (n, 1, 1)), residual_mm=empty, inlier=np.zeros(0, bool),
         edge_passes=np.zeros((0, 2), np.int64), points_a=empty3, points_b=empty3, track_positions_mm=empty3,
-        specimen_track=np.zeros(0, bool), track_members=np.zeros((0, 2), np.int64), track_centres_mm=empty3))
+        specimen_track=np.zeros(0, bool), track_members=np.zeros((0, 2), np.int64), track_centres_mm=empty3,
+        rim_rms_a_mm=empty, rim_rms_b_mm=empty))
     method = "none: registration surfaces (the scans are registered on their surfaces in stage refine)"
     REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(method=method, pairs=[], pairs_below_min_common=[],
                                                             pass_rms_mm={}, between_setups=[]))
     return {"target_pairs": 0, "method": method}
 
 
+def _rim_rms(found, passes: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Each pair end's rim fit RMS: its target in its pass's detections, by its centre (the graph
+    carries the detected centres themselves, so the match is exact)."""
+    by_centre = [{c.tobytes(): float(r) for c, r in zip(np.asarray(f.centres, np.float64), f.rms_mm)} for f in found]
+    try:
+        return np.array([by_centre[p][np.asarray(c, np.float64).tobytes()] for p, c in zip(passes, centres)],
+                        np.float64).reshape(-1)
+    except KeyError:
+        raise RuntimeError("registration: a target pair's centre is none of its pass's detections") from None
+
+
 def register(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
     setups = [s for s, _ in ctx.manifest.passes()]
-    targets = [TARGETS.open(r).centres for r in ctx.inputs["targets"]]
+    found = [TARGETS.read(r) for r in ctx.inputs["targets"]]
+    targets = [f.centres for f in found]
     try:
         reg = register_passes(targets, setups, names=names, min_common=rc.min_common_targets,
                               max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm,
@@ -48,7 +61,9 @@ def register(ctx) -> dict[str, Any]:
         T_common_pass=reg.T_common_pass, residual_mm=reg.result.residual_mm, inlier=reg.result.inlier,
         edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a, points_b=reg.graph.points_b,
         track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track,
-        track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3)))
+        track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3),
+        rim_rms_a_mm=_rim_rms(found, reg.graph.edge_passes[:, 0], reg.graph.points_a),
+        rim_rms_b_mm=_rim_rms(found, reg.graph.edge_passes[:, 1], reg.graph.points_b)))
     REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(
         pairs=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common) for p in reg.pairs],
         pairs_below_min_common=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common)

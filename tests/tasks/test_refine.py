@@ -115,6 +115,45 @@ def test_surfaces_fix_what_noisy_targets_leave_loose(two_passes):
     assert _error(refined, T_true_b, b) < 0.5 * _error(targets_only, T_true_b, b)
 
 
+def test_each_target_pair_weighed_by_its_own_sigma(two_passes):
+    """One sigma per pair: the same poses as that sigma for all when they are equal; a pair whose
+    target is off counts less when its sigma says so (its rim fit was poor), and the pose is
+    nearer the truth than with every pair trusted alike."""
+    a, b, T_true_b, targets_a, targets_b = two_passes
+    samples = [_sample(g) for g in (a, b)]
+    edges = np.array([[0, 1]] * len(targets_a))
+    start = np.repeat(np.eye(4)[None], 2, axis=0)
+    alike = _refine(samples, start, edges, targets_a, targets_b, target_sigma_mm=0.01).T_common_pass
+    each = _refine(samples, start, edges, targets_a, targets_b,
+                   target_sigma_mm=np.full(len(edges), 0.01)).T_common_pass
+    assert np.array_equal(alike, each)
+    off = targets_b.copy()
+    off[0] += [0.0, 0.0, 0.2]  # one centre 0.2 mm off
+    sigma = np.full(len(edges), 0.002)
+    sigma[0] = 0.2
+    trusting = _refine(samples, start, edges, targets_a, off, target_sigma_mm=0.002).T_common_pass[1]
+    weighed = _refine(samples, start, edges, targets_a, off, target_sigma_mm=sigma).T_common_pass[1]
+    assert _error(weighed, T_true_b, b) < 0.5 * _error(trusting, T_true_b, b)
+    with pytest.raises(ValueError, match="one per target pair"):
+        _refine(samples, start, edges, targets_a, targets_b, target_sigma_mm=np.full(len(edges) - 1, 0.01))
+    with pytest.raises(ValueError, match="one per target pair"):
+        _refine(samples, start, edges, targets_a, targets_b, target_sigma_mm=np.zeros(len(edges)))
+
+
+def test_target_pairs_sigma_from_the_rim_fits():
+    from types import SimpleNamespace
+
+    from flows.stages.refine import target_pairs
+
+    reg = SimpleNamespace(inlier=np.array([1, 0, 1], bool), edge_passes=np.array([[0, 1], [0, 2], [1, 2]]),
+                          points_a=np.arange(9.0).reshape(3, 3), points_b=np.arange(9.0).reshape(3, 3) + 1,
+                          rim_rms_a_mm=np.array([0.01, 0.5, 0.001]), rim_rms_b_mm=np.array([0.02, 0.5, 0.004]))
+    E, A, B, sigma = target_pairs(reg, SETTINGS)  # 0.5 x the rim RMS, at least 0.002 mm
+    assert E.tolist() == [[0, 1], [1, 2]] and A.shape == B.shape == (2, 3)
+    assert np.allclose(sigma, [np.hypot(0.005, 0.01), np.hypot(0.002, 0.002)])
+    assert target_pairs(reg, SETTINGS.model_copy(update={"target_sigma_rim_factor": None}))[3] == SETTINGS.target_sigma_mm
+
+
 def test_curved_patches_would_bias_the_poses(two_passes):
     """Point-to-plane distances on the bead's toes are biased; matching them anyway turns pass b
     away from the truth, which is why they are left out."""
