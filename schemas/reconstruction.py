@@ -110,12 +110,13 @@ class RefineConfig(InputModel):
     final_distance_mm: float = Field(default=0.1, gt=0, le=10, description="last gate on point-to-plane distance")
     target_sigma_mm: float = Field(default=0.03, gt=0, le=1, description=(
         "a target pair's expected error where its targets' own are not used (target_sigma_rim_factor null)"))
-    target_sigma_rim_factor: float | None = Field(default=0.5, gt=0, le=10, description=(
+    target_sigma_rim_factor: float | None = Field(default=None, gt=0, le=10, description=(
         "each target centre's expected error this times its rim fit's RMS (at least "
         "target_sigma_floor_mm), a pair's the two combined; null: target_sigma_mm for every pair. "
         "Measured against the simulator's truth, worst pass / median of the pass medians: paper "
         "17.8 / 7.9 um with 0.03 mm for all, 6.6 / 2.6 um with 0.5 x rim RMS; demo 30.2 / 9.7 -> "
-        "25.8 / 9.2 um (bench/README.md, the targets' sigma)"))
+        "25.8 / 9.2 um (bench/README.md, the targets' sigma). Off by default until the ci preset's "
+        "stress checks are understood with it (two of them move past their bounds)"))
     target_sigma_floor_mm: float = Field(default=0.002, gt=0, le=1, description=(
         "the least expected error of a target centre (a rim fit's RMS can be near zero by chance)"))
     surface_sigma_mm: float = Field(default=0.05, gt=0, le=1, description=(

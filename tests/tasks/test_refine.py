@@ -148,10 +148,10 @@ def test_target_pairs_sigma_from_the_rim_fits():
     reg = SimpleNamespace(inlier=np.array([1, 0, 1], bool), edge_passes=np.array([[0, 1], [0, 2], [1, 2]]),
                           points_a=np.arange(9.0).reshape(3, 3), points_b=np.arange(9.0).reshape(3, 3) + 1,
                           rim_rms_a_mm=np.array([0.01, 0.5, 0.001]), rim_rms_b_mm=np.array([0.02, 0.5, 0.004]))
-    E, A, B, sigma = target_pairs(reg, SETTINGS)  # 0.5 x the rim RMS, at least 0.002 mm
+    E, A, B, sigma = target_pairs(reg, SETTINGS.model_copy(update={"target_sigma_rim_factor": 0.5}))
     assert E.tolist() == [[0, 1], [1, 2]] and A.shape == B.shape == (2, 3)
-    assert np.allclose(sigma, [np.hypot(0.005, 0.01), np.hypot(0.002, 0.002)])
-    assert target_pairs(reg, SETTINGS.model_copy(update={"target_sigma_rim_factor": None}))[3] == SETTINGS.target_sigma_mm
+    assert np.allclose(sigma, [np.hypot(0.005, 0.01), np.hypot(0.002, 0.002)])  # 0.5 x the rim RMS, at least 0.002
+    assert target_pairs(reg, SETTINGS)[3] == SETTINGS.target_sigma_mm  # the default: one sigma for all
 
 
 def test_curved_patches_would_bias_the_poses(two_passes):
