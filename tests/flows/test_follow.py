@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -130,7 +131,13 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     ids = [entry.pass_id for _, entry in load_manifest(sample).passes()]  # the order the passes are taken in
     assert "the plan reaches weld line top (60 mm) at 8-52 mm with 3 of 6 passes" in err, err[:3000]
     assert f"next: pass {ids[0]} (1 of 6) adds line top 10-50 mm (new: 10-50)" in err, err[:3000]
-    assert f"next: pass {ids[1]} (2 of 6) adds line top 8-23 mm (new: 8-9)" in err, err[:3000]
+    # the next pass is the first of the plan not in yet: the passes' stages, cached here, may end out
+    # of the plan's order on the two threads (then the first pass is still the next one, with less new)
+    first_in = min((ids[0], ids[1]), key=lambda p: re.search(rf"denoise \d/6 {p} ", err).start())
+    if first_in == ids[0]:
+        assert f"next: pass {ids[1]} (2 of 6) adds line top 8-23 mm (new: 8-9)" in err, err[:3000]
+    else:
+        assert f"next: pass {ids[0]} (1 of 6) adds line top 10-50 mm (new: 24-50)" in err, err[:3000]
     assert "all 6 passes in: the whole-sample stages follow" in err, err[-3000:]
     # the same mesh as the run on the finished sample
     stl_live = out / "results" / f"{finished['sample_id']}.stl"
