@@ -60,7 +60,7 @@ def main() -> int:
     samples = [pass_surface_sample(manifest, entry, ref, rc) for (_, entry), ref in zip(manifest.passes(), refs["denoise"])]
     sampling_s = time.perf_counter() - t0
     sigma = np.broadcast_to(np.asarray(sigma, np.float64), (len(E),)).copy()  # each pair's, subset with it
-    kw = {k: v for k, v in refine_arguments(rc).items() if k != "target_sigma_mm"}
+    kw = refine_arguments(rc)
     n, last = len(samples), len(samples) - 1
     names = [entry.pass_id for _, entry in manifest.passes()]
     rows = []

@@ -277,7 +277,7 @@ class ProvisionalWeld:
         T = np.array([st.T.get(p, reg.T_common_pass[k]) for k, p in enumerate(ids)])
         new = [k for k, p in enumerate(ids) if p not in st.T and k > 0]
         E, A, B, sigma = target_pairs(reg, rc)
-        kw = {**refine_arguments(rc), "target_sigma_mm": sigma}
+        kw = dict(refine_arguments(rc), target_sigma_mm=sigma)
         samples = [st.samples[p] for p in ids]
         if rc.enabled:
             try:

@@ -36,13 +36,13 @@ def pass_surface_sample(manifest, entry, ref, rc) -> SurfaceSample:
 
 
 def refine_arguments(rc) -> dict[str, Any]:
-    """``tasks.refine.refine_poses``'s settings from a RefineConfig."""
+    """``tasks.refine.refine_poses``'s settings from a RefineConfig, all but the target pairs' sigma
+    (``target_pairs`` gives it with the pairs)."""
     return dict(max_iterations=rc.max_iterations, tolerance_mm=rc.tolerance_mm, max_distance_mm=rc.max_distance_mm,
                 final_distance_mm=rc.final_distance_mm, neighbour_mm=rc.neighbour_mm,
-                normal_neighbours=rc.normal_neighbours, target_sigma_mm=rc.target_sigma_mm,
-                surface_sigma_mm=rc.surface_sigma_mm, max_points_per_pair=rc.max_points_per_pair,
-                normal_space=rc.normal_space_sampling, min_normal_cos=rc.min_normal_cos,
-                max_plane_rms_mm=rc.max_plane_rms_mm)
+                normal_neighbours=rc.normal_neighbours, surface_sigma_mm=rc.surface_sigma_mm,
+                max_points_per_pair=rc.max_points_per_pair, normal_space=rc.normal_space_sampling,
+                min_normal_cos=rc.min_normal_cos, max_plane_rms_mm=rc.max_plane_rms_mm)
 
 
 def target_pairs(reg, rc) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | np.ndarray]:
@@ -76,7 +76,7 @@ def refine(ctx) -> dict[str, Any]:
                 f"{rc.max_plane_rms_mm} mm (refine.max_plane_rms_mm) at this sample's point spacing; widen "
                 f"refine.neighbour_mm or lower refine.normal_neighbours, or set refine.enabled: false")
         E, A, B, sigma = target_pairs(reg, rc)
-        result = refine_poses(samples, T_targets, E, A, B, **{**refine_arguments(rc), "target_sigma_mm": sigma})
+        result = refine_poses(samples, T_targets, E, A, B, **refine_arguments(rc), target_sigma_mm=sigma)
         T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
         target_res = result.target_residual_mm
     # each physical target where the refined poses put it: the mean of its observations
