@@ -1,7 +1,8 @@
 """Replay a finished sample as a scan in progress: the manifest first, then each pass store when
 the robot would have finished it, into a new folder that ``weldrecon reconstruct --follow`` can
 follow. Then, given the run folder, how long after the last pass each stage ended and each
-provisional verdict and mesh was published.
+provisional verdict, mesh and QA page (with the FE model
+and the stress) was published.
 
     .venv/bin/python bench/replay_scan.py SAMPLE_DIR LIVE_DIR [--pace N]
     .venv/bin/python bench/replay_scan.py --lag LIVE_DIR RUN_DIR
@@ -62,12 +63,17 @@ def lag(live: Path, run: Path) -> dict:
                    for e in read_trail(run) if e.get("kind") == "provisional-published"]
     meshes = [(e["after_pass"], e["passes"], e.get("vertices"), datetime.fromisoformat(e["time"]).timestamp())
               for e in read_trail(run) if e.get("kind") == "provisional-mesh-published"]
+    models = [(e["after_pass"], e["passes"], e.get("tetrahedra"), e.get("hot_spot_factor"),
+               datetime.fromisoformat(e["time"]).timestamp())
+              for e in read_trail(run) if e.get("kind") == "provisional-model-published"]
     return {"first_to_last_pass_s": round(landed - first, 1),
             "after_last_pass_s": {name: round(t - landed, 1) for name, t in sorted(stages.items(), key=lambda x: x[1])},
             "provisional_verdicts": [{"after_pass": p, "passes": n, "verdict": v, "after_its_landing_s": round(t - times[p], 1),
                                       "after_last_pass_s": round(t - landed, 1)} for p, n, v, t in provisional],
             "provisional_meshes": [{"after_pass": p, "passes": n, "vertices": v, "after_last_pass_s": round(t - landed, 1)}
-                                   for p, n, v, t in meshes]}
+                                   for p, n, v, t in meshes],
+            "provisional_models": [{"after_pass": p, "passes": n, "tetrahedra": k, "hot_spot_factor": f,
+                                    "after_last_pass_s": round(t - landed, 1)} for p, n, k, f, t in models]}
 
 
 def main() -> int:

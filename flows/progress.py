@@ -160,6 +160,14 @@ class TrailProgress:
                       f"passes): {entry['vertices']:,} vertices, {closed} (provisional/mesh.ply; the final mesh follows "
                       "the whole run)", final=True)
             return
+        if entry.get("kind") == "provisional-model-published":  # the FE model, stress and page while the final run goes on
+            model = f"FE model of {entry['tetrahedra']:,} tetrahedra" if entry.get("fe_model") else "no FE model"
+            factor = entry.get("hot_spot_factor")
+            stress = f"hot spot factor {factor:.2f}" if factor is not None else "no stress hot spot"
+            self._say(f"PROVISIONAL QA page after pass {entry['after_pass']} ({entry['passes']} of {entry['of_passes']} "
+                      f"passes): {model}, {stress} (provisional/report.html; the final page follows the whole run)",
+                      final=True)
+            return
         count = self._counts.get(entry.get("stage"))
         if count is None:
             return

@@ -39,8 +39,10 @@ follows an entry ``provisional-superseded``.
 from __future__ import annotations
 
 import contextvars
+import html
 import json
 import queue
+import shutil
 import threading
 import time
 from dataclasses import dataclass, field
@@ -51,29 +53,35 @@ import numpy as np
 
 from data_catalog import audit
 from data_catalog.atomic import atomic_write_text
-from data_catalog.hashing import sha256_file
+from data_catalog.hashing import sha256_file, sha256_tree
 from data_catalog.stages import StageStore
 from flows.stages import StageContext, StageRef, run_stage, stage
 from flows.stages.contracts import block_rows, map_in_order, zarr_array
 from flows.stages.merge import BLOCK_WORKERS
-from flows.stages.outputs import CLOUD, REFINED, REGISTRATION, SPECIMEN, WELD_GEOMETRY, RefinedPoses, SpecimenCloud
+from flows.stages.outputs import (CLOUD, MESH, QA_REPORT, REFINE_SUMMARY, REFINED, REGISTRATION, SPECIMEN, STRESS_SUMMARY,
+                                  VOLUME_SUMMARY, WELD_GEOMETRY, WELD_TOES, Mesh, RefinedPoses, SpecimenCloud)
 from flows.stages.placement import T_common_specimen
 from flows.stages.refine import pass_surface_sample, refine_arguments, target_pairs
 from schemas.manifest import PassEntry, SampleManifest
 from schemas.reconstruction import ReconstructionConfig
+from schemas.stage_documents import RefineSummary
 from tasks.frames import apply
 from tasks.merge import CellSums, cell_sums, combine_cell_sums, transform_measured
-from tasks.mesh import screened_poisson, write_mesh
+from tasks.mesh import SurfaceResult, screened_poisson, write_mesh
 from tasks.refine import NothingToRefine, SurfaceSample, refine_poses
 from tasks.single_setup import inside_drawing_box
 from tasks.weld_zone import weld_zone
 
-__all__ = ["MESH_NAME", "MESH_RECORD", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld", "subset_manifest"]
+__all__ = ["MESH_NAME", "MESH_RECORD", "MODEL_RECORD", "PAGE_NAME", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld",
+           "mark_provisional", "subset_manifest"]
 
 PROVISIONAL = "provisional"  # the run folder's subfolder
 VERDICT_NAME = "weld_verdict.json"
 MESH_NAME = "mesh.ply"  # the provisional surface, and what it is made of beside it
 MESH_RECORD = "mesh.json"
+PAGE_NAME = "report.html"  # the provisional QA page, the FE model and stress files beside it
+MODEL_RECORD = "model.json"
+MODEL_STAGES = ("export", "volume", "stress", "report", "qa_report")  # the whole run's, on the provisional inputs
 _BOX_MARGIN_MM = 2.0  # the drawing box grown beyond the placement tolerance (as stage segment)
 
 
@@ -93,6 +101,25 @@ def _artifact(title: str, key: str, rows: list[tuple[str, Any]]) -> None:
                                  description="provisional: made while the scan came in")
     except Exception:  # noqa: BLE001 - never in the way of the run
         pass
+
+
+def mark_provisional(page: str, words: str) -> str:
+    """A QA page marked provisional: its title begins PROVISIONAL and a banner saying ``words``
+    opens its body (the stage draws the page as the final one; the mark is the provisional
+    thread's, so it cannot reach a final page)."""
+    title, body = "<title>", "<body>\n"
+    if title not in page or body not in page:
+        raise ValueError("the QA page has no <title> or <body> to mark provisional (not made by this version?)")
+    banner = (f'<p class="bad" id="provisional" style="border:2px solid #a31f1f;padding:0.6em">PROVISIONAL: '
+              f'{html.escape(words)}.</p>\n')
+    return page.replace(title, title + "PROVISIONAL ", 1).replace(body, body + banner, 1)
+
+
+def _folder_ref(name: str, folder: Path, key: str, metrics: dict[str, Any]) -> StageRef:
+    """A stage ref for outputs the provisional thread wrote itself into ``folder`` (every entry in
+    it an output, hashed as a stage's), to run the whole run's later stages on."""
+    outputs = {p.name: sha256_tree(p) for p in sorted(Path(folder).iterdir()) if not p.name.startswith(".")}
+    return StageRef(stage=name, item=None, key=key, path=str(folder), outputs=outputs, cached=False, metrics=metrics)
 
 
 def subset_manifest(manifest: SampleManifest, pass_ids: set[str]) -> SampleManifest:
@@ -130,6 +157,28 @@ class _State:
     verdict_seconds: float = 0.0  # what the last verdict took (its points combined, the weld measured)
 
 
+@dataclass
+class _Built:
+    """A verdict's stage folder (``provisional/weld/<key>``: the weld stage's outputs, its inputs
+    ``refine`` and ``segment`` beside them), its metrics and the weld cells it measured."""
+
+    key: str
+    folder: Path
+    weld_metrics: dict[str, Any]
+    points_mm: np.ndarray  # the weld's reach, per merge.cell_mm cell
+    normals: np.ndarray
+
+
+@dataclass
+class _Surface:
+    """The provisional mesh and the coarse cells it was made from."""
+
+    points_mm: np.ndarray
+    normals: np.ndarray
+    result: SurfaceResult
+    record: dict[str, Any]
+
+
 class ProvisionalWeld:
     """The provisional weld verdict of a followed scan (module description). ``landed`` is called
     by the flow for each pass as its per-pass stages are submitted; ``close`` once the last has
@@ -142,8 +191,11 @@ class ProvisionalWeld:
         self.store = StageStore(out / PROVISIONAL, shared=False)
         self.state = _State()
         self._placed = None  # the part's placement, drawing box and its margin, as the last step had them
+        self._zone = None  # the weld's reach, as the last step had it (common frame)
+        self._built: _Built | None = None  # the last verdict's stage folder and what it was made of
         self.published: list[dict[str, Any]] = []  # the verdicts published
         self.meshes: list[dict[str, Any]] = []  # the provisional meshes published
+        self.models: list[dict[str, Any]] = []  # the provisional FE models, stresses and QA pages published
         self._queue: queue.Queue = queue.Queue()
         self._landed_at: dict[str, float] = {}
         self._stop = threading.Event()
@@ -213,7 +265,7 @@ class ProvisionalWeld:
         registered = self._registered(set(st.order), last)
         if registered is None:
             return
-        manifest, ids, reg = registered
+        manifest, ids, reg, reg_ref = registered
         t_add = time.perf_counter()
         self._phases["registration"] = t_add - t0
         T = self._grown(ids, reg)
@@ -234,12 +286,18 @@ class ProvisionalWeld:
             self._verdict(manifest, ids, reg, T, last, t0)
             st.verdict_seconds = time.perf_counter() - t2
         if final and not self._stop.is_set():  # then the mesh the lab looks at next
+            surface = None
             try:
                 while self._coarse_one():
                     pass
-                self._mesh(ids, last)
+                surface = self._mesh(ids, last)
             except Exception as exc:  # noqa: BLE001 - provisional: the final mesh follows
                 self.log.warning("provisional mesh after pass %s not made: %s", last, exc)
+            if surface is not None and self._built is not None and not self._stop.is_set():  # then the model and the page
+                try:
+                    self._model(manifest, ids, reg_ref, last, surface)
+                except Exception as exc:  # noqa: BLE001 - provisional: the final model and page follow
+                    self.log.warning("provisional FE model, stress and QA page after pass %s not made: %s", last, exc)
         if final:  # the last verdict of the scan: its memory to the final run
             self.state = _State(order=st.order)
         elif len(ids) - st.joint_after >= 4 and self._fits(
@@ -251,7 +309,7 @@ class ProvisionalWeld:
         return sum(all(p.pass_id in landed for p in s.passes) for s in self.manifest.setups)
 
     def _registered(self, landed: set[str], last: str):
-        """(manifest, pass ids, registration) of the landed passes; while the setups cannot be
+        """(manifest, pass ids, registration, its stage ref) of the landed passes; while the setups cannot be
         matched yet, of the first setup's passes alone (a verdict on its weld lines); None: neither."""
         st = self.state
         first = {p.pass_id for p in self.manifest.setups[0].passes} & landed
@@ -267,7 +325,7 @@ class ProvisionalWeld:
                               self.total, "waits" if k == len(tries) - 1 else "falls back to the first setup",
                               str(exc).splitlines()[0])
                 continue
-            return manifest, ids, REGISTRATION.read(ref)
+            return manifest, ids, REGISTRATION.read(ref), ref
         return None
 
     def _grown(self, ids: list[str], reg, *, joint: bool = False) -> np.ndarray:
@@ -330,7 +388,7 @@ class ProvisionalWeld:
                          config.weld.reach_mm + tolerance)
         grow = np.full(3, tolerance + _BOX_MARGIN_MM)
         bounds = manifest.specimen.bounds_mm() if manifest.specimen is not None else None
-        self._placed = (T_part, bounds, grow)
+        self._placed, self._zone = (T_part, bounds, grow), zone
         for k, p in enumerate(ids):
             if p not in st.sums:
                 want = coarse and p not in st.coarse
@@ -382,8 +440,10 @@ class ProvisionalWeld:
         self._phases["combine"] = t2 - t1
         context = StageContext(out=build, sample_dir=self.sample, manifest=manifest, config=config,
                                settings=config.weld, entry=None, inputs=inputs)
-        stage("weld").body_for(manifest)(context)
+        metrics = stage("weld").body_for(manifest)(context)
         self._phases["weld"] = time.perf_counter() - t2
+        self._built = _Built(key=key, folder=build, weld_metrics=dict(metrics), points_mm=merged.points_mm,
+                             normals=normals.astype(np.float32))
         weld = WELD_GEOMETRY.read_path(build / WELD_GEOMETRY.name)
         seconds = time.perf_counter() - t0
         document = {"provisional": True, "sample_id": self.manifest.sample_id, "after_pass": last,
@@ -404,7 +464,7 @@ class ProvisionalWeld:
                       "the final verdict follows the whole run", last, len(ids), self.total, verdict, seconds)
         self._verdict_artifact(document, verdict)
 
-    def _mesh(self, ids: list[str], last: str) -> None:
+    def _mesh(self, ids: list[str], last: str) -> _Surface | None:
         """The provisional surface: screened Poisson (stage mesh's settings, two octree levels
         coarser) on every landed pass's points in the part's drawing box, summed per coarse cell with
         the grown poses; ``provisional/mesh.ply`` and ``mesh.json`` beside it (marked provisional),
@@ -413,7 +473,7 @@ class ProvisionalWeld:
         t0 = time.perf_counter()
         parts = [st.coarse[p] for p in ids if p in st.coarse and len(st.coarse[p].keys)]
         if not parts:
-            return
+            return None
         merged = combine_cell_sums(_joined(parts), cell_mm=_mesh_cell_mm(config))
         normals = np.nan_to_num(merged.normals)
         ok = np.linalg.norm(normals, axis=1) > 0
@@ -448,6 +508,129 @@ class ProvisionalWeld:
                   [("PROVISIONAL", "the final mesh follows the whole run"),
                    ("after pass", f"{last} ({len(ids)} of {self.total})"), ("vertices", r.n_vertices),
                    ("watertight", r.watertight), ("octree depth", depth)])
+        return _Surface(points_mm=merged.points_mm[ok], normals=normals[ok].astype(np.float32), result=surface,
+                        record=document)
+
+    def _model(self, manifest: SampleManifest, ids: list[str], reg_ref: StageRef, last: str, surface: _Surface) -> None:
+        """The provisional FE model, stress and QA page: the whole run's stages ``export``,
+        ``volume``, ``stress``, ``report`` and ``qa_report`` (``MODEL_STAGES``, in
+        ``provisional/stages``) on what the last verdict and the provisional mesh were made of: the
+        grown poses (``refine``, no surface pairs), the weld cells with the mesh's coarse cells
+        beyond the weld's reach (``segment``: the part the page draws), the verdict's weld and the
+        provisional surface (``mesh``); no merge (the page says so). The volume and the stress on
+        two threads. Published as ``provisional/report.html`` (marked PROVISIONAL, its audit
+        section the trail as it stands), the deliverables beside it under their results/ names and
+        ``model.json``; an audit entry ``provisional-model-published``, a Prefect artifact and a
+        terminal line."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        from flows.reconstruct import audit_status
+        from flows.stages.qa_audit import fill_audit
+        from flows.stages.report import _deliverables
+
+        st, built, config = self.state, self._built, self.config
+        t0 = time.perf_counter()
+        key = built.key
+        folder = self.store.root / "model" / key
+        if folder.exists():
+            shutil.rmtree(folder)
+        note = "provisional: made while the scan came in (flows.provisional)"
+        # refine: the grown poses the verdict used, no surface pairs summarised
+        REFINE_SUMMARY.write(built.folder / "refine", RefineSummary(method="grown with the scan (provisional)",
+                                                                    surface_pairs=[], step_mm=[]))
+        refine = _folder_ref("refine", built.folder / "refine", key, {"provisional": note,
+                                                                       "registration_method": {p: "targets" for p in ids}})
+        # segment: the weld's cells, and beyond the weld's reach the mesh's coarse cells
+        beyond = ~self._zone.contains(surface.points_mm) if self._zone is not None else np.ones(len(surface.points_mm), bool)
+        n_fine, n_coarse = len(built.points_mm), int(beyond.sum())
+        SPECIMEN.write(folder / "segment", SpecimenCloud(
+            points=np.concatenate([built.points_mm, surface.points_mm[beyond]]),
+            normals=np.concatenate([built.normals, surface.normals[beyond]]),
+            fine=np.concatenate([np.ones(n_fine, bool), np.zeros(n_coarse, bool)]),
+            measured=np.ones(n_fine + n_coarse, bool)))
+        segment = _folder_ref("segment", folder / "segment", key, {"provisional": note, "points": n_fine + n_coarse,
+                                                                   "fine_points": n_fine})
+        MESH.write(folder / "mesh", Mesh(vertices=surface.result.vertices, triangles=surface.result.triangles))
+        r = surface.result.report
+        mesh = _folder_ref("mesh", folder / "mesh", key, {
+            "provisional": note, "poisson_depth": surface.record["poisson_depth"],
+            "cell_mm": surface.record["cell_mm"], "points": surface.record["points"], "vertices": r.n_vertices,
+            "triangles": r.n_triangles, "watertight": r.watertight, "consistently_oriented": r.consistently_oriented,
+            "boundary_edges": r.n_boundary_edges, "non_manifold_edges": r.n_non_manifold_edges,
+            "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2, "note": surface.result.note})
+        (folder / "merge").mkdir(parents=True, exist_ok=True)
+        merge = _folder_ref("merge", folder / "merge", key, {"provisional": note + "; no merged cloud (the weld's and "
+                                                                                 "the mesh's cells instead)"})
+        weld = StageRef(stage="weld", item=None, key=key, path=str(built.folder),
+                        outputs={f.name: sha256_tree(built.folder / f.name) for f in (WELD_GEOMETRY, WELD_TOES)},
+                        cached=False, metrics=built.weld_metrics)
+        refs: dict[str, Any] = {"denoise": [st.denoise[p] for p in ids], "targets": [st.targets[p] for p in ids],
+                                "registration": reg_ref, "refine": refine, "merge": merge, "segment": segment,
+                                "weld": weld, "mesh": mesh}
+        seconds: dict[str, float] = {}
+
+        def run(name: str) -> StageRef:
+            t = time.perf_counter()
+            s = stage(name)
+            ref = run_stage(s, store=self.store, sample_dir=self.sample, manifest=manifest, config=config,
+                            inputs={n: refs[n] for n in s.needs})
+            seconds[name] = round(time.perf_counter() - t, 1)
+            return ref
+
+        with ThreadPoolExecutor(2, thread_name_prefix="provisional-model") as pool:  # the model beside the stress
+            futures = {name: pool.submit(run, name) for name in ("stress", "volume")}
+            refs["export"] = run("export")
+            refs.update({name: f.result() for name, f in futures.items()})
+        for name in ("report", "qa_report"):
+            refs[name] = run(name)
+        if self._stop.is_set():
+            return
+        # published beside the verdict and the mesh: the page marked, the deliverables under their results/ names
+        out = self.out / PROVISIONAL
+        files = {name: refs[src].file(source) for name, (src, source) in _deliverables(self.manifest.sample_id).items()
+                 if source in refs[src].outputs}
+        for name, source in files.items():
+            partial = out / f".{name}.partial"
+            shutil.copyfile(source, partial)
+            partial.replace(out / name)
+        volume, stress = VOLUME_SUMMARY.read(refs["volume"]), STRESS_SUMMARY.read(refs["stress"])
+        hot = stress.hot_spot if stress.made else None
+        words = (f"made after pass {last} ({len(ids)} of {self.total} passes), from the scan as it came in: the grown "
+                 "poses (not the final refinement), the weld's cells and the provisional mesh (two octree levels "
+                 "under the final one); the final page follows the whole run and replaces this one")
+        page = refs["qa_report"].file(QA_REPORT.name).read_text(encoding="utf-8")
+        atomic_write_text(out / PAGE_NAME, fill_audit(mark_provisional(page, words), audit_status(self.out)))
+        took = round(time.perf_counter() - t0, 1)
+        document = {"provisional": True, "sample_id": self.manifest.sample_id, "after_pass": last,
+                    "passes": len(ids), "of_passes": self.total,
+                    "poses": "grown with the scan (flows.provisional): not the final refinement",
+                    "fe_model": {"made": volume.made, "why": volume.why,
+                                 "tetrahedra": volume.solid.tetrahedra if volume.made and volume.solid else None,
+                                 "element_type": volume.element_type},
+                    "stress": {"made": stress.made, "why": stress.why, "sections": len(stress.sections),
+                               "hot_spot": json.loads(hot.model_dump_json()) if hot is not None else None},
+                    "files": sorted([*files, PAGE_NAME]),
+                    "stages": {name: str(Path(ref.path).relative_to(self.out)) for name, ref in refs.items()
+                               if name in MODEL_STAGES},
+                    "seconds": {"step": took, **seconds}}
+        atomic_write_text(out / MODEL_RECORD, json.dumps(document, indent=1) + "\n")
+        entry = audit.append(self.out, "provisional-model-published", sample_id=self.manifest.sample_id,
+                             after_pass=last, passes=len(ids), of_passes=self.total, fe_model=volume.made,
+                             tetrahedra=document["fe_model"]["tetrahedra"], stress=stress.made,
+                             hot_spot_factor=hot.factor if hot is not None else None,
+                             artefacts={f"{PROVISIONAL}/{name}": sha256_file(out / name)
+                                        for name in sorted([*files, PAGE_NAME, MODEL_RECORD])})
+        self.models.append({"after_pass": last, "passes": len(ids), "seq": entry["seq"], "time": time.time()})
+        self.log.info("provisional FE model, stress and QA page after pass %s (%d of %d passes): %s, %s (%.1f s) - "
+                      "provisional, the final page follows the whole run", last, len(ids), self.total,
+                      f"{document['fe_model']['tetrahedra']} tetrahedra" if volume.made else "no FE model",
+                      f"hot spot factor {hot.factor:.2f}" if hot is not None else "no hot spot", took)
+        _artifact("Provisional FE model, stress and QA page", f"provisional-model-{len(ids):03d}",
+                  [("PROVISIONAL", "the final model, stress and page follow the whole run"),
+                   ("after pass", f"{last} ({len(ids)} of {self.total})"),
+                   ("FE model", document["fe_model"]["tetrahedra"] if volume.made else f"not made: {volume.why}"),
+                   ("hot spot factor", f"{hot.factor:.2f}" if hot is not None else "-"),
+                   ("QA page", f"{PROVISIONAL}/{PAGE_NAME}")])
 
     def _sums(self, ref: StageRef, T: np.ndarray, T_part: np.ndarray, bounds, grow, *, zone,
               coarse: bool) -> tuple[CellSums, CellSums | None]:

@@ -417,10 +417,11 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
                              trail_head=TrailHead(seq=stopped["seq"], hash=stopped["hash"]))
         if provisional is not None:
             provisional.close()
-            if provisional.published or provisional.meshes:  # the trail says what was provisional and is no more
+            if provisional.published or provisional.meshes or provisional.models:  # what was provisional and is no more
                 audit.append(out, "provisional-superseded", sample_id=manifest.sample_id,
                              provisional=[p["seq"] for p in provisional.published],
-                             provisional_meshes=[p["seq"] for p in provisional.meshes])
+                             provisional_meshes=[p["seq"] for p in provisional.meshes],
+                             provisional_models=[p["seq"] for p in provisional.models])
         with folder_lock(out / PUBLISH_LOCK):  # results and the entry recording them, as one step
             published = publish(out, manifest.sample_id, refs["report"], refs,
                                 config.model_dump_json(indent=2) + "\n", audit_status(out))

@@ -125,6 +125,28 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     # octree cell of ~2.5 mm, on the part's 0.6 mm cells; the final mesh: depth 8 on 0.3 mm cells)
     assert np.median(distance) < 0.7 and np.percentile(distance, 90) < 1.6, (np.median(distance),
                                                                                np.percentile(distance, 90))
+    # then the provisional FE model, stress and QA page: the whole run's stages on the grown poses,
+    # the weld's cells and the provisional mesh, marked PROVISIONAL, superseded with the rest
+    models = [e for e in trail if e["kind"] == "provisional-model-published"]
+    assert len(models) == 1 and models[0]["seq"] > meshes[0]["seq"] and models[0]["passes"] == len(stores), models
+    assert superseded["provisional_models"] == [models[0]["seq"]]
+    assert models[0]["fe_model"] and models[0]["stress"], models[0]
+    model = json.loads((out / "provisional" / "model.json").read_text())
+    assert model["provisional"] is True and model["fe_model"]["made"] and model["stress"]["made"], model
+    assert models[0]["artefacts"] == {f"provisional/{name}": _digest(out / "provisional" / name)
+                                      for name in [*model["files"], "model.json"]}
+    assert {f"{finished['sample_id']}{end}" for end in (".stl", ".inp", "_stress.vtu")} <= set(model["files"])
+    page = (out / "provisional" / "report.html").read_text()
+    assert page.count("PROVISIONAL") >= 2 and "<title>PROVISIONAL weldrecon QA report" in page
+    assert "<!-- weldrecon: audit status -->" not in page and "Audit trail intact" in page, page[-2000:]
+    assert "PROVISIONAL" not in (out / "results" / "report.html").read_text()
+    assert f"PROVISIONAL QA page after pass {models[0]['after_pass']} (6 of 6 passes)" in err, err[-3000:]
+    # its hot spot where the final one is, its factor near (the final: refined poses, the depth-8 mesh's model)
+    final_stress = json.loads((out / "results" / "report.json").read_text())["stress"]["hot_spot"]
+    hot = model["stress"]["hot_spot"]
+    (tmp_path / "model.txt").write_text(json.dumps([hot, final_stress, model]))
+    assert (hot["line"], hot["side"]) == (final_stress["line"], final_stress["side"])
+    assert abs(hot["factor"] / final_stress["factor"] - 1) < 0.1, (hot, final_stress)
     # while it waits, what the plan reaches and what each next pass adds (tasks.pass_coverage,
     # checked against the simulated passes in tests/tasks/test_pass_coverage.py): top-L02 sees the
     # top line at 10-50 mm, top-L04 at 8-23 (new: 8-9)
