@@ -29,7 +29,12 @@ before it solved, in a thread beside the flow's own work:
   while no pass waits), combined, and stage mesh's screened Poisson two octree levels coarser:
   ``provisional/mesh.ply`` with ``mesh.json`` beside it (marked provisional: the passes, the depth,
   what it took), an audit entry ``provisional-mesh-published``, a Prefect artifact and a line on
-  the terminal.
+  the terminal;
+- then the provisional FE model, stress and QA page (``_model``): the whole run's stages export,
+  volume, stress, report and qa_report on the grown poses, the weld's cells (with the mesh's coarse
+  cells beyond the weld's reach) and the provisional mesh, in ``provisional/stages``; the page as
+  ``provisional/report.html`` (marked PROVISIONAL), the deliverables and ``model.json`` beside it,
+  an audit entry ``provisional-model-published``, a Prefect artifact and a line on the terminal.
 
 The final results are the whole run's, made as if the scan had been finished when the run started
 (the same bytes): the provisional verdict never feeds them, and the run's ``run-finished`` entry
@@ -67,13 +72,13 @@ from schemas.reconstruction import ReconstructionConfig
 from schemas.stage_documents import RefineSummary
 from tasks.frames import apply
 from tasks.merge import CellSums, cell_sums, combine_cell_sums, transform_measured
-from tasks.mesh import SurfaceResult, screened_poisson, write_mesh
+from tasks.mesh import SurfaceResult, mesh_report, screened_poisson, write_mesh
 from tasks.refine import NothingToRefine, SurfaceSample, refine_poses
 from tasks.single_setup import inside_drawing_box
 from tasks.weld_zone import weld_zone
 
 __all__ = ["MESH_NAME", "MESH_RECORD", "MODEL_RECORD", "PAGE_NAME", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld",
-           "mark_provisional", "subset_manifest"]
+           "largest_piece", "mark_provisional", "subset_manifest"]
 
 PROVISIONAL = "provisional"  # the run folder's subfolder
 VERDICT_NAME = "weld_verdict.json"
@@ -113,6 +118,37 @@ def mark_provisional(page: str, words: str) -> str:
     banner = (f'<p class="bad" id="provisional" style="border:2px solid #a31f1f;padding:0.6em">PROVISIONAL: '
               f'{html.escape(words)}.</p>\n')
     return page.replace(title, title + "PROVISIONAL ", 1).replace(body, body + banner, 1)
+
+
+def largest_piece(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The piece of the surface of the largest area (pieces joined where triangles share a
+    vertex), its vertices renumbered in their order, and how many pieces there were. The
+    provisional mesh is cut from the part's drawing box, not segmented: what else the box holds
+    (a clamp's edge) makes pieces of its own, the FE model is the part alone."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    triangles = np.asarray(triangles, np.int64)
+    if len(triangles) == 0:
+        return vertices, triangles, 0
+    n = len(vertices)
+    rows = np.concatenate([triangles[:, 0], triangles[:, 1]])
+    cols = np.concatenate([triangles[:, 1], triangles[:, 2]])
+    pieces, label = connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n)),
+                                         directed=False)
+    of_triangle = label[triangles[:, 0]]
+    used_pieces = np.unique(of_triangle)
+    if len(used_pieces) == 1:
+        return vertices, triangles, 1
+    v = np.asarray(vertices, np.float64)
+    a, b, c = v[triangles[:, 0]], v[triangles[:, 1]], v[triangles[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    biggest = int(np.argmax(np.bincount(of_triangle, weights=area, minlength=pieces)))  # the lowest label on a tie
+    kept = triangles[of_triangle == biggest]
+    used = np.zeros(n, bool)
+    used[kept.ravel()] = True
+    index = np.cumsum(used) - 1
+    return vertices[used], index[kept], int(len(used_pieces))
 
 
 def _folder_ref(name: str, folder: Path, key: str, metrics: dict[str, Any]) -> StageRef:
@@ -550,14 +586,17 @@ class ProvisionalWeld:
             measured=np.ones(n_fine + n_coarse, bool)))
         segment = _folder_ref("segment", folder / "segment", key, {"provisional": note, "points": n_fine + n_coarse,
                                                                    "fine_points": n_fine})
-        MESH.write(folder / "mesh", Mesh(vertices=surface.result.vertices, triangles=surface.result.triangles))
-        r = surface.result.report
+        # the FE model's surface: the part, the provisional mesh's largest piece
+        vertices, triangles, pieces = largest_piece(surface.result.vertices, surface.result.triangles)
+        MESH.write(folder / "mesh", Mesh(vertices=vertices, triangles=triangles))
+        r = mesh_report(vertices, triangles)
         mesh = _folder_ref("mesh", folder / "mesh", key, {
-            "provisional": note, "poisson_depth": surface.record["poisson_depth"],
+            "provisional": note + f"; the largest of the provisional mesh's {pieces} pieces",
+            "pieces_left_out": max(pieces - 1, 0), "poisson_depth": surface.record["poisson_depth"],
             "cell_mm": surface.record["cell_mm"], "points": surface.record["points"], "vertices": r.n_vertices,
             "triangles": r.n_triangles, "watertight": r.watertight, "consistently_oriented": r.consistently_oriented,
             "boundary_edges": r.n_boundary_edges, "non_manifold_edges": r.n_non_manifold_edges,
-            "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2, "note": surface.result.note})
+            "volume_mm3": r.volume_mm3, "surface_area_mm2": r.surface_area_mm2})
         (folder / "merge").mkdir(parents=True, exist_ok=True)
         merge = _folder_ref("merge", folder / "merge", key, {"provisional": note + "; no merged cloud (the weld's and "
                                                                                  "the mesh's cells instead)"})
@@ -604,7 +643,7 @@ class ProvisionalWeld:
         document = {"provisional": True, "sample_id": self.manifest.sample_id, "after_pass": last,
                     "passes": len(ids), "of_passes": self.total,
                     "poses": "grown with the scan (flows.provisional): not the final refinement",
-                    "fe_model": {"made": volume.made, "why": volume.why,
+                    "fe_model": {"made": volume.made, "why": volume.why, "mesh_pieces_left_out": max(pieces - 1, 0),
                                  "tetrahedra": volume.solid.tetrahedra if volume.made and volume.solid else None,
                                  "element_type": volume.element_type},
                     "stress": {"made": stress.made, "why": stress.why, "sections": len(stress.sections),
