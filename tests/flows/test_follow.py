@@ -141,12 +141,15 @@ def test_follow_works_on_passes_while_the_last_is_still_being_scanned(six_sample
     assert "<!-- weldrecon: audit status -->" not in page and "Audit trail intact" in page, page[-2000:]
     assert "PROVISIONAL" not in (out / "results" / "report.html").read_text()
     assert f"PROVISIONAL QA page after pass {models[0]['after_pass']} (6 of 6 passes)" in err, err[-3000:]
-    # its hot spot where the final one is, its factor near (the final: refined poses, the depth-8 mesh's model)
-    final_stress = json.loads((out / "results" / "report.json").read_text())["stress"]["hot_spot"]
-    hot = model["stress"]["hot_spot"]
-    (tmp_path / "model.txt").write_text(json.dumps([hot, final_stress, model]))
-    assert (hot["line"], hot["side"]) == (final_stress["line"], final_stress["side"])
-    assert abs(hot["factor"] / final_stress["factor"] - 1) < 0.1, (hot, final_stress)
+    # each toe line's hot spot factor near the final one's (the final: refined poses, the depth-8
+    # mesh, the segmented points); where along a toe it peaks may differ where two sections nearly
+    # tie (the paper preset: 75 against 23 mm on one toe, factors 1.4-2.6 % apart, bench/README.md)
+    provisional_report = json.loads((out / model["stages"]["report"] / "report.json").read_text())
+    final_hot = {(h["line"], h["side"]): h["factor"]
+                 for h in json.loads((out / "results" / "report.json").read_text())["stress"]["hot_spots"]}
+    hot = {(h["line"], h["side"]): h["factor"] for h in provisional_report["stress"]["hot_spots"]}
+    assert set(hot) == set(final_hot) and len(hot) >= 2, (hot, final_hot)
+    assert all(abs(hot[toe] / final_hot[toe] - 1) < 0.1 for toe in hot), (hot, final_hot)
     # while it waits, what the plan reaches and what each next pass adds (tasks.pass_coverage,
     # checked against the simulated passes in tests/tasks/test_pass_coverage.py): top-L02 sees the
     # top line at 10-50 mm, top-L04 at 8-23 (new: 8-9)
