@@ -395,9 +395,9 @@ def reconstruct_sample(sample_dir: str, out_dir: str, config_path: str | None = 
         if follow_timeout_s is not None:
             pending.update(_submit_as_passes_land(sample, manifest, store, config, follow_timeout_s, log, provisional))
         if provisional is not None:
-            # what the lab needs first, with the machine to itself: the verdict on every pass and the
-            # provisional mesh, then the whole-sample stages (on the paper preset 114 and 158 s after
-            # the last pass with them running beside it; the final results a minute later of twenty)
+            # what the lab needs first, with the machine to itself: the verdict on every pass, the
+            # provisional mesh, FE model, stress and QA page (on the paper preset 36-81, 67-119 and
+            # 214-288 s after the last pass), then the whole-sample stages
             provisional.close()
         chosen = [s for s in (needed_for(stop_after) if stop_after else STAGES) if s.name not in pending]
         for stage in chosen:
