@@ -75,10 +75,11 @@ from tasks.merge import CellSums, cell_sums, combine_cell_sums, transform_measur
 from tasks.mesh import SurfaceResult, mesh_report, screened_poisson, write_mesh
 from tasks.refine import NothingToRefine, SurfaceSample, refine_poses
 from tasks.single_setup import inside_drawing_box
+from tasks.volume_mesh import largest_piece
 from tasks.weld_zone import weld_zone
 
 __all__ = ["MESH_NAME", "MESH_RECORD", "MODEL_RECORD", "PAGE_NAME", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld",
-           "largest_piece", "mark_provisional", "subset_manifest"]
+           "mark_provisional", "subset_manifest"]
 
 PROVISIONAL = "provisional"  # the run folder's subfolder
 VERDICT_NAME = "weld_verdict.json"
@@ -118,37 +119,6 @@ def mark_provisional(page: str, words: str) -> str:
     banner = (f'<p class="bad" id="provisional" style="border:2px solid #a31f1f;padding:0.6em">PROVISIONAL: '
               f'{html.escape(words)}.</p>\n')
     return page.replace(title, title + "PROVISIONAL ", 1).replace(body, body + banner, 1)
-
-
-def largest_piece(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """The piece of the surface of the largest area (pieces joined where triangles share a
-    vertex), its vertices renumbered in their order, and how many pieces there were. The
-    provisional mesh is cut from the part's drawing box, not segmented: what else the box holds
-    (a clamp's edge) makes pieces of its own, the FE model is the part alone."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    triangles = np.asarray(triangles, np.int64)
-    if len(triangles) == 0:
-        return vertices, triangles, 0
-    n = len(vertices)
-    rows = np.concatenate([triangles[:, 0], triangles[:, 1]])
-    cols = np.concatenate([triangles[:, 1], triangles[:, 2]])
-    pieces, label = connected_components(coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(n, n)),
-                                         directed=False)
-    of_triangle = label[triangles[:, 0]]
-    used_pieces = np.unique(of_triangle)
-    if len(used_pieces) == 1:
-        return vertices, triangles, 1
-    v = np.asarray(vertices, np.float64)
-    a, b, c = v[triangles[:, 0]], v[triangles[:, 1]], v[triangles[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-    biggest = int(np.argmax(np.bincount(of_triangle, weights=area, minlength=pieces)))  # the lowest label on a tie
-    kept = triangles[of_triangle == biggest]
-    used = np.zeros(n, bool)
-    used[kept.ravel()] = True
-    index = np.cumsum(used) - 1
-    return vertices[used], index[kept], int(len(used_pieces))
 
 
 def _folder_ref(name: str, folder: Path, key: str, metrics: dict[str, Any]) -> StageRef:
@@ -562,7 +532,7 @@ class ProvisionalWeld:
 
         from flows.reconstruct import audit_status
         from flows.stages.qa_audit import fill_audit
-        from flows.stages.report import _deliverables
+        from flows.stages.report import deliverables
 
         st, built, config = self.state, self._built, self.config
         t0 = time.perf_counter()
@@ -626,7 +596,7 @@ class ProvisionalWeld:
             return
         # published beside the verdict and the mesh: the page marked, the deliverables under their results/ names
         out = self.out / PROVISIONAL
-        files = {name: refs[src].file(source) for name, (src, source) in _deliverables(self.manifest.sample_id).items()
+        files = {name: refs[src].file(source) for name, (src, source) in deliverables(self.manifest.sample_id).items()
                  if source in refs[src].outputs}
         for name, source in files.items():
             partial = out / f".{name}.partial"

@@ -34,7 +34,7 @@ from tasks.gmsh_volume import RESULT
 from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG, repair_boundary_slivers
 from tasks.weld_zone import weld_zone
 
-__all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
+__all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "triangle_pieces", "largest_piece", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
            "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent", "face_nodes",
            "quadratic_tetrahedra", "element_face_nodes", "ONE_THREAD_ENV"]
 
@@ -120,7 +120,7 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     triangles = np.ascontiguousarray(triangles, np.int64)
     if len(triangles) == 0:
         raise VolumeMeshError("the surface has no triangles")
-    pieces = _surface_pieces(triangles)
+    pieces, _ = triangle_pieces(triangles)
     if pieces > 1:
         raise VolumeMeshError(f"the surface is {pieces} separate pieces: more than one body (or a body with a "
                               "closed hollow inside), where the FE model is one solid")
@@ -169,14 +169,39 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
                       short_edges_collapsed=repair.collapsed, nodes_moved=repair.slid)
 
 
-def _surface_pieces(triangles: np.ndarray) -> int:
-    """How many pieces the triangles make, joined where they share a vertex."""
+def triangle_pieces(triangles: np.ndarray) -> tuple[int, np.ndarray]:
+    """How many pieces the triangles make, joined where they share a vertex, and each triangle's
+    piece (0 .. count-1, numbered in the order of their lowest vertex index)."""
+    triangles = np.asarray(triangles, np.int64)
+    if len(triangles) == 0:
+        return 0, np.zeros(0, np.int64)
     used, local = np.unique(triangles, return_inverse=True)
     local = local.reshape(triangles.shape)
     rows = np.concatenate([local[:, 0], local[:, 1]])
     cols = np.concatenate([local[:, 1], local[:, 2]])
     graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(len(used), len(used)))
-    return int(connected_components(graph, directed=False)[0])
+    count, label = connected_components(graph, directed=False)
+    return int(count), label[local[:, 0]].astype(np.int64)
+
+
+def largest_piece(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The piece of the surface of the largest area (``triangle_pieces``), its vertices renumbered
+    in their order, and how many pieces there were: for a surface cut from a box that also holds
+    what is not the part (a clamp's edge makes pieces of its own), where the FE model is the part
+    alone."""
+    triangles = np.asarray(triangles, np.int64)
+    count, of_triangle = triangle_pieces(triangles)
+    if count <= 1:
+        return vertices, triangles, count
+    v = np.asarray(vertices, np.float64)
+    a, b, c = v[triangles[:, 0]], v[triangles[:, 1]], v[triangles[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    biggest = int(np.argmax(np.bincount(of_triangle, weights=area, minlength=count)))  # the lowest label on a tie
+    kept = triangles[of_triangle == biggest]
+    used = np.zeros(len(v), bool)
+    used[kept.ravel()] = True
+    index = np.cumsum(used) - 1
+    return vertices[used], index[kept], count
 
 
 # gmsh carries its own OpenBLAS and OpenMP, sized at load from the environment (OPENBLAS_NUM_THREADS,

@@ -23,14 +23,14 @@ from schemas.stage_documents import (Check, FEModelSummary, Report, StressFigure
 from schemas.weld_document import WeldGeometry
 from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG
 
-__all__ = ["report", "publish", "checks", "fe_model_check", "stress_check", "stress_summary", "weld_summary", "RESULTS",
+__all__ = ["report", "publish", "deliverables", "checks", "fe_model_check", "stress_check", "stress_summary", "weld_summary", "RESULTS",
            "CONFIG_NAME"]
 
 RESULTS = "results"
 CONFIG_NAME = "config.json"  # the settings the published results were made with
 
 
-def _deliverables(sample_id: str) -> dict[str, tuple[str, str]]:
+def deliverables(sample_id: str) -> dict[str, tuple[str, str]]:
     """results/ file name -> (the stage, its output) it is a copy of (the volume's files only
     where the stage made them)."""
     return {f"{sample_id}.stl": ("export", STL.name), f"{sample_id}.ply": ("export", PLY.name),
@@ -218,7 +218,7 @@ def report(ctx) -> dict[str, Any]:
                 + ([weld_check(weld)] if ctx.manifest.weld_lines() else []) + [fe_model_check(volume)]
                 + ([stress_check(stress)] if weld.measured else [])),
         deliverables={name: inputs[stage].outputs[source]
-                      for name, (stage, source) in _deliverables(ctx.manifest.sample_id).items()
+                      for name, (stage, source) in deliverables(ctx.manifest.sample_id).items()
                       if source in inputs[stage].outputs},
         stage_keys={name: ([r.key for r in ref] if isinstance(ref, list) else ref.key) for name, ref in inputs.items()},
     )
@@ -239,7 +239,7 @@ def publish(out_dir: Path, sample_id: str, report_ref: StageRef, refs: dict[str,
     out_dir = Path(out_dir)
     results = out_dir / RESULTS
     # an optional output the stage left out (or a stage that did not run for this sample) is not published
-    sources = {name: (refs[stage], source) for name, (stage, source) in _deliverables(sample_id).items()
+    sources = {name: (refs[stage], source) for name, (stage, source) in deliverables(sample_id).items()
                if stage in refs and source in refs[stage].outputs}
     sources[REPORT.name] = (report_ref, REPORT.name)
     staging = Path(tempfile.mkdtemp(prefix=f".{RESULTS}.{owner_tag()}.", suffix=".partial", dir=out_dir))

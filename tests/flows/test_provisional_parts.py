@@ -7,8 +7,9 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from flows.provisional import largest_piece, mark_provisional
+from flows.provisional import mark_provisional
 from tasks.mesh import mesh_report
+from tasks.volume_mesh import largest_piece
 
 
 def _box(centre, size) -> tuple[np.ndarray, np.ndarray]:
