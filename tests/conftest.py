@@ -98,6 +98,12 @@ def ci_sample(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="session")
+def demo_sample(tmp_path_factory) -> Path:
+    """The ``demo`` preset's sample (32 passes, 6.3 M points), without previews."""
+    return _made_once(tmp_path_factory, "demo-sample", lambda out: simulate(preset_config("demo"), out, previews=False))
+
+
+@pytest.fixture(scope="session")
 def ci_config():
     return preset_config("ci")
 
