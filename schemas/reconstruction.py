@@ -39,6 +39,15 @@ class TargetsConfig(InputModel):
     max_rms_mm: float = Field(default=0.08, gt=0, le=1)
     min_rim_coverage: float = Field(default=0.85, gt=0, le=1)
     radius_tolerance: float = Field(default=0.1, gt=0, lt=1)
+    rim_edge: Literal["halfway", "share"] = Field(default="halfway", description=(
+        "where a rim point lies along a profile (tasks.targets): halfway, where the intensity "
+        "crosses halfway between sticker and metal; share, from the two pixels' shares of sticker "
+        "(each pixel integrates its footprint). Against the simulator's true stickers, 3-D centre "
+        "error median halfway -> share: demo 9.9 -> 7.3 um, ci 8.6 -> 5.5, tjoint 10.0 -> 6.3; "
+        "with one target sigma for all (refine) the passes' worst misalignment moves demo 30.2 -> "
+        "21.2 um but ci 33.0 -> 51.9 and tjoint 25.2 -> 29.4, and with each pair its own "
+        "(refine.target_sigma_rim_factor 0.8) paper 5.8, demo 19.5, ci 19.7, tjoint 42.1 um "
+        "(bench/README.md, the targets' sigma): not the default until the tjoint's is understood"))
 
 
 class RegistrationConfig(InputModel):
@@ -113,10 +122,11 @@ class RefineConfig(InputModel):
     target_sigma_rim_factor: float | None = Field(default=None, gt=0, le=10, description=(
         "each target centre's expected error this times its rim fit's RMS (at least "
         "target_sigma_floor_mm), a pair's the two combined; null: target_sigma_mm for every pair. "
-        "Measured against the simulator's truth, worst pass / median of the pass medians: paper "
-        "17.8 / 7.9 um with 0.03 mm for all, 6.6 / 2.6 um with 0.5 x rim RMS; demo 30.2 / 9.7 -> "
-        "25.8 / 9.2 um (bench/README.md, the targets' sigma). Off by default until the ci preset's "
-        "stress checks are understood with it (two of them move past their bounds)"))
+        "Measured against the simulator's truth, worst pass misalignment (bench/README.md, the "
+        "targets' sigma): paper 17.8 um with 0.03 mm for all, 6.6 with 0.5 x rim RMS; with "
+        "targets.rim_edge share and 0.8 x: paper 5.8, demo 19.5 (30.2 today), ci 19.7 (33.0), "
+        "tjoint 42.1 (25.2), tjoint-single 28.9 (32.7). Off by default: the tjoint's worse, and two "
+        "of the ci preset's stress checks move past their bounds with it"))
     target_sigma_floor_mm: float = Field(default=0.002, gt=0, le=1, description=(
         "the least expected error of a target centre (a rim fit's RMS can be near zero by chance)"))
     surface_sigma_mm: float = Field(default=0.05, gt=0, le=1, description=(

@@ -4,16 +4,23 @@
    point spacing and searched with OpenCV's Hough transform for circles of about the sticker's
    radius (the paper's method; ``find_circles``).
 2. Each circle is refined in 3-D with the organized points (the pixel -> 3-D "dictionary"): the
-   sticker's bright points give its plane; the sticker's edge is located to sub-pixel precision
-   where the intensity crosses halfway between sticker and steel on each bright/dark grid edge;
-   a circle of the known radius is fitted to the edge points found along the profiles (least
-   squares). Along a profile each point's intensity integrates its camera pixel, as wide as the
-   point spacing, so a rim point reads partly sticker, partly metal and the halfway crossing
-   lands within a fraction of the spacing; across profiles the laser line (about 0.1 mm thick)
-   is narrower than the profile spacing (0.1-0.5 mm), so neighbours read all sticker or all metal
-   and the crossing is only known to within the spacing. Those edges count for the rim's
-   coverage, not the fit (on the demo sample: in-plane centre error median 18.7 -> 5.2 um, RMS
-   20.1 -> 8.4 um; at the paper's resolution median 1.2 -> 0.7 um, RMS 3.1 -> 1.6 um).
+   sticker's bright points give its plane; the sticker's edge is located to sub-pixel precision on
+   each bright/dark grid edge, and a circle of the known radius is fitted to the edge points found
+   along the profiles (least squares). Along a profile each point's intensity integrates its camera
+   pixel, as wide as the point spacing, so the pixel the rim crosses reads its share of sticker:
+   the rim point is where the intensity crosses halfway between sticker and steel between the two
+   neighbours across the rim, or (``rim_edge`` "share") their shares' sum of a pixel from the
+   sticker side's far boundary (``_edge_points``; the halfway crossing is off by up to 0.09 of the
+   spacing, RMS 0.06, with where the rim falls in its pixel). Across profiles the laser line (about
+   0.1 mm thick) is narrower than the profile spacing (0.1-0.5 mm), so neighbours read all sticker
+   or all metal and the crossing is only known to within the spacing. Those edges count for the
+   rim's coverage, not the fit (on the demo sample, in-plane centre error median 18.7 -> 5.2 um,
+   RMS 20.1 -> 8.4 um; at the paper's resolution median 1.2 -> 0.7 um, RMS 3.1 -> 1.6 um). The
+   shares instead of the halfway crossing (not the default yet,
+   ``schemas.reconstruction.TargetsConfig.rim_edge``; 2026-11-29, against the simulator's true
+   stickers, 3-D centre error median: demo 9.9 -> 7.3 um, ci 8.6 -> 5.5 um; the demo's worst pass
+   misalignment after the refinement 30.2 -> 21.2 um with one sigma for all targets;
+   bench/README.md, the targets' sigma).
    The paper has an edge (about 0.1 mm high). Seen obliquely, the rays that last meet paper on
    the far side graze the top's rim, but on the side facing the sensor they run into the edge and
    the last of them grazes its foot, one edge height below the top: where the rays cross the top's
@@ -41,9 +48,10 @@ from scipy.optimize import least_squares
 from tasks.arrays import distinct
 from tasks.target_search import GridSpacing, HoughImage, SearchGrid, find_circles, search_grid
 
-__all__ = ["Target", "TargetDetection", "TargetRefinement", "SearchGrid", "GridSpacing", "HoughImage",
+__all__ = ["RIM_EDGES", "Target", "TargetDetection", "TargetRefinement", "SearchGrid", "GridSpacing", "HoughImage",
            "search_grid", "find_circles", "refine_target", "detect_targets"]
 
+RIM_EDGES = ("halfway", "share")
 _RIM_BINS = 24
 _REJECTIONS = ("rim", "fit", "radius", "points")
 
@@ -123,11 +131,11 @@ def _plateau(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return coef[0] + coef[1] * r + coef[2] * c
 
 
-def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.ndarray:
-    """Per pixel, the intensity halfway between the sticker's and the metal's, each a plane over
-    the window: the light falls off with distance and angle across an obliquely seen sticker, and
-    one level for all of it would move the near rim out and the far rim in. ``near``: the pixels
-    close enough to the sticker to serve (other faces in the window are lit otherwise)."""
+def _edge_levels(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel, the intensity of the sticker and of the metal, each a plane over the window: the
+    light falls off with distance and angle across an obliquely seen sticker, and one level for all
+    of it would move the near rim out and the far rim in. ``near``: the pixels close enough to the
+    sticker to serve (other faces in the window are lit otherwise)."""
     valid = (local > 0) & near
     pad_b = np.pad(bright, 1, mode="edge")
     interior = bright.copy()
@@ -136,15 +144,25 @@ def _edge_level(local: np.ndarray, bright: np.ndarray, near: np.ndarray) -> np.n
         shifted = pad_b[dr:dr + bright.shape[0], dc:dc + bright.shape[1]]
         interior &= shifted
         exterior &= ~shifted
-    return 0.5 * (_plateau(local, interior & valid) + _plateau(local, exterior))
+    return _plateau(local, interior & valid), _plateau(local, exterior)
 
 
-def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray,
-                 level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-pixel edge points (k, 3) where bright and dark grid neighbours meet; the edge is where
-    the intensity crosses ``level`` (per pixel). All (rows, columns) grids of one window. Also
-    (k,) bool: True for an edge between neighbours along a profile (columns), False across
-    profiles (rows); and (k,) int, the row (profile) of each edge's first neighbour."""
+def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, sticker: np.ndarray,
+                 metal: np.ndarray, rim_edge: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sub-pixel edge points (k, 3) where bright and dark grid neighbours meet, from the intensity
+    between ``sticker`` and ``metal`` (each per pixel). All (rows, columns) grids of one window.
+    Also (k,) bool: True for an edge between neighbours along a profile (columns), False across
+    profiles (rows); and (k,) int, the row (profile) of each edge's first neighbour.
+
+    Along a profile (``rim_edge``): "halfway", where the intensity crosses halfway between the
+    two, interpolated between the two pixels' centres; "share", each pixel integrates its share
+    of sticker (the module's notes), so the edge lies the two shares' sum of a pixel from the
+    sticker side's far boundary (halfway is off by up to 0.09 of the spacing, RMS 0.06, with where
+    the edge falls in its pixel). Across profiles the laser line is thinner than the spacing:
+    halfway, as a bound."""
+    span = sticker - metal
+    share = np.clip((intensity.astype(np.float64) - metal) / np.where(np.abs(span) > 1e-9, span, 1e-9), 0.0, 1.0)
+    level = 0.5 * (sticker + metal)
     I = intensity.astype(np.float64) - level
     P = points
     B = bright
@@ -158,9 +176,14 @@ def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray,
         pair = valid[a] & valid[b] & (B[a] != B[b])
         if not pair.any():
             continue
-        ia, ib = I[a][pair], I[b][pair]
         pa, pb = P[a][pair], P[b][pair]
-        f = np.clip(ia / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
+        if axis == 1 and rim_edge == "share":
+            total = share[a][pair] + share[b][pair]
+            # from the midpoint toward b: sticker at a, the edge (total - 1) of a pixel on; at b, (1 - total)
+            f = 0.5 + np.clip(np.where(B[a][pair], total - 1.0, 1.0 - total), -0.5, 0.5)
+        else:
+            ia, ib = I[a][pair], I[b][pair]
+            f = np.clip(ia / np.where(ia != ib, ia - ib, 1.0), 0.0, 1.0)
         out.append(pa + f[:, None] * (pb - pa))
         along.append(np.full(len(f), axis == 1))
         rows.append(np.nonzero(pair)[0])
@@ -206,7 +229,7 @@ def _fit_rim(uv: np.ndarray, travel: np.ndarray, radius: float) -> tuple[np.ndar
 
 def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_mm: np.ndarray | None, *,
                   pixel: tuple[float, float], grid: SearchGrid, max_rms_mm: float, min_rim_coverage: float,
-                  radius_tolerance: float) -> TargetRefinement:
+                  radius_tolerance: float, rim_edge: str) -> TargetRefinement:
     """Refine one Hough circle to a target from its window of the pass alone (``grid.window``).
 
     intensity : (rows, columns) uint16, the window's intensity, 0 where nothing was returned.
@@ -215,7 +238,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         None (see ``detect_targets``).
     pixel : (profile, column) of the circle in the pass (``grid.grid_position``), recorded.
     grid : the pass's search (``search_grid``): the sticker's radius and the point spacing.
-    max_rms_mm, min_rim_coverage, radius_tolerance : as ``detect_targets``.
+    max_rms_mm, min_rim_coverage, radius_tolerance, rim_edge : as ``detect_targets``.
     """
     # Own copies: every operation below sees the same array layout whether the window was cut from
     # a whole pass or from a block of it, so the result is the same bytes.
@@ -225,6 +248,8 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
     if local.ndim != 2 or points.shape != local.shape + (3,):
         raise ValueError(f"intensity (rows, columns) and points (rows, columns, 3) must match, "
                          f"got {local.shape} and {points.shape}")
+    if rim_edge not in RIM_EDGES:
+        raise ValueError(f"rim_edge must be one of {', '.join(RIM_EDGES)}, got {rim_edge!r}")
     if origins is not None and origins.shape != (local.shape[0], 3):
         raise ValueError(f"sensor_origins_mm must have shape ({local.shape[0]}, 3), got {origins.shape}")
     radius = grid.radius_mm
@@ -233,9 +258,13 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
     finite = np.isfinite(points).all(axis=-1)
     blob = points[bright & finite]
     close = np.linalg.norm(points - (blob.mean(axis=0) if len(blob) else 0.0), axis=-1) < 1.5 * radius
-    level = _edge_level(local, bright, close)
-    if not np.isfinite(level).all():
-        level = np.full(local.shape, float(split))
+    sticker, metal = _edge_levels(local, bright, close)
+    if not (np.isfinite(sticker).all() and np.isfinite(metal).all()):  # too few pixels for a plane
+        dark = ~bright & (local > 0)
+        if rim_edge == "share" and bright.any() and dark.any():
+            sticker, metal = (np.full(local.shape, float(np.median(local[m]))) for m in (bright, dark))
+        else:  # halfway: the threshold itself
+            sticker = metal = np.full(local.shape, float(split))
     inside = bright & finite
     if np.count_nonzero(inside) < 12:
         return TargetRefinement(None, "points")
@@ -249,7 +278,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
         if normal @ (side - origin) < 0:
             normal = -normal
         on_plane = points if origins is None else _on_plane(points, origins[:, None, :], origin, normal)
-        edges, along_profile, edge_rows = _edge_points(local, on_plane, bright, level)
+        edges, along_profile, edge_rows = _edge_points(local, on_plane, bright, sticker, metal, rim_edge)
         if len(edges) < 12:
             break
         e1 = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -301,7 +330,7 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
 
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,
                    sensor_origins_mm: np.ndarray | None = None, max_rms_mm: float,
-                   min_rim_coverage: float, radius_tolerance: float) -> TargetDetection:
+                   min_rim_coverage: float, radius_tolerance: float, rim_edge: str) -> TargetDetection:
     """Find sticker targets in one whole pass (the steps a stage streams, run at once: the same
     result as any block-wise run).
 
@@ -318,7 +347,10 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
         stickers cut by the pass border, shadows or glare fall short.
     radius_tolerance : largest relative difference between a free circle fit's radius and the
         nominal one.
-    The three thresholds have no defaults here: they come from ``schemas.reconstruction.TargetsConfig``.
+    rim_edge : how a rim point is located along a profile (``RIM_EDGES``, ``_edge_points``):
+        "halfway" where the intensity crosses halfway between sticker and metal, "share" from the
+        two pixels' shares of sticker.
+    The three thresholds and ``rim_edge`` have no defaults here: they come from ``schemas.reconstruction.TargetsConfig``.
     Targets come in the order ``find_circles`` ranks their circles.
     """
     intensity = np.asarray(intensity)
@@ -345,5 +377,5 @@ def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diam
         refinements.append(refine_target(intensity[window], points[window],
                                          None if origins is None else origins[window[0]], pixel=(row, col),
                                          grid=grid, max_rms_mm=max_rms_mm, min_rim_coverage=min_rim_coverage,
-                                         radius_tolerance=radius_tolerance))
+                                         radius_tolerance=radius_tolerance, rim_edge=rim_edge))
     return TargetDetection.from_refinements(refinements, pixel_mm=grid.pixel_mm)

@@ -63,7 +63,7 @@ def _refine(ctx, reader: PassReader, grid: SearchGrid, circles: np.ndarray) -> l
             refined[i] = refine_target(block.data.intensity[local, cols], block.points[local, cols],
                                        block.T_world_sensor[local, :3, 3], pixel=(row, col), grid=grid,
                                        max_rms_mm=s.max_rms_mm, min_rim_coverage=s.min_rim_coverage,
-                                       radius_tolerance=s.radius_tolerance)
+                                       radius_tolerance=s.radius_tolerance, rim_edge=s.rim_edge)
     assert all(r is not None for r in refined), "a circle's centre fell in no block"
     return refined  # type: ignore[return-value]
 

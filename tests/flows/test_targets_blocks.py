@@ -71,7 +71,8 @@ def test_the_stage_matches_detect_targets_on_the_whole_pass(ci_sample, pass_id, 
     s = ReconstructionConfig().targets
     found = detect_targets(data.intensity, points, sticker_diameter_mm=manifest.sticker_diameter_mm,
                            sensor_origins_mm=T[:, :3, 3], max_rms_mm=s.max_rms_mm,
-                           min_rim_coverage=s.min_rim_coverage, radius_tolerance=s.radius_tolerance)
+                           min_rim_coverage=s.min_rim_coverage, radius_tolerance=s.radius_tolerance,
+                           rim_edge=s.rim_edge)
     assert (metrics["targets"], metrics["circles"], metrics["rejected"]) == (len(found.targets), found.n_circles,
                                                                            found.rejected)
     reader = open_entry(ci_sample, entry)

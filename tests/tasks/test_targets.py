@@ -167,7 +167,8 @@ def _detect(p: _Pass, *, with_origins: bool = True, diameter_mm: float = 2 * RAD
     cfg = TargetsConfig()
     return detect_targets(p.intensity, p.points_mm, sticker_diameter_mm=diameter_mm,
                           sensor_origins_mm=p.origins_mm if with_origins else None, max_rms_mm=cfg.max_rms_mm,
-                          min_rim_coverage=cfg.min_rim_coverage, radius_tolerance=cfg.radius_tolerance)
+                          min_rim_coverage=cfg.min_rim_coverage, radius_tolerance=cfg.radius_tolerance,
+                          rim_edge=cfg.rim_edge)
 
 
 def _centre_errors_um(found: TargetDetection, truth_mm: np.ndarray) -> np.ndarray:
@@ -191,9 +192,11 @@ def _summary(err_um: np.ndarray) -> str:
     return f"centre errors median {np.median(e):.1f} um, max {e.max():.1f} um"
 
 
-# The bound of a noise-free pass: the rim is located between two neighbouring points by linear
-# interpolation of the intensity, which is exact for a straight edge and an area-weighted
-# footprint. What is left: the rim's curvature within one pitch (PITCH^2 / (8 r) = 0.25 um), the
+# The bound of a noise-free pass: the rim is located between two neighbouring points where their
+# intensity crosses halfway (linear interpolation), off by up to 0.09 of the pitch, RMS 0.06 (9 /
+# 6 um), with where the rim falls in its pixel; over a sticker's ~400 edge points at every phase
+# that averages down (test_the_shares_of_sticker_place_the_rim_closer_than_the_halfway_crossing).
+# Also: the rim's curvature within one pitch (PITCH^2 / (8 r) = 0.25 um), the
 # footprint sampled by 6 x 6 sub-rays (the share quantised to 1/36: up to PITCH / 72 = 1.4 um per
 # edge point, averaging down over ~400 edge points) and the 0.1 mm step of the paper, which the
 # detector removes by moving each rim point along its own ray onto the sticker's plane. Measured
@@ -282,6 +285,33 @@ def test_profiles_farther_apart_than_the_laser_line_is_thick(profile_pitch_mm):
     assert all(t.rim_coverage == 1.0 for t in found.targets)
 
 
+@pytest.mark.parametrize("tilt_deg", [0.0, 40.0])
+def test_the_shares_of_sticker_place_the_rim_closer_than_the_halfway_crossing(tilt_deg):
+    """``rim_edge`` "share": each pixel along a profile integrates its footprint, so the two
+    neighbours across the rim say by their shares of sticker where in its pixel the rim lies; the
+    halfway crossing between their centres is off by up to 0.09 of the pitch (RMS 0.06) with where
+    the rim falls. Noise-free, profiles 0.5 mm apart as on the demo (fewer edge points to average
+    that down). Measured rim fit RMS median 4.8 / 6.5 um halfway, 2.1 / 2.4 um share (head-on /
+    40 deg); centres median 1.6 / 2.3 against 0.5 / 0.9 um, max 2.0 / 3.6 against 0.8 / 1.9 um."""
+    cfg = TargetsConfig()
+    p = _scan(_Plane(tilt_deg, "y"), _sticker_layout(0), profiles=64, columns=500, rng=np.random.default_rng(0),
+              profile_pitch_mm=0.5, line_mm=0.1)
+    found = {mode: detect_targets(p.intensity, p.points_mm, sticker_diameter_mm=2 * RADIUS_MM,
+                                  sensor_origins_mm=p.origins_mm, max_rms_mm=cfg.max_rms_mm,
+                                  min_rim_coverage=cfg.min_rim_coverage, radius_tolerance=cfg.radius_tolerance,
+                                  rim_edge=mode) for mode in ("halfway", "share")}
+    assert all(len(f.targets) == 6 for f in found.values())
+    rim = {mode: np.median([t.rms_mm for t in f.targets]) for mode, f in found.items()}
+    err = {mode: np.linalg.norm(_centre_errors_um(f, p.truth_mm), axis=1) for mode, f in found.items()}
+    assert rim["share"] < 0.5 * rim["halfway"], rim
+    assert np.median(err["share"]) < 0.5 * np.median(err["halfway"]), _summary(err["share"])
+    assert err["share"].max() < NOISE_FREE_UM / 2, _summary(err["share"])
+    with pytest.raises(ValueError, match="rim_edge must be one of halfway, share, got 'middle'"):
+        detect_targets(p.intensity, p.points_mm, sticker_diameter_mm=2 * RADIUS_MM, sensor_origins_mm=p.origins_mm,
+                       max_rms_mm=cfg.max_rms_mm, min_rim_coverage=cfg.min_rim_coverage,
+                       radius_tolerance=cfg.radius_tolerance, rim_edge="middle")
+
+
 def test_stickers_cut_by_the_pass_border_are_rejected():
     """Four stickers reach 1 to 4 mm past the pass's first or last column or profile (the outermost
     points sit at +-29.95 and +-19.95 mm); two are whole. Only the whole ones are reported, at the
@@ -341,7 +371,7 @@ def test_detection_thresholds_have_no_defaults():
     p = _scan(_Plane(), [[0.0, 0.0]], profiles=20, columns=20, rng=np.random.default_rng(5))
     with pytest.raises(TypeError, match="max_rms_mm"):
         detect_targets(p.intensity, p.points_mm, sticker_diameter_mm=10.0, min_rim_coverage=0.85,
-                       radius_tolerance=0.1)
+                       radius_tolerance=0.1, rim_edge="halfway")
 
 
 @pytest.mark.parametrize("intensity_shape, points_shape, diameter, origins_shape, message", [
@@ -360,7 +390,7 @@ def test_detect_targets_rejects_bad_input(intensity_shape, points_shape, diamete
     with pytest.raises(ValueError, match=message):
         detect_targets(np.full(intensity_shape, 500, np.uint16), np.zeros(points_shape), sticker_diameter_mm=diameter,
                        sensor_origins_mm=origins, max_rms_mm=cfg.max_rms_mm, min_rim_coverage=cfg.min_rim_coverage,
-                       radius_tolerance=cfg.radius_tolerance)
+                       radius_tolerance=cfg.radius_tolerance, rim_edge=cfg.rim_edge)
 
 
 def _splits(rng: np.random.Generator, n: int) -> list[tuple[int, int]]:
@@ -450,7 +480,7 @@ def test_refine_target_rejects_bad_input(intensity_shape, points_shape, origins_
         refine_target(np.full(intensity_shape, 500, np.uint16), np.zeros(points_shape),
                       None if origins_shape is None else np.zeros(origins_shape), pixel=(5.0, 5.0), grid=grid,
                       max_rms_mm=cfg.max_rms_mm, min_rim_coverage=cfg.min_rim_coverage,
-                      radius_tolerance=cfg.radius_tolerance)
+                      radius_tolerance=cfg.radius_tolerance, rim_edge=cfg.rim_edge)
 
 
 @pytest.mark.parametrize("image, radius, message", [
