@@ -73,7 +73,8 @@ def main() -> None:
     print(f"# {args.run}: {len(triangles):,} triangles, {surface_volume:,.0f} mm3, {len(toes)} toe lines", flush=True)
     sizes = dict(weld_lines_mm=toes, size_mm=s.size_mm, weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm,
                  growth=s.growth, feature_angle_deg=s.feature_angle_deg, toe_lines_mm=toes, toe_size_mm=s.toe_size_mm,
-                 toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s)
+                 toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s,
+                 keep_surface_after_timeout=s.keep_surface_after_timeout)
     off = dict(min_dihedral_deg=0.0, max_aspect_ratio=np.inf)  # no sliver repair
     plain = None
     for name in args.variants:

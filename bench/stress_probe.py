@@ -144,7 +144,8 @@ def main() -> None:
     solid = tetrahedralize(v, f, weld_lines_mm=[apply(S, np.asarray(z.points_mm)) for z in zone.zones],
                            size_mm=s.size_mm, weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
                            feature_angle_deg=s.feature_angle_deg, optimize=s.optimize, toe_lines_mm=toes,
-                           toe_size_mm=s.toe_size_mm, toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s)
+                           toe_size_mm=s.toe_size_mm, toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s,
+                           keep_surface_after_timeout=s.keep_surface_after_timeout)
     results = {name: _solve(points, tets, spec, toes, args.strip_mm)
                for name, (points, tets) in (("reconstruction", rec), ("truth", (solid.points, solid.tetrahedra)))}
     for name, (_, _, figures) in results.items():

@@ -281,6 +281,10 @@ class VolumeConfig(InputModel):
     timeout_s: float = Field(default=3600.0, gt=0, le=86_400, description=(
         "gmsh gets this long for each try; beyond it its process is killed and no model is made (said in "
         "volume.json and the report; the run publishes the rest)"))
+    keep_surface_after_timeout: bool = Field(default=False, description=(
+        "where gmsh ran out of timeout_s remeshing the surface, try once more keeping the surface's own "
+        "triangles (the provisional FE model does: its surface is whatever the scan gave so far, and gmsh's "
+        "patch classification stalled on one)"))
 
 
 class StressConfig(InputModel):

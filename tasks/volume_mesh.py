@@ -101,7 +101,7 @@ def polyline_samples(lines_mm: list[np.ndarray], step_mm: float) -> np.ndarray:
 def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm: list[np.ndarray],
                    size_mm: float, weld_size_mm: float, weld_zone_mm: float, growth: float,
                    feature_angle_deg: float, optimize: bool, toe_size_mm: float, toe_zone_mm: float,
-                   timeout_s: float, toe_lines_mm: list[np.ndarray] = (), seed: int = 1,
+                   timeout_s: float, keep_surface_after_timeout: bool, toe_lines_mm: list[np.ndarray] = (), seed: int = 1,
                    min_dihedral_deg: float = MIN_DIHEDRAL_DEG, max_aspect_ratio: float = MAX_ASPECT_RATIO) -> VolumeMesh:
     """Tetrahedra filling the closed, outward-oriented triangle surface (vertices (v, 3) mm,
     triangles (t, 3)); sizes as in the module's description, and finer still toward the weld toes:
@@ -115,7 +115,10 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     edge's length).
     Raises VolumeMeshError when gmsh cannot mesh it either way (an open or self-intersecting
     surface) or made no tetrahedra; VolumeMeshTimeout when gmsh takes longer than ``timeout_s``
-    (each try: a surface gmsh takes pathologically long over is not tried again)."""
+    (each try: a surface gmsh takes pathologically long over is not tried again), unless
+    ``keep_surface_after_timeout``: then, as where it cannot reparametrise, once more with the
+    surface's own triangles kept (gmsh's patch classification can stall on a surface: seen on a
+    provisional mesh, ``flows.provisional``)."""
     vertices = np.ascontiguousarray(vertices, np.float64)
     triangles = np.ascontiguousarray(triangles, np.int64)
     if len(triangles) == 0:
@@ -135,8 +138,15 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     try:
         node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, timeout_s=timeout_s,
                                                         **sizes)
-    except VolumeMeshTimeout:
-        raise
+    except VolumeMeshTimeout as slow:
+        if not keep_surface_after_timeout:
+            raise
+        remeshed, kept_because = False, str(slow)
+        try:
+            node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False,
+                                                            timeout_s=timeout_s, **sizes)
+        except VolumeMeshError as second:
+            raise VolumeMeshError(f"{slow}; keeping the surface's own triangles: {second}") from second
     except VolumeMeshError as first:
         remeshed, kept_because = False, str(first)
         try:

@@ -53,7 +53,8 @@ def volume(ctx) -> dict[str, Any]:
         solid = tetrahedralize(vertices, triangles, weld_lines_mm=lines, size_mm=s.size_mm,
                                weld_size_mm=s.weld_size_mm, weld_zone_mm=s.weld_zone_mm, growth=s.growth,
                                feature_angle_deg=s.feature_angle_deg, optimize=s.optimize, toe_lines_mm=toes,
-                               toe_size_mm=s.toe_size_mm, toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s)
+                               toe_size_mm=s.toe_size_mm, toe_zone_mm=s.toe_zone_mm, timeout_s=s.timeout_s,
+                               keep_surface_after_timeout=s.keep_surface_after_timeout)
     except VolumeMeshError as exc:
         return _not_made(ctx, str(exc))
     checks = solid_checks(solid, closed.volume_mm3)

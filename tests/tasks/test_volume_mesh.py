@@ -22,7 +22,7 @@ BOX = (40.0, 20.0, 6.0)
 WELD = [np.array([[0.0, -10.0, 3.0], [0.0, 10.0, 3.0]])]
 SIZES = dict(size_mm=4.0, weld_size_mm=0.8, weld_zone_mm=2.0, growth=0.5,
              feature_angle_deg=40.0, optimize=True, toe_size_mm=0.8, toe_zone_mm=0.0,  # toes: no finer (off)
-             timeout_s=600.0)
+             timeout_s=600.0, keep_surface_after_timeout=False)
 
 
 def box_surface(size=BOX, n=8, offset=(0.0, 0.0, 0.0)):
@@ -206,6 +206,31 @@ def test_gmsh_taking_longer_than_its_time_is_given_up_and_its_process_killed():
     vertices, triangles = box_surface((10, 10, 10), n=2)
     with pytest.raises(VolumeMeshTimeout, match=r"gmsh did not finish within 0.01 s \(volume.timeout_s\)"):
         tetrahedralize(vertices, triangles, weld_lines_mm=[], **{**SIZES, "timeout_s": 0.01})
+
+
+def test_a_stalled_remesh_keeps_the_surface_when_asked(monkeypatch):
+    """``keep_surface_after_timeout`` (the provisional FE model's): where the remeshing try ran out of
+    its time (gmsh's patch classification stalled on a provisional surface for 9 minutes), the
+    surface's own triangles are kept and the inside meshed, by the real gmsh; the stall is the
+    one thing stood in for."""
+    import tasks.volume_mesh as vm
+
+    real = vm._gmsh_volume
+
+    def stalling(vertices, triangles, weld, *, remesh, timeout_s, **sizes):
+        if remesh:
+            raise vm.VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)")
+        return real(vertices, triangles, weld, remesh=remesh, timeout_s=timeout_s, **sizes)
+
+    monkeypatch.setattr(vm, "_gmsh_volume", stalling)
+    vertices, triangles = box_surface((10, 10, 10), n=4)
+    solid = tetrahedralize(vertices, triangles, weld_lines_mm=[], **{**SIZES, "keep_surface_after_timeout": True})
+    assert not solid.surface_remeshed and "within 600 s" in solid.surface_kept_because
+    p = solid.points[solid.tetrahedra]
+    volume = np.einsum("ij,ij->i", p[:, 1] - p[:, 0], np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 0])).sum() / 6
+    assert volume == pytest.approx(1000.0, rel=1e-9)  # the box, 10 mm a side, filled
+    with pytest.raises(vm.VolumeMeshTimeout, match="within 600 s"):  # not asked: given up, as before
+        tetrahedralize(vertices, triangles, weld_lines_mm=[], **SIZES)
 
 
 def test_polyline_samples_keep_the_step_and_the_ends():
