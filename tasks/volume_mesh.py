@@ -138,16 +138,9 @@ def tetrahedralize(vertices: np.ndarray, triangles: np.ndarray, *, weld_lines_mm
     try:
         node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=True, timeout_s=timeout_s,
                                                         **sizes)
-    except VolumeMeshTimeout as slow:
-        if not keep_surface_after_timeout:
-            raise
-        remeshed, kept_because = False, str(slow)
-        try:
-            node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False,
-                                                            timeout_s=timeout_s, **sizes)
-        except VolumeMeshError as second:
-            raise VolumeMeshError(f"{slow}; keeping the surface's own triangles: {second}") from second
     except VolumeMeshError as first:
+        if isinstance(first, VolumeMeshTimeout) and not keep_surface_after_timeout:
+            raise
         remeshed, kept_because = False, str(first)
         try:
             node_tags, coords, element_nodes = _gmsh_volume(vertices, triangles, weld, remesh=False,
