@@ -10,7 +10,7 @@ from pydantic import Field, model_validator
 from schemas.acceptance import AcceptanceLimits
 from schemas.common import InputModel, Vector3
 
-__all__ = ["DenoiseConfig", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
+__all__ = ["DenoiseConfig", "RimEdge", "TargetsConfig", "RegistrationConfig", "SurfaceRegistrationConfig", "RefineConfig",
            "MergeConfig", "SegmentConfig", "PoissonConfig", "WeldGeometryConfig", "VolumeConfig", "QaReportConfig", "ReconstructionConfig"]
 
 
@@ -35,11 +35,15 @@ class DenoiseConfig(InputModel):
         "thinning is a multiple of the copy's reads the copy (the paper preset: 1/48 of the points)"))
 
 
+RimEdge = Literal["halfway", "share"]
+"""Where a sticker's rim point lies along a profile (``tasks.targets``, ``TargetsConfig.rim_edge``)."""
+
+
 class TargetsConfig(InputModel):
     max_rms_mm: float = Field(default=0.08, gt=0, le=1)
     min_rim_coverage: float = Field(default=0.85, gt=0, le=1)
     radius_tolerance: float = Field(default=0.1, gt=0, lt=1)
-    rim_edge: Literal["halfway", "share"] = Field(default="halfway", description=(
+    rim_edge: RimEdge = Field(default="halfway", description=(
         "where a rim point lies along a profile (tasks.targets): halfway, where the intensity "
         "crosses halfway between sticker and metal; share, from the two pixels' shares of sticker "
         "(each pixel integrates its footprint). Against the simulator's true stickers, 3-D centre "

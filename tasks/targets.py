@@ -40,18 +40,20 @@ results are the same bytes however the pass is split into blocks.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import get_args
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from schemas.reconstruction import RimEdge
 from tasks.arrays import distinct
 from tasks.target_search import GridSpacing, HoughImage, SearchGrid, find_circles, search_grid
 
 __all__ = ["RIM_EDGES", "Target", "TargetDetection", "TargetRefinement", "SearchGrid", "GridSpacing", "HoughImage",
            "search_grid", "find_circles", "refine_target", "detect_targets"]
 
-RIM_EDGES = ("halfway", "share")
+RIM_EDGES = get_args(RimEdge)
 _RIM_BINS = 24
 _REJECTIONS = ("rim", "fit", "radius", "points")
 
@@ -160,8 +162,9 @@ def _edge_points(intensity: np.ndarray, points: np.ndarray, bright: np.ndarray, 
     sticker side's far boundary (halfway is off by up to 0.09 of the spacing, RMS 0.06, with where
     the edge falls in its pixel). Across profiles the laser line is thinner than the spacing:
     halfway, as a bound."""
-    span = sticker - metal
-    share = np.clip((intensity.astype(np.float64) - metal) / np.where(np.abs(span) > 1e-9, span, 1e-9), 0.0, 1.0)
+    if rim_edge == "share":
+        span = sticker - metal
+        share = np.clip((intensity.astype(np.float64) - metal) / np.where(np.abs(span) > 1e-9, span, 1e-9), 0.0, 1.0)
     level = 0.5 * (sticker + metal)
     I = intensity.astype(np.float64) - level
     P = points
