@@ -79,8 +79,9 @@ from tasks.volume_mesh import largest_piece
 from tasks.weld_zone import weld_zone
 
 MODEL_TIMEOUT_S = 120.0
-"""What gmsh (each try) and CalculiX (each solve) get in the provisional FE model: on the paper preset
-its gmsh took ~33 s, its whole volume stage 73 s (bench/README.md)."""
+"""The seconds of CPU time gmsh (each try) and CalculiX (each solve) get in the provisional FE model
+(``tasks.volume_mesh.run_limited``: CPU time, so that a busy machine only makes them wait): on the
+paper preset its gmsh took ~33 s, its whole volume stage 73 s (bench/README.md)."""
 
 __all__ = ["MESH_NAME", "MESH_RECORD", "MODEL_RECORD", "MODEL_TIMEOUT_S", "PAGE_NAME", "PROVISIONAL", "VERDICT_NAME", "ProvisionalWeld",
            "mark_provisional", "subset_manifest"]
@@ -540,7 +541,7 @@ class ProvisionalWeld:
 
         st, built, config = self.state, self._built, self.config
         # worth having only before the final model, which waits for it: gmsh and CalculiX get
-        # MODEL_TIMEOUT_S each, and a remesh that stalls keeps the surface's own triangles (gmsh's
+        # MODEL_TIMEOUT_S of CPU time each, and a remesh that stalls keeps the surface's own triangles (gmsh's
         # patch classification stalled for 9 minutes on one provisional mesh of the demo)
         config = config.model_copy(update={
             "volume": config.volume.model_copy(update={"timeout_s": min(config.volume.timeout_s, MODEL_TIMEOUT_S),

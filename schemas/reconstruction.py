@@ -283,8 +283,9 @@ class VolumeConfig(InputModel):
     max_volume_difference: float = Field(default=0.005, gt=0, le=1, description=(
         "the solid's volume against the surface mesh's, relative: beyond it the stage fails"))
     timeout_s: float = Field(default=3600.0, gt=0, le=86_400, description=(
-        "gmsh gets this long for each try; beyond it its process is killed and no model is made (said in "
-        "volume.json and the report; the run publishes the rest)"))
+        "gmsh gets this many seconds of CPU time for each try (it runs on one thread: its time on an idle "
+        "machine; one that waits on nothing is killed after 4 times as long), beyond which its process is "
+        "killed and no model is made (said in volume.json and the report; the run publishes the rest)"))
     keep_surface_after_timeout: bool = Field(default=False, description=(
         "where gmsh ran out of timeout_s remeshing the surface, try once more keeping the surface's own "
         "triangles (the provisional FE model does: its surface is whatever the scan gave so far, and gmsh's "
@@ -327,7 +328,8 @@ class StressConfig(InputModel):
     max_nodes_per_solve: int = Field(default=100_000, ge=1000, le=50_000_000, description=(
         "as many sections go to one CalculiX run as this many nodes hold (its memory: ~16 kB a node, "
         "~1.6 GB at the default)"))
-    timeout_s: float = Field(default=1800.0, gt=0, le=86_400, description="gmsh and CalculiX get this long each")
+    timeout_s: float = Field(default=1800.0, gt=0, le=86_400, description=(
+        "gmsh and CalculiX get this many seconds of CPU time each (one thread: their time on an idle machine)"))
     notch_stress: bool = Field(default=False, description=(
         "the IIW effective notch stress too: every section solved again with its notches rounded to "
         "notch_radius_mm (twice the solving time), each toe line's notch hot spot and, with a load range in "

@@ -3,7 +3,8 @@
 The model goes in as arrays (nodes in mm, C3D4 or C3D10 tetrahedra in Abaqus node order, named
 node sets), the load case as prescribed displacements on node sets (one value for a set, or one
 per node of it), one isotropic linear elastic material (N, mm, MPa); CalculiX runs in a child process of its own in a scratch folder, one
-thread (the same model, the same numbers), killed past ``timeout_s`` and when this process dies.
+thread (the same model, the same numbers), killed past ``timeout_s`` of CPU time
+(``tasks.volume_mesh.run_limited``) and when this process dies.
 Out come the displacements, the stresses extrapolated to the nodes and averaged (CalculiX's
 ``*NODE FILE`` S, the ``.frd`` file) and the reaction force summed over each constrained set
 (``*NODE PRINT`` RF totals, the ``.dat`` file), node by node as well for the sets asked for.
@@ -26,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from tasks.arrays import distinct
-from tasks.volume_mesh import ONE_THREAD_ENV, dies_with_parent
+from tasks.volume_mesh import ONE_THREAD_ENV, run_limited
 
 __all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
            "max_principal", "GMSH_TO_ABAQUS_TET10"]
@@ -178,10 +179,10 @@ def solve_static(points: np.ndarray, elements: np.ndarray, case: DisplacementCas
 
 def _run(ccx: str, folder: Path, timeout_s: float) -> str:
     try:
-        done = subprocess.run([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
-                              env={**os.environ, **_ONE_THREAD}, preexec_fn=dies_with_parent(), timeout=timeout_s)
+        done = run_limited([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
+                           env={**os.environ, **_ONE_THREAD}, timeout_s=timeout_s)
     except subprocess.TimeoutExpired:
-        raise FESolveError(f"CalculiX did not finish within {timeout_s:g} s") from None
+        raise FESolveError(f"CalculiX did not finish within {timeout_s:g} s of CPU time") from None
     log = done.stdout + done.stderr
     errors = [line.strip() for line in log.splitlines() if "*ERROR" in line]
     if done.returncode != 0 or errors or not (folder / "job.frd").exists():

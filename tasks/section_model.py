@@ -116,7 +116,8 @@ def mesh_sections(sections: Sequence[PlaneSection], settings: SectionMeshSetting
         if s["outline"].ndim != 2 or s["outline"].shape[1] != 2 or len(s["outline"]) < 3:
             raise ValueError(f"section {k}: outline_mm must be (k >= 3, 2), got {s['outline'].shape}")
     value = run_gmsh_child("gmsh_sections.py", (payload, {}), timeout_s=timeout_s, failed=SectionMeshError,
-                           too_slow=SectionMeshError(f"gmsh did not mesh the sections within {timeout_s:g} s"))
+                           too_slow=SectionMeshError(f"gmsh did not mesh the sections within {timeout_s:g} s of "
+                                                     "CPU time"))
     return [SectionMesh(points, triangles) for points, triangles in value]
 
 

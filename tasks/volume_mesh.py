@@ -16,9 +16,11 @@ The files for FE programs (Abaqus ``.inp``, VTU) are written by ``data_catalog.v
 from __future__ import annotations
 
 import ctypes
+import math
 import os
-import signal
 import pickle
+import resource
+import signal
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -35,7 +37,7 @@ from tasks.sliver_repair import MAX_ASPECT_RATIO, MIN_DIHEDRAL_DEG, repair_bound
 from tasks.weld_zone import weld_zone
 
 __all__ = ["VolumeMesh", "VolumeMeshError", "VolumeMeshTimeout", "tetrahedralize", "triangle_pieces", "largest_piece", "boundary_faces", "element_quality", "solid_checks", "polyline_samples",
-           "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent", "face_nodes",
+           "quality_summary", "signed_volumes", "orient_tetrahedra", "dies_with_parent", "run_limited", "face_nodes",
            "quadratic_tetrahedra", "element_face_nodes", "ONE_THREAD_ENV"]
 
 # Abaqus C3D4 faces by the node each leaves out: S1 (1,2,3) leaves out node 4, S2 (1,4,2) node 3,
@@ -228,17 +230,44 @@ def dies_with_parent():
     return in_the_child
 
 
+# a child's time limit is CPU time, not the wall clock's: a stalled gmsh spins (its patch
+# classification, 9 minutes on one provisional surface), and on a busy machine (a test suite on two
+# cores, the run on the finished sample beside a followed one) a remesh of 60 CPU seconds took more
+# than 120 s of wall time, so a wall-clock limit gave up on a model the same code makes alone. A
+# child that waits on nothing is still killed after WALL_PER_CPU times its limit.
+WALL_PER_CPU = 4.0
+
+
+def run_limited(args: list[str], *, timeout_s: float, **kwargs) -> subprocess.CompletedProcess:
+    """``subprocess.run(args, **kwargs)`` in a child that dies with this process
+    (``dies_with_parent``), one thread's worth of work held to ``timeout_s`` seconds of CPU time
+    (``RLIMIT_CPU``, whole seconds, at least one; no core file) and to ``WALL_PER_CPU`` times
+    ``timeout_s`` of wall time. Raises ``subprocess.TimeoutExpired`` past either (the child killed)."""
+    cpu_s = max(1, math.ceil(timeout_s))
+    deaths = dies_with_parent()
+
+    def in_the_child() -> None:
+        deaths()
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 2))  # SIGXCPU, then SIGKILL
+
+    done = subprocess.run(args, preexec_fn=in_the_child, timeout=WALL_PER_CPU * timeout_s, **kwargs)
+    if done.returncode == -signal.SIGXCPU:  # (the hard limit's SIGKILL only for a child that ignores SIGXCPU)
+        raise subprocess.TimeoutExpired(args, timeout_s, output=done.stdout, stderr=done.stderr)
+    return done
+
+
 def run_gmsh_child(script: str, payload, *, timeout_s: float, failed: type[Exception], too_slow: Exception):
     """``tasks/<script>`` (a gmsh child: ``gmsh_volume.py``, ``gmsh_sections.py``) run by its path in
     a fresh process with one thread (``ONE_THREAD_ENV``), ``payload`` pickled on its stdin; returns
     what it answers after ``RESULT``. Run by path, not imported from the package: the child loads
     numpy and gmsh alone, not what ``tasks`` loads for every stage (pymeshlab, scipy: 1.2 s of a
-    ~10 s child). Raises ``too_slow`` (its process killed) past ``timeout_s``, ``failed(message)``
-    when it dies or says an error."""
+    ~10 s child). Raises ``too_slow`` (its process killed) past ``timeout_s`` of CPU time
+    (``run_limited``), ``failed(message)`` when it dies or says an error."""
     env = {**os.environ, **ONE_THREAD_ENV}
     try:
-        done = subprocess.run([sys.executable, str(Path(__file__).with_name(script))], input=pickle.dumps(payload),
-                              capture_output=True, env=env, preexec_fn=dies_with_parent(), timeout=timeout_s)
+        done = run_limited([sys.executable, str(Path(__file__).with_name(script))], input=pickle.dumps(payload),
+                           capture_output=True, env=env, timeout_s=timeout_s)
     except subprocess.TimeoutExpired:  # the child is killed
         raise too_slow from None
     if done.returncode != 0 or RESULT not in done.stdout:
@@ -254,7 +283,8 @@ def _gmsh_volume(vertices, triangles, weld, *, timeout_s: float, **settings):
     """``tasks.gmsh_volume.gmsh_volume`` in a fresh child process with one thread (``run_gmsh_child``)."""
     return run_gmsh_child("gmsh_volume.py", (vertices, triangles, weld, settings), timeout_s=timeout_s,
                           failed=VolumeMeshError,
-                          too_slow=VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)"))
+                          too_slow=VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s of CPU time "
+                                                    "(volume.timeout_s)"))
 
 
 def signed_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:

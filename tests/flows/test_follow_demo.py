@@ -83,13 +83,15 @@ def _check(demo_sample: Path, run: Path, done: Path) -> None:
     models = [e for e in trail if e["kind"] == "provisional-model-published" and e["passes"] == passes]
     assert len(verdict) == 1 and len(meshes) == 1 and len(models) == 1, (verdict, meshes, models)
     assert seq[verdict[0]["seq"]] < seq[meshes[0]["seq"]] < seq[models[0]["seq"]] < seq[stages["registration"]["seq"]]
-    # the FE model: a remesh gmsh stalls on is given up after flows.provisional.MODEL_TIMEOUT_S and the
-    # provisional surface's own triangles kept (seen: gmsh's patch classification stalled 9 minutes on
-    # one provisional mesh; on another run's the model was remeshed in ~70 s)
-    assert models[0]["fe_model"], models[0]
+    # the FE model: a remesh gmsh stalls on is given up after flows.provisional.MODEL_TIMEOUT_S of CPU
+    # time and the provisional surface's own triangles kept (seen: gmsh's patch classification stalled
+    # 9 minutes on one provisional mesh; on another run's the model was remeshed in ~70 s). CPU time,
+    # not the wall clock's: in CI, beside the other tests, under a limit of 120 s of wall time no model
+    # was made (why, the test did not say then; beside one busy process here the remesh took 91 s).
+    record = json.loads((run / "provisional" / "model.json").read_text())
+    assert models[0]["fe_model"], record["fe_model"]
     # the stress: made, or why not said on the page's record (seen in one of two runs: CalculiX refused
     # a provisional section's mesh, "nonpositive jacobian", where the final sections solved)
-    record = json.loads((run / "provisional" / "model.json").read_text())
     assert models[0]["stress"] or record["stress"]["why"], record["stress"]
     # what the provisional verdict said is what the final one says
     provisional = json.loads((run / "provisional" / "weld_verdict.json").read_text())["weld"]

@@ -204,8 +204,28 @@ def test_gmsh_taking_longer_than_its_time_is_given_up_and_its_process_killed():
     from tasks.volume_mesh import VolumeMeshTimeout
 
     vertices, triangles = box_surface((10, 10, 10), n=2)
-    with pytest.raises(VolumeMeshTimeout, match=r"gmsh did not finish within 0.01 s \(volume.timeout_s\)"):
+    with pytest.raises(VolumeMeshTimeout, match=r"gmsh did not finish within 0.01 s of CPU time \(volume.timeout_s\)"):
         tetrahedralize(vertices, triangles, weld_lines_mm=[], **{**SIZES, "timeout_s": 0.01})
+
+
+def test_a_childs_limit_is_cpu_time_not_the_wall_clocks():
+    """``run_limited``: a child spinning is killed once it has used its CPU seconds (gmsh's stalls
+    spin); a child that waits (as a remesh does on a machine busy with other work) is not, until
+    ``WALL_PER_CPU`` times as long has passed."""
+    import subprocess
+    import sys
+
+    from tasks.volume_mesh import WALL_PER_CPU, run_limited
+
+    spin = [sys.executable, "-c", "while True: pass"]
+    with pytest.raises(subprocess.TimeoutExpired):
+        run_limited(spin, timeout_s=1.0, capture_output=True)
+    waits = run_limited([sys.executable, "-c", "import time; time.sleep(2.0); print('done')"], timeout_s=1.0,
+                        capture_output=True, text=True)
+    assert waits.returncode == 0 and waits.stdout == "done\n"  # 2 s of wall time, under a second of CPU
+    assert WALL_PER_CPU * 1.0 > 2.0
+    with pytest.raises(subprocess.TimeoutExpired):  # waiting past WALL_PER_CPU times the limit
+        run_limited([sys.executable, "-c", "import time; time.sleep(60)"], timeout_s=0.25, capture_output=True)
 
 
 def test_a_stalled_remesh_keeps_the_surface_when_asked(monkeypatch):
@@ -219,7 +239,7 @@ def test_a_stalled_remesh_keeps_the_surface_when_asked(monkeypatch):
 
     def stalling(vertices, triangles, weld, *, remesh, timeout_s, **sizes):
         if remesh:
-            raise vm.VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s (volume.timeout_s)")
+            raise vm.VolumeMeshTimeout(f"gmsh did not finish within {timeout_s:g} s of CPU time (volume.timeout_s)")
         return real(vertices, triangles, weld, remesh=remesh, timeout_s=timeout_s, **sizes)
 
     monkeypatch.setattr(vm, "_gmsh_volume", stalling)
