@@ -253,12 +253,20 @@ class StressFigures(StrictModel):
     toes_finer_than_points: int | None = None  # toes whose measured radius is under the point spacing
 
 
+class RefusedSection(StrictModel):
+    """A section CalculiX refused (``tasks.section_model.each_solved``): left out of the stress."""
+
+    position_mm: float
+    why: str
+
+
 class StressSummary(StressFigures):
     """``stress.json``: the stress concentration along every measured toe, or why not computed."""
 
     schema_version: Literal["1"] = "1"
     driving_line: str | None = None
     sections: list[StressSection] = []
+    sections_refused: list[RefusedSection] = []
 
 
 class StressReport(StressFigures):

@@ -29,7 +29,7 @@ import numpy as np
 from tasks.arrays import distinct
 from tasks.volume_mesh import ONE_THREAD_ENV, run_limited
 
-__all__ = ["CalculixNotFound", "FESolveError", "Material", "DisplacementCase", "FESolution", "solve_static",
+__all__ = ["CalculixNotFound", "FESolveError", "FESolveTimeout", "Material", "DisplacementCase", "FESolution", "solve_static",
            "max_principal", "GMSH_TO_ABAQUS_TET10"]
 
 # gmsh's 10-node tetrahedron numbers its edge nodes (0-1, 1-2, 2-0, 3-0, 3-2, 3-1); Abaqus's C3D10
@@ -45,6 +45,10 @@ class CalculixNotFound(RuntimeError):
 
 class FESolveError(RuntimeError):
     """CalculiX refused the model or ended without results."""
+
+
+class FESolveTimeout(FESolveError):
+    """CalculiX did not finish within the CPU time it was given (its process killed)."""
 
 
 @dataclass(frozen=True)
@@ -182,7 +186,7 @@ def _run(ccx: str, folder: Path, timeout_s: float) -> str:
         done = run_limited([ccx, "-i", "job"], cwd=folder, capture_output=True, text=True,
                            env={**os.environ, **_ONE_THREAD}, timeout_s=timeout_s)
     except subprocess.TimeoutExpired:
-        raise FESolveError(f"CalculiX did not finish within {timeout_s:g} s of CPU time") from None
+        raise FESolveTimeout(f"CalculiX did not finish within {timeout_s:g} s of CPU time") from None
     log = done.stdout + done.stderr
     errors = [line.strip() for line in log.splitlines() if "*ERROR" in line]
     if done.returncode != 0 or errors or not (folder / "job.frd").exists():

@@ -29,20 +29,22 @@ the default, as for a weld across a wide plate.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import math
 
 import numpy as np
 
 from tasks.arrays import distinct
-from tasks.fe_solve import DisplacementCase, FESolution, Material, max_principal, solve_static
+from tasks.fe_solve import (DisplacementCase, FESolution, FESolveError, FESolveTimeout, Material, max_principal,
+                            solve_static)
 from tasks.volume_mesh import run_gmsh_child
 
 __all__ = ["PlaneSection", "SectionMeshSettings", "SectionMesh", "SectionSolution", "SectionMeshError",
-           "mesh_sections", "pull_sections", "bend_sections", "peaks_near", "boundary_nodes"]
+           "mesh_sections", "pull_sections", "bend_sections", "each_solved", "peaks_near", "boundary_nodes"]
 
 
 class SectionMeshError(RuntimeError):
@@ -149,6 +151,31 @@ def bend_sections(meshes: Sequence[SectionMesh], *, end_rotation_rad: float = 1e
     """Each section bent, its ends turned by ``end_rotation_rad`` each about their mid-thickness
     (see the module's description), the top (+y) face stretched; in runs as ``pull_sections``."""
     return _in_runs(meshes, "bend", float(end_rotation_rad), plane, material, timeout_s, max_nodes_per_run, workdir)
+
+
+def each_solved(solve: Callable[..., list[SectionSolution]], meshes: Sequence[SectionMesh],
+                **kwargs: Any) -> list[SectionSolution | FESolveError]:
+    """``solve(meshes, **kwargs)`` (``pull_sections``, ``bend_sections``), where a section CalculiX
+    refuses (seen: "nonpositive jacobian" on one provisional section) does not take the others with
+    it: a run it fails is solved again one section at a time, and a section refused alone has its
+    error in its place. The same solutions as ``solve`` where nothing is refused. A run that ran out
+    of time (``FESolveTimeout``) is not tried again, section by section, and is raised."""
+    try:
+        return list(solve(meshes, **kwargs))
+    except FESolveTimeout:
+        raise
+    except FESolveError as together:
+        if len(meshes) == 1:
+            return [together]
+    out: list[SectionSolution | FESolveError] = []
+    for mesh in meshes:
+        try:
+            out += solve([mesh], **kwargs)
+        except FESolveTimeout:
+            raise
+        except FESolveError as alone:
+            out.append(alone)
+    return out
 
 
 def _in_runs(meshes: Sequence[SectionMesh], load: str, amount: float, plane: str, material: Material,

@@ -36,8 +36,8 @@ from data_catalog.volume_meshes import write_section_vtu
 from flows.stages.outputs import (HOT_SECTION, REFINED, SPECIMEN, STRESS_SUMMARY, STRESS_VTU, WELD_GEOMETRY,
                                   HotSection)
 from flows.stages.placement import weld_frame
-from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, StressConvergence, StressSection,
-                                     StressSummary, ToeHotSpot, ToeStress)
+from schemas.stage_documents import (DrawnStress, DrawnToe, FatigueEstimate, RefusedSection, StressConvergence,
+                                     StressSection, StressSummary, ToeHotSpot, ToeStress)
 from schemas.weld_document import FilletWeldSection, WeldGeometry, WeldSection
 from tasks.arrays import distinct
 from tasks.frames import apply, invert, rotate
@@ -45,7 +45,7 @@ from tasks.plate_section import (PlateProfile, SectionFrame, TeeProfile, drawn_p
                                  profile_section, rounded_notches, rounded_tee, tee_profile, tee_section,
                                  drawn_tee_section)
 from tasks.section_model import (PlaneSection, SectionMeshError, SectionMeshSettings, SectionMesh, SectionSolution,
-                                 bend_sections, mesh_sections, peaks_near, pull_sections)
+                                 bend_sections, each_solved, mesh_sections, peaks_near, pull_sections)
 from tasks.fatigue import notch_cycles
 from tasks.fe_solve import CalculixNotFound, FESolveError
 
@@ -239,7 +239,15 @@ def stress(ctx) -> dict[str, Any]:
     bending = ctx.manifest.load is not None and ctx.manifest.load.kind == "bending"
     try:
         meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
-        solutions = _load_sections(meshes, s, bending)
+        # a section CalculiX refuses is left out, and said, instead of failing the others with it
+        solved = each_solved(pull_sections if not bending else bend_sections, meshes, timeout_s=s.timeout_s,
+                             max_nodes_per_run=s.max_nodes_per_solve)
+        refused = [RefusedSection(position_mm=m.section.position_mm, why=str(x))
+                   for m, x in zip(models, solved) if isinstance(x, FESolveError)]
+        models = [m for m, x in zip(models, solved) if not isinstance(x, FESolveError)]
+        solutions = [x for x in solved if not isinstance(x, FESolveError)]
+        if not models:
+            return _not_made(ctx, f"CalculiX refused every section: {refused[0].why}")
         notch_peaks = _notch_peaks(models, s, bending) if s.notch_stress else None
     except (SectionMeshError, FESolveError, CalculixNotFound) as exc:
         return _not_made(ctx, str(exc))
@@ -321,7 +329,7 @@ def stress(ctx) -> dict[str, Any]:
     summary = StressSummary(
         made=True, model=(MODEL_BENDING if bending else MODEL) + ((CRUCIFORM if kind == "cruciform" else TEE) if fillet
                                                                   else ""), driving_line=driving.name,
-        sections=sections,
+        sections=sections, sections_refused=refused,
         hot_spots=hot_spots, hot_spot=hot,
         convergence=convergence, max_imbalance=imbalance, max_membrane_error=max(membrane, key=abs) if membrane else None,
         notch_radius_mm=s.notch_radius_mm if s.notch_stress else None, notch_hot_spots=notch_hot_spots,
@@ -329,7 +337,8 @@ def stress(ctx) -> dict[str, Any]:
         point_spacing_mm=None if spacing is None else round(spacing, 4),
         toes_finer_than_points=None if spacing is None else sum(r < spacing for r in radii))
     STRESS_SUMMARY.write(ctx.out, summary)
-    return {"made": True, "sections": len(sections), "hot_spot_factor": None if hot is None else hot.factor,
+    return {"made": True, "sections": len(sections), **({"sections_refused": len(refused)} if refused else {}),
+            "hot_spot_factor": None if hot is None else hot.factor,
             "hot_spot": None if hot is None else f"{hot.line} {hot.side} at {hot.position_mm:g} mm",
             "max_imbalance": imbalance,
             "notch_hot_spot_factor": max((h.factor for h in notch_hot_spots), default=None)}

@@ -158,6 +158,49 @@ def test_the_notch_stress_and_the_fatigue_estimate(ci_run, ci_sample, tmp_path):
         assert abs(toe["difference"]) < 0.06, (name, toe)
 
 
+def test_a_section_calculix_refuses_is_left_out_and_said(ci_run, ci_sample, tmp_path, monkeypatch):
+    """The stage's body again on the ci run's inputs, one section's mesh spoilt (a triangle turned
+    inside out; the one thing stood in for: seen on a provisional section of the demo, "nonpositive
+    jacobian"): the real CalculiX refuses it, the other sections are solved as before, the refused
+    one is named in stress.json, and the report's stress check is flagged saying where and why."""
+    from data_catalog.manifests import load_manifest
+    from flows.preflight import load_config
+    from flows.stages import stress as stress_stage
+    from flows.stages.report import stress_check
+    from flows.stages.runner import StageContext
+    from tasks.section_model import SectionMesh
+
+    out, report = ci_run
+    before = STRESS_SUMMARY.read(report["refs"]["stress"])
+    real = stress_stage.mesh_sections
+
+    def one_spoilt(planes, settings, **kwargs):
+        meshes = real(planes, settings, **kwargs)
+        if len(meshes) == len(before.sections):  # the sections (not the hot spot's finer one)
+            flipped = meshes[2].triangles.copy()
+            flipped[0] = flipped[0][[0, 2, 1, 5, 4, 3]]
+            meshes[2] = SectionMesh(meshes[2].points, flipped)
+        return meshes
+
+    monkeypatch.setattr(stress_stage, "mesh_sections", one_spoilt)
+    config = load_config(REPO / "deploy" / "configs" / "ci.yaml")
+    ctx = StageContext(out=tmp_path, sample_dir=ci_sample, manifest=load_manifest(ci_sample), config=config,
+                       settings=config.stress, entry=None,
+                       inputs={k: report["refs"][k] for k in ("refine", "segment", "weld")})
+    metrics = stress_stage.stress(ctx)
+    summary = STRESS_SUMMARY.read_path(tmp_path / STRESS_SUMMARY.name)
+    assert summary.made and metrics["sections_refused"] == 1
+    (refused,) = summary.sections_refused
+    assert refused.position_mm == before.sections[2].position_mm and "nonpositive jacobian" in refused.why
+    kept = [x for k, x in enumerate(before.sections) if k != 2]
+    assert [x.position_mm for x in summary.sections] == [x.position_mm for x in kept]
+    for got, want in zip(summary.sections, kept):  # solved alone: the same factors as in one run with the others
+        for a, b in zip(got.toes, want.toes):
+            assert a.factor == pytest.approx(b.factor, rel=1e-5), (got.position_mm, a, b)
+    check = stress_check(summary)
+    assert check.result == "flagged" and f"at {refused.position_mm:g} mm" in check.what and "nonpositive" in check.what
+
+
 def test_a_missing_solver_is_one_line_at_the_start_and_the_run_goes_on(ci_run, ci_sample, tmp_path):
     """No ``ccx`` on the PATH: one line before any work says so and what installs it; the run goes
     on (here its stages come from the session's stage cache, the stress stage's too)."""

@@ -221,3 +221,32 @@ def test_sections_bent_in_several_runs_give_what_one_run_gives(bent):
         # the same to the digits CalculiX writes (six), the equations numbered otherwise
         np.testing.assert_allclose(a.stress_mpa, b.stress_mpa, rtol=1e-5, atol=1e-6 * np.abs(b.stress_mpa).max())
         assert a.moment_nmm == pytest.approx(b.moment_nmm, rel=1e-9)
+
+
+def test_a_section_calculix_refuses_leaves_the_others_solved():
+    """One section's mesh CalculiX refuses (a triangle turned inside out: "nonpositive jacobian", as
+    on one provisional section of the demo) fails its whole run; ``each_solved`` solves that run
+    again a section at a time: the refused one's error in its place, the others' stresses what a run
+    without it gives. A run out of time is raised, not tried again section by section."""
+    from tasks.fe_solve import FESolveError, FESolveTimeout
+    from tasks.section_model import SectionMesh, each_solved
+
+    sections = [_notched_strip(40.0, 2.0, 100.0), _plate_with_hole(50.0, 10.0, 100.0), _notched_strip(30.0, 1.0, 100.0)]
+    meshes = mesh_sections(sections, SectionMeshSettings(fine_size_mm=0.5, fine_reach_mm=1.0, size_mm=4.0, growth=0.3),
+                           timeout_s=120)
+    flipped = meshes[1].triangles.copy()
+    flipped[0] = flipped[0][[0, 2, 1, 5, 4, 3]]  # corners 1, 2 and their edges' nodes swapped
+    bad = SectionMesh(meshes[1].points, flipped)
+    with pytest.raises(FESolveError, match="nonpositive jacobian"):
+        pull_sections([meshes[0], bad, meshes[2]], stretch_mm=0.02, timeout_s=120, max_nodes_per_run=1_000_000)
+    out = each_solved(pull_sections, [meshes[0], bad, meshes[2]], stretch_mm=0.02, timeout_s=120,
+                      max_nodes_per_run=1_000_000)
+    assert isinstance(out[1], FESolveError) and "nonpositive jacobian" in str(out[1])
+    without = pull_sections([meshes[0], meshes[2]], stretch_mm=0.02, timeout_s=120, max_nodes_per_run=1_000_000)
+    for got, want in zip((out[0], out[2]), without):
+        np.testing.assert_allclose(got.stress_mpa, want.stress_mpa, rtol=1e-6, atol=1e-9)
+        assert got.force_n == pytest.approx(want.force_n, rel=1e-9)
+    assert all(not isinstance(x, FESolveError) for x in
+               each_solved(pull_sections, meshes, stretch_mm=0.02, timeout_s=120, max_nodes_per_run=1_000_000))
+    with pytest.raises(FESolveTimeout, match="did not finish within 0.01 s of CPU time"):
+        each_solved(pull_sections, [meshes[0], bad], stretch_mm=0.02, timeout_s=0.01, max_nodes_per_run=1_000_000)
