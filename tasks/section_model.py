@@ -32,7 +32,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import math
 
@@ -153,13 +152,15 @@ def bend_sections(meshes: Sequence[SectionMesh], *, end_rotation_rad: float = 1e
     return _in_runs(meshes, "bend", float(end_rotation_rad), plane, material, timeout_s, max_nodes_per_run, workdir)
 
 
-def each_solved(solve: Callable[..., list[SectionSolution]], meshes: Sequence[SectionMesh],
-                **kwargs: Any) -> list[SectionSolution | FESolveError]:
-    """``solve(meshes, **kwargs)`` (``pull_sections``, ``bend_sections``), where a section CalculiX
+def each_solved(solve: Callable[..., list[SectionSolution]], meshes: Sequence[SectionMesh], *, timeout_s: float,
+                max_nodes_per_run: int, **load: float) -> list[SectionSolution | FESolveError]:
+    """``solve(meshes, timeout_s=, max_nodes_per_run=, **load)`` (``pull_sections``, ``bend_sections``;
+    ``load`` their ``stretch_mm`` or ``end_rotation_rad``), where a section CalculiX
     refuses (seen: "nonpositive jacobian" on one provisional section) does not take the others with
     it: a run it fails is solved again one section at a time, and a section refused alone has its
     error in its place. The same solutions as ``solve`` where nothing is refused. A run that ran out
     of time (``FESolveTimeout``) is not tried again, section by section, and is raised."""
+    kwargs = dict(timeout_s=timeout_s, max_nodes_per_run=max_nodes_per_run, **load)
     try:
         return list(solve(meshes, **kwargs))
     except FESolveTimeout:
