@@ -45,7 +45,9 @@ class FaceAccumulator:
             raise ValueError(f"cell_mm must be positive, got {cell_mm}")
         self._surface = np.asarray(surface_mm, np.float64)
         self._normals = np.asarray(surface_normals, np.float64)
-        self._tree = cKDTree(self._surface)
+        # unbalanced (sliding-midpoint splits): the same nearest points, built in 0.6 of the time
+        # and queried faster on a specimen's millions (the paper preset's QA page)
+        self._tree = cKDTree(self._surface, balanced_tree=False)
         self.cell_mm = float(cell_mm)
         self.origin = (float(lo_mm[0]), float(lo_mm[1]))
         self.cols = max(int(np.ceil((hi_mm[0] - lo_mm[0]) / cell_mm)), 1)

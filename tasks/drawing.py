@@ -9,7 +9,8 @@ asked for, when the drawing is finished (``with`` block's end, or ``finish``). T
 same as drawn in the caller's process: the same function of the same arguments, matplotlib's
 settings its own defaults plus the figure's ``rc_context``.
 
-``workers`` 1 draws each picture at once, in the caller (no pool).
+``workers`` 0 draws each picture at once, in the caller (no pool). ``submit`` hands the pool any
+other work the page would wait on (a module-level function), so that it runs beside the caller too.
 """
 
 from __future__ import annotations
@@ -30,22 +31,34 @@ def png_uri(png: bytes) -> str:
 class Drawing:
     """Pictures drawn on ``workers`` processes (module description)."""
 
-    def __init__(self, workers: int = 1) -> None:
-        self.workers = max(int(workers), 1)
+    def __init__(self, workers: int = 0) -> None:
+        self.workers = max(int(workers), 0)
         self._pool: ProcessPoolExecutor | None = None
         self._pending: list[tuple[dict[str, str], Future]] = []
 
     def picture(self, draw: Callable[..., bytes], *args: Any, alt: str, caption: str = "", **kwargs: Any) -> dict[str, str]:
         """``draw(*args, **kwargs)`` (PNG bytes; a module-level function, picklable arguments) as a
-        picture dict; its ``src`` is filled when the drawing finishes (at once with one worker)."""
+        picture dict; its ``src`` is filled when the drawing finishes (at once without workers)."""
         out = {"src": "", "alt": alt, "caption": caption}
-        if self.workers == 1:
+        if not self.workers:
             out["src"] = png_uri(draw(*args, **kwargs))
             return out
+        self._pending.append((out, self.submit(draw, *args, **kwargs)))
+        return out
+
+    def submit(self, work: Callable[..., Any], *args: Any, **kwargs: Any) -> Future:
+        """``work(*args, **kwargs)`` (a module-level function, picklable arguments and result) on
+        the pool, its result in the future returned; done at once, in the caller, without workers."""
+        if not self.workers:
+            future: Future = Future()
+            try:
+                future.set_result(work(*args, **kwargs))
+            except Exception as exc:  # raised where the result is asked for, as from the pool
+                future.set_exception(exc)
+            return future
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("forkserver"))
-        self._pending.append((out, self._pool.submit(draw, *args, **kwargs)))
-        return out
+        return self._pool.submit(work, *args, **kwargs)
 
     def finish(self) -> None:
         """Every picture asked for drawn and filled in; the first that failed raised (after the

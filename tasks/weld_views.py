@@ -219,14 +219,17 @@ def _closeup_frames(section: WeldSection | FilletWeldSection, line: WeldLineFoun
     return toes
 
 
-def _box_bound(axes: list[np.ndarray], limits: list[float]) -> float:
+def _box_bound(axes: list[np.ndarray], limits: list[float], along: np.ndarray) -> tuple[float, float]:
     """How far from its centre a point can be whose components along ``axes`` (3 vectors, not
-    necessarily orthonormal) are within ``limits``: |d| <= ||E^-1|| ||limits||; inf where the
-    axes do not span space."""
+    necessarily orthonormal) are within ``limits``: |d| <= ||E^-1|| ||limits||; and how far its
+    component along ``along``: d = E^-1 y, |y_i| <= limits_i, so |along . d| <= sum |(along E^-1)_i|
+    limits_i. (inf, inf) where the axes do not span space."""
     E = np.array(axes, np.float64)
     if abs(np.linalg.det(E)) < 1e-9:
-        return math.inf
-    return float(np.linalg.norm(np.linalg.inv(E), 2) * np.linalg.norm(limits))
+        return math.inf, math.inf
+    inverse = np.linalg.inv(E)
+    return (float(np.linalg.norm(inverse, 2) * np.linalg.norm(limits)),
+            float(np.abs(np.asarray(along, np.float64) @ inverse) @ np.abs(np.asarray(limits, np.float64))))
 
 
 def near_sections(points_mm: np.ndarray, sections: Sequence[WeldSection | FilletWeldSection], line: WeldLineFound, *,
@@ -235,28 +238,35 @@ def near_sections(points_mm: np.ndarray, sections: Sequence[WeldSection | Fillet
     """For each of ``sections`` (of ``line``), the points of ``points_mm`` ((n, 3)) that
     ``section_cut`` (``half_width_mm``, ``reach_mm``) and ``toe_closeups`` (``half_width_mm``,
     ``closeup_reach_mm``) can select, in their order: those within a box around each selection's
-    bounding sphere (a superset; both give the same answer on it as on all points, and read a
-    section's few thousand points instead of a specimen's millions). The points are projected on
-    the line once; a section tests only the slab of them across the line its spheres reach."""
+    bounding sphere and within the thin slab across the line the selection's box spans (a
+    superset; both give the same answer on it as on all points, and read a section's few thousand
+    points instead of a specimen's millions). The points are projected on the line and sorted
+    along it once; each slab is found by bisection, not by a scan of the millions."""
     points = np.asarray(points_mm, np.float64)
     n, a = np.asarray(line.face_normal, np.float64), np.asarray(line.across, np.float64)
     t = np.cross(n, a)
     along = points @ t
-    slack = float(np.linalg.norm(t))  # |(p - c) . t| <= |p - c| |t|
+    order = np.argsort(along, kind="stable")
+    sorted_along = along[order]
     out = []
     for section in sections:
         centre = np.asarray(section.centre_specimen_mm, np.float64)
-        spheres = [(centre, _box_bound([t, a, n], [half_width_mm, reach_mm, reach_mm / 2]))]
-        spheres += [(np.asarray(at, np.float64),
-                     _box_bound([t, outward, up], [half_width_mm, closeup_reach_mm, closeup_reach_mm]))
-                    for _, _, at, outward, up in _closeup_frames(section, line)]
-        if not all(math.isfinite(r) for _, r in spheres):
+        boxes = [(centre, *_box_bound([t, a, n], [half_width_mm, reach_mm, reach_mm / 2], t))]
+        boxes += [(np.asarray(at, np.float64),
+                   *_box_bound([t, outward, up], [half_width_mm, closeup_reach_mm, closeup_reach_mm], t))
+                  for _, _, at, outward, up in _closeup_frames(section, line)]
+        if not all(math.isfinite(r) and math.isfinite(w) for _, r, w in boxes):
             out.append(points)
             continue
         found = []
-        for at, radius in spheres:
-            radius = radius * (1 + 1e-9) + 1e-9  # the bound's own rounding
-            slab = np.flatnonzero(np.abs(along - float(at @ t)) <= radius * slack * (1 + 1e-9) + 1e-9)
+        for at, radius, slab_half in boxes:
+            radius = radius * (1 + 1e-9) + 1e-9  # the bounds' own rounding
+            middle, half = float(at @ t), slab_half * (1 + 1e-9) + 1e-9
+            # a superset by bisection (widened past the comparison's rounding), then the exact test
+            lo = int(np.searchsorted(sorted_along, middle - 2 * half, side="left"))
+            hi = int(np.searchsorted(sorted_along, middle + 2 * half, side="right"))
+            slab = np.sort(order[lo:hi])
+            slab = slab[np.abs(along[slab] - middle) <= half]
             inside = np.all(np.abs(points[slab] - at) <= radius, axis=1)
             found.append(slab[inside])
         out.append(points[distinct(np.concatenate(found))])

@@ -29,6 +29,7 @@ import importlib.metadata
 import json
 import math
 from collections import Counter
+from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
@@ -152,11 +153,18 @@ def _graph(ctx, draw: Drawing) -> tuple[list[dict[str, str]], list[PassRow]]:
     return [picture], rows
 
 
-def _mesh_pictures(ctx, draw: Drawing, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
-    poisson_triangles = MESH.open(ctx.inputs["mesh"]).triangles.shape[0]
-    simplified = MODEL_SURFACE.read(ctx.inputs["volume"])  # the FE model's, simplified already (none: open)
+def _drawn_mesh(ctx, draw: Drawing) -> Future:
+    """The surface the mesh pictures show, simplified to the page's triangles on ``draw``'s pool
+    (seconds of MeshLab beside the coverage maps): the FE model's surface, simplified already;
+    the Poisson mesh where there is none (an open surface)."""
+    simplified = MODEL_SURFACE.read(ctx.inputs["volume"])
     drawn = simplified if len(simplified.triangles) else MESH.read(ctx.inputs["mesh"])
-    vertices, triangles = simplify_surface(drawn.vertices, drawn.triangles, max_triangles=ctx.settings.mesh_triangles)
+    return draw.submit(simplify_surface, drawn.vertices, drawn.triangles, max_triangles=ctx.settings.mesh_triangles)
+
+
+def _mesh_pictures(ctx, draw: Drawing, drawn: Future, T_view_common: np.ndarray, zone: WeldZone) -> list[dict[str, str]]:
+    poisson_triangles = MESH.open(ctx.inputs["mesh"]).triangles.shape[0]
+    vertices, triangles = drawn.result()
     seen = mesh_in_view(vertices, triangles, zone=zone, T_view_common=T_view_common)  # the zone as the FE model's
     caption = (f"The Poisson mesh ({poisson_triangles:,} triangles) simplified to {len(triangles):,} for the picture; "
                f"orange: the weld zone ({seen.zone_radius_mm:g} mm of the weld lines, the FE model's WELD_ZONE_SURFACE).")
@@ -333,6 +341,7 @@ def _page(ctx, draw: Drawing) -> dict[str, Any]:
     # the other stages' settings as the run recorded them (report.json), so the page is a function of its inputs
     recorded = ReconstructionConfig.model_validate(report.config)
     T_common_pass = np.asarray(REFINED.open(inputs["refine"]).T_common_pass[...], np.float64)
+    drawn_mesh = _drawn_mesh(ctx, draw)
     pass_images = _pass_images(ctx, draw)
     graph, pass_rows = _graph(ctx, draw)
     geometry = WELD_GEOMETRY.read(inputs["weld"])
@@ -347,10 +356,10 @@ def _page(ctx, draw: Drawing) -> dict[str, Any]:
     if geometry.measured:
         weld_pictures = (_section_pictures(ctx, draw, geometry, view.points_mm, recorded.weld)
                          + along_weld_pictures(geometry, draw=draw))
-    mesh_pictures = _mesh_pictures(ctx, draw, view.T_view_common, zone)
     lines_common = [points for points, _ in weld_lines_common(ctx.manifest, T_common_pass)]
     lines_view = plan_view_lines(lines_common[: len(ctx.manifest.weld_lines())], view.T_view_common)
     maps, map_figures = _maps(ctx, draw, view, T_common_pass, lines_view)
+    mesh_pictures = _mesh_pictures(ctx, draw, drawn_mesh, view.T_view_common, zone)
     volume = VOLUME_SUMMARY.read(inputs["volume"])
     checks = report.checks
     try:

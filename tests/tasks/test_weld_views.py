@@ -173,7 +173,9 @@ def test_each_sections_neighbourhood_gives_the_cut_and_close_ups_all_points_give
     near = near_sections(points, sections, line, half_width_mm=0.5, reach_mm=15.0)
     assert len(near) == len(sections)
     for section, part in zip(sections, near):
-        assert len(part) < len(points) / 10  # a 34 mm box of a 200 x 60 x 60 mm block of points
+        # each selection's box is 1 mm across the line: a thin slab of a 200 x 60 x 60 mm block of points,
+        # not the box around the selection's bounding sphere (34 mm)
+        assert len(part) < len(points) / 100
         whole = section_cut(points, section, line, half_width_mm=0.5, reach_mm=15.0)
         cut = section_cut(part, section, line, half_width_mm=0.5, reach_mm=15.0)
         assert len(whole.u_mm) > 100 and np.array_equal(cut.u_mm, whole.u_mm) and np.array_equal(cut.h_mm, whole.h_mm)
