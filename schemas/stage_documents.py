@@ -242,6 +242,7 @@ class StressFigures(StrictModel):
     hot_spots: list[ToeHotSpot] = []
     hot_spot: ToeHotSpot | None = None  # the highest of all
     convergence: StressConvergence | None = None
+    convergence_refused: str | None = None  # why the hot spot's finer section gave no figure (None: it did, or no hot spot)
     max_imbalance: float | None = None
     max_membrane_error: float | None = None
     notch_radius_mm: float | None = None  # None: no notch stress (stress.notch_stress off)

@@ -68,7 +68,8 @@ def print_run_summary(run, out: Path) -> None:
         hot, c = stress.hot_spot, stress.convergence
         print(f"stress: hot spot at the {hot.line} weld's {hot.side} toe, {hot.position_mm:g} mm along it, stress "
               f"concentration {hot.factor:.2f} under axial tension ({stress.sections} sections"
-              + (f"; {100 * c.change:+.1f} % with half-size elements" if c is not None else "") + ")")
+              + (f"; {100 * c.change:+.1f} % with half-size elements" if c is not None else "")
+              + ("; not checked with half-size elements" if stress.convergence_refused else "") + ")")
         if stress.notch_hot_spots:
             notch = max(stress.notch_hot_spots, key=lambda h: h.factor)
             print(f"stress: notch stress (IIW, r = {stress.notch_radius_mm:g} mm) highest at the {notch.line} weld's "

@@ -169,7 +169,8 @@ STRESS_LIMITS = {"imbalance": 1e-3, "membrane": 0.01, "convergence": 0.05}
 
 def stress_check(summary: StressSummary) -> Check:
     """The stress's check: equilibrium, the membrane stress and the hot spot's convergence within
-    ``STRESS_LIMITS``, and no section refused by CalculiX, or why there is no stress."""
+    ``STRESS_LIMITS`` (and checked: not refused with finer elements), and no section refused by
+    CalculiX, or why there is no stress."""
     if not summary.made:
         return Check(check="stress at the toes", pass_="all", result="flagged", what=f"not computed: {summary.why}",
                      measured={})
@@ -185,6 +186,8 @@ def stress_check(summary: StressSummary) -> Check:
     if c is not None and abs(c.change) > STRESS_LIMITS["convergence"]:
         problems.append(f"the hot spot's factor moves by {100 * c.change:+.1f} % with half-size elements at the toe "
                         f"(at most {100 * STRESS_LIMITS['convergence']:.0f} %)")
+    if summary.convergence_refused:
+        problems.append(f"the hot spot's convergence not checked: {summary.convergence_refused}")
     if summary.sections_refused:
         first = summary.sections_refused[0]
         problems.append(f"{len(summary.sections_refused)} section(s) CalculiX refused, left out (at "

@@ -201,6 +201,50 @@ def test_a_section_calculix_refuses_is_left_out_and_said(ci_run, ci_sample, tmp_
     assert check.result == "flagged" and f"at {refused.position_mm:g} mm" in check.what and "nonpositive" in check.what
 
 
+def test_a_finer_hot_spot_section_calculix_refuses_leaves_the_stress_and_says_so(ci_run, ci_sample, tmp_path,
+                                                                                  monkeypatch):
+    """The stage's body again on the ci run's inputs, the hot spot's finer section spoilt (a
+    triangle turned inside out): the real CalculiX refuses it; the stress stands as before (every
+    section, the same hot spot and factors, the hot section's picture), without a convergence
+    figure, saying why in stress.json and the report's stress check (flagged)."""
+    from data_catalog.manifests import load_manifest
+    from data_catalog.stages import load_arrays
+    from flows.preflight import load_config
+    from flows.stages import stress as stress_stage
+    from flows.stages.outputs import HOT_SECTION
+    from flows.stages.report import stress_check
+    from flows.stages.runner import StageContext
+    from tasks.section_model import SectionMesh
+
+    out, report = ci_run
+    before = STRESS_SUMMARY.read(report["refs"]["stress"])
+    assert before.convergence is not None and before.convergence_refused is None
+    real = stress_stage.mesh_sections
+
+    def finer_spoilt(planes, settings, **kwargs):
+        meshes = real(planes, settings, **kwargs)
+        if len(meshes) == 1:  # the hot spot's section, finer
+            flipped = meshes[0].triangles.copy()
+            flipped[0] = flipped[0][[0, 2, 1, 5, 4, 3]]
+            meshes[0] = SectionMesh(meshes[0].points, flipped)
+        return meshes
+
+    monkeypatch.setattr(stress_stage, "mesh_sections", finer_spoilt)
+    config = load_config(REPO / "deploy" / "configs" / "ci.yaml")
+    ctx = StageContext(out=tmp_path, sample_dir=ci_sample, manifest=load_manifest(ci_sample), config=config,
+                       settings=config.stress, entry=None,
+                       inputs={k: report["refs"][k] for k in ("refine", "segment", "weld")})
+    metrics = stress_stage.stress(ctx)
+    summary = STRESS_SUMMARY.read_path(tmp_path / STRESS_SUMMARY.name)
+    assert summary.made and metrics["convergence_refused"] and summary.convergence is None
+    assert "nonpositive jacobian" in summary.convergence_refused and "hot spot's section" in summary.convergence_refused
+    assert summary.hot_spot == before.hot_spot and summary.sections == before.sections
+    assert load_arrays(tmp_path / HOT_SECTION.name, "triangles")["triangles"].shape[0] > 0  # drawn from the section solved
+    check = stress_check(summary)
+    assert check.result == "flagged" and "convergence not checked" in check.what and "nonpositive" in check.what
+    assert check.measured["convergence"] is None
+
+
 def test_a_missing_solver_is_one_line_at_the_start_and_the_run_goes_on(ci_run, ci_sample, tmp_path):
     """No ``ccx`` on the PATH: one line before any work says so and what installs it; the run goes
     on (here its stages come from the session's stage cache, the stress stage's too)."""
