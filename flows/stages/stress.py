@@ -132,10 +132,14 @@ def _crossing(polyline: np.ndarray, frame: SectionFrame) -> np.ndarray | None:
     return polyline[hit[0]] if len(hit) else None
 
 
+def _load(bending: bool):
+    """The load case's solve (``tasks.section_model``): the sections bent, or pulled."""
+    return bend_sections if bending else pull_sections
+
+
 def _load_sections(meshes: list[SectionMesh], s, bending: bool) -> list[SectionSolution]:
-    """The sections pulled, or bent (``tasks.section_model``), in runs of ``s.max_nodes_per_solve`` nodes."""
-    solve = bend_sections if bending else pull_sections
-    return solve(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
+    """The sections pulled, or bent, in runs of ``s.max_nodes_per_solve`` nodes."""
+    return _load(bending)(meshes, timeout_s=s.timeout_s, max_nodes_per_run=s.max_nodes_per_solve)
 
 
 def _nominal_mpa(solution: SectionSolution, thickness_mm: float, bending: bool) -> float:
@@ -240,7 +244,7 @@ def stress(ctx) -> dict[str, Any]:
     try:
         meshes = mesh_sections([m.plane for m in models], settings, timeout_s=s.timeout_s)
         # a section CalculiX refuses is left out, and said, instead of failing the others with it
-        solved = each_solved(pull_sections if not bending else bend_sections, meshes, timeout_s=s.timeout_s,
+        solved = each_solved(_load(bending), meshes, timeout_s=s.timeout_s,
                              max_nodes_per_run=s.max_nodes_per_solve)
         refused = [RefusedSection(position_mm=m.section.position_mm, why=str(x))
                    for m, x in zip(models, solved) if isinstance(x, FESolveError)]
