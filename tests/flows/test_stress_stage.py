@@ -158,37 +158,48 @@ def test_the_notch_stress_and_the_fatigue_estimate(ci_run, ci_sample, tmp_path):
         assert abs(toe["difference"]) < 0.06, (name, toe)
 
 
-def test_a_section_calculix_refuses_is_left_out_and_said(ci_run, ci_sample, tmp_path, monkeypatch):
-    """The stage's body again on the ci run's inputs, one section's mesh spoilt (a triangle turned
-    inside out; the one thing stood in for: seen on a provisional section of the demo, "nonpositive
-    jacobian"): the real CalculiX refuses it, the other sections are solved as before, the refused
-    one is named in stress.json, and the report's stress check is flagged saying where and why."""
+def _stress_with_a_mesh_spoilt(ci_run, ci_sample, out, monkeypatch, *, meshes_in_call: int | None, index: int):
+    """The stress stage's body again on the ci run's inputs into ``out``, one section's mesh spoilt
+    (a triangle turned inside out; the one thing stood in for: seen on a provisional section of the
+    demo, "nonpositive jacobian"): mesh ``index`` of the ``mesh_sections`` call that makes
+    ``meshes_in_call`` meshes (None: as many as the run's sections). Returns the run's stress.json,
+    the body's metrics and its stress.json."""
     from data_catalog.manifests import load_manifest
     from flows.preflight import load_config
     from flows.stages import stress as stress_stage
-    from flows.stages.report import stress_check
     from flows.stages.runner import StageContext
     from tasks.section_model import SectionMesh
 
-    out, report = ci_run
+    _, report = ci_run
     before = STRESS_SUMMARY.read(report["refs"]["stress"])
+    count = len(before.sections) if meshes_in_call is None else meshes_in_call
     real = stress_stage.mesh_sections
 
-    def one_spoilt(planes, settings, **kwargs):
+    def spoilt(planes, settings, **kwargs):
         meshes = real(planes, settings, **kwargs)
-        if len(meshes) == len(before.sections):  # the sections (not the hot spot's finer one)
-            flipped = meshes[2].triangles.copy()
+        if len(meshes) == count:
+            flipped = meshes[index].triangles.copy()
             flipped[0] = flipped[0][[0, 2, 1, 5, 4, 3]]
-            meshes[2] = SectionMesh(meshes[2].points, flipped)
+            meshes[index] = SectionMesh(meshes[index].points, flipped)
         return meshes
 
-    monkeypatch.setattr(stress_stage, "mesh_sections", one_spoilt)
+    monkeypatch.setattr(stress_stage, "mesh_sections", spoilt)
     config = load_config(REPO / "deploy" / "configs" / "ci.yaml")
-    ctx = StageContext(out=tmp_path, sample_dir=ci_sample, manifest=load_manifest(ci_sample), config=config,
+    ctx = StageContext(out=out, sample_dir=ci_sample, manifest=load_manifest(ci_sample), config=config,
                        settings=config.stress, entry=None,
                        inputs={k: report["refs"][k] for k in ("refine", "segment", "weld")})
     metrics = stress_stage.stress(ctx)
-    summary = STRESS_SUMMARY.read_path(tmp_path / STRESS_SUMMARY.name)
+    return before, metrics, STRESS_SUMMARY.read_path(out / STRESS_SUMMARY.name)
+
+
+def test_a_section_calculix_refuses_is_left_out_and_said(ci_run, ci_sample, tmp_path, monkeypatch):
+    """One section's mesh spoilt (``_stress_with_a_mesh_spoilt``; the sections' call, not the hot
+    spot's finer one): the real CalculiX refuses it, the other sections are solved as before, the
+    refused one is named in stress.json, and the report's stress check is flagged saying where and why."""
+    from flows.stages.report import stress_check
+
+    before, metrics, summary = _stress_with_a_mesh_spoilt(ci_run, ci_sample, tmp_path, monkeypatch,
+                                                          meshes_in_call=None, index=2)
     assert summary.made and metrics["sections_refused"] == 1
     (refused,) = summary.sections_refused
     assert refused.position_mm == before.sections[2].position_mm and "nonpositive jacobian" in refused.why
@@ -203,39 +214,17 @@ def test_a_section_calculix_refuses_is_left_out_and_said(ci_run, ci_sample, tmp_
 
 def test_a_finer_hot_spot_section_calculix_refuses_leaves_the_stress_and_says_so(ci_run, ci_sample, tmp_path,
                                                                                   monkeypatch):
-    """The stage's body again on the ci run's inputs, the hot spot's finer section spoilt (a
-    triangle turned inside out): the real CalculiX refuses it; the stress stands as before (every
-    section, the same hot spot and factors, the hot section's picture), without a convergence
-    figure, saying why in stress.json and the report's stress check (flagged)."""
-    from data_catalog.manifests import load_manifest
+    """The hot spot's finer section spoilt (``_stress_with_a_mesh_spoilt``; the call that makes one
+    mesh): the real CalculiX refuses it; the stress stands as before (every section, the same hot
+    spot and factors, the hot section's picture), without a convergence figure, saying why in
+    stress.json and the report's stress check (flagged)."""
     from data_catalog.stages import load_arrays
-    from flows.preflight import load_config
-    from flows.stages import stress as stress_stage
     from flows.stages.outputs import HOT_SECTION
     from flows.stages.report import stress_check
-    from flows.stages.runner import StageContext
-    from tasks.section_model import SectionMesh
 
-    out, report = ci_run
-    before = STRESS_SUMMARY.read(report["refs"]["stress"])
+    before, metrics, summary = _stress_with_a_mesh_spoilt(ci_run, ci_sample, tmp_path, monkeypatch,
+                                                          meshes_in_call=1, index=0)
     assert before.convergence is not None and before.convergence_refused is None
-    real = stress_stage.mesh_sections
-
-    def finer_spoilt(planes, settings, **kwargs):
-        meshes = real(planes, settings, **kwargs)
-        if len(meshes) == 1:  # the hot spot's section, finer
-            flipped = meshes[0].triangles.copy()
-            flipped[0] = flipped[0][[0, 2, 1, 5, 4, 3]]
-            meshes[0] = SectionMesh(meshes[0].points, flipped)
-        return meshes
-
-    monkeypatch.setattr(stress_stage, "mesh_sections", finer_spoilt)
-    config = load_config(REPO / "deploy" / "configs" / "ci.yaml")
-    ctx = StageContext(out=tmp_path, sample_dir=ci_sample, manifest=load_manifest(ci_sample), config=config,
-                       settings=config.stress, entry=None,
-                       inputs={k: report["refs"][k] for k in ("refine", "segment", "weld")})
-    metrics = stress_stage.stress(ctx)
-    summary = STRESS_SUMMARY.read_path(tmp_path / STRESS_SUMMARY.name)
     assert summary.made and metrics["convergence_refused"] and summary.convergence is None
     assert "nonpositive jacobian" in summary.convergence_refused and "hot spot's section" in summary.convergence_refused
     assert summary.hot_spot == before.hot_spot and summary.sections == before.sections
