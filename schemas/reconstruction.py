@@ -43,15 +43,13 @@ class TargetsConfig(InputModel):
     max_rms_mm: float = Field(default=0.08, gt=0, le=1)
     min_rim_coverage: float = Field(default=0.85, gt=0, le=1)
     radius_tolerance: float = Field(default=0.1, gt=0, lt=1)
-    rim_edge: RimEdge = Field(default="halfway", description=(
+    rim_edge: RimEdge = Field(default="share", description=(
         "where a rim point lies along a profile (tasks.targets): halfway, where the intensity "
         "crosses halfway between sticker and metal; share, from the two pixels' shares of sticker "
         "(each pixel integrates its footprint). Against the simulator's true stickers, 3-D centre "
         "error median halfway -> share: demo 9.9 -> 7.3 um, ci 8.6 -> 5.5, tjoint 10.0 -> 6.3; "
-        "with one target sigma for all (refine) the passes' worst misalignment moves demo 30.2 -> "
-        "21.2 um but ci 33.0 -> 51.9 and tjoint 25.2 -> 29.4, and with each pair its own "
-        "(refine.target_sigma_rim_factor 0.8) paper 5.8, demo 19.5, ci 19.7, tjoint 42.1 um "
-        "(bench/README.md, the targets' sigma): not the default until the tjoint's is understood"))
+        "the passes' worst misalignment with refine's default target weights: bench/README.md, "
+        "the targets' sigma"))
 
 
 class RegistrationConfig(InputModel):
@@ -123,16 +121,27 @@ class RefineConfig(InputModel):
     final_distance_mm: float = Field(default=0.1, gt=0, le=10, description="last gate on point-to-plane distance")
     target_sigma_mm: float = Field(default=0.03, gt=0, le=1, description=(
         "a target pair's expected error where its targets' own are not used (target_sigma_rim_factor null)"))
-    target_sigma_rim_factor: float | None = Field(default=None, gt=0, le=10, description=(
+    target_sigma_rim_factor: float | None = Field(default=0.5, gt=0, le=10, description=(
         "each target centre's expected error this times its rim fit's RMS (at least "
-        "target_sigma_floor_mm), a pair's the two combined; null: target_sigma_mm for every pair. "
-        "Measured against the simulator's truth, worst pass misalignment (bench/README.md, the "
-        "targets' sigma): paper 17.8 um with 0.03 mm for all, 6.6 with 0.5 x rim RMS; with "
-        "targets.rim_edge share and 0.8 x: paper 5.8, demo 19.5 (30.2 today), ci 19.7 (33.0), "
-        "tjoint 42.1 (25.2), tjoint-single 28.9 (32.7). Off by default: the tjoint's worse, and two "
-        "of the ci preset's stress checks move past their bounds with it"))
+        "target_sigma_floor_mm, more for a height off the sample's: target_height_gate), a pair's "
+        "the two combined; null: target_sigma_mm for every pair. Worst pass misalignment against "
+        "the simulator's truth, halfway rim edges and 0.03 mm for all -> share and these defaults "
+        "(bench/README.md, the targets' sigma): paper 17.8 -> 6.0 um, demo 30.2 -> 19.7, "
+        "ci 33.0 -> 17.9, tjoint 25.2 -> 10.5, tjoint-single 32.7 -> 18.8"))
     target_sigma_floor_mm: float = Field(default=0.002, gt=0, le=1, description=(
         "the least expected error of a target centre (a rim fit's RMS can be near zero by chance)"))
+    target_height_gate: float | None = Field(default=2.0, gt=0, le=100, description=(
+        "a target centre whose rim fit found an edge height off the sample's median by more than "
+        "this many of its expected spread (its own height sigma and the heights' unexplained "
+        "scatter) gets target_height_factor x its centre's move for that height added to its sigma "
+        "(tasks.target_weights); null: none. Used with target_sigma_rim_factor"))
+    target_height_factor: float = Field(default=4.0, ge=0, le=100, description=(
+        "the added sigma per mm of a gated centre's move (target_height_gate)"))
+    target_height_max_spread: float = Field(default=2.0, gt=0, le=100, description=(
+        "the heights are gated on only where their robust spread is at most this many times the "
+        "fits' own height sigma (median): where they measure one paper edge. At the sensor's full "
+        "resolution (the paper preset) the fits are precise and their heights scatter far more "
+        "(spread 20.7 um, own sigma 6.4): gating there spoilt the worst pass 5.8 -> 13.6 um"))
     surface_sigma_mm: float = Field(default=0.05, gt=0, le=1, description=(
         "a surface correspondence's expected error: not the sensor noise alone (~0.01 mm) but what "
         "the local-plane model leaves on rough, textured, differently sampled surfaces; measured on "

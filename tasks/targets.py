@@ -70,6 +70,8 @@ class Target:
     free_radius_mm: float  # radius of an unconstrained circle fit
     n_edge_points: int  # edge points fitted
     edge_height_mm: float  # the sticker edge's height the fit found (0 without sensor origins)
+    edge_height_sigma_mm: float  # that height's 1-sigma from the fit's own covariance (0: none fitted)
+    centre_per_height: np.ndarray  # (3,) mm of centre per mm of height along the fit's valley (in the plane)
 
 
 @dataclass(frozen=True)
@@ -215,19 +217,25 @@ def _fit_circle(uv: np.ndarray, radius: float | None) -> tuple[np.ndarray, float
 _MAX_EDGE_MM = 0.3  # the highest sticker edge the fit may find (paper ~0.1 mm, vinyl ~0.2 mm)
 
 
-def _fit_rim(uv: np.ndarray, travel: np.ndarray, radius: float) -> tuple[np.ndarray, float, np.ndarray]:
+def _fit_rim(uv: np.ndarray, travel: np.ndarray, radius: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
     """A circle of ``radius`` fitted to rim points ``uv`` (k, 2), found where their rays cross the
     sticker's top plane, with the sticker edge's height as a third unknown (the module's notes):
     a point on the side facing the sensor (its ray travels inward) truly lies where its ray, going
     on, has dropped that height, ``travel`` (k, 2) per mm of drop. Returns the centre (2,), the
-    height (0 .. ``_MAX_EDGE_MM``) and the points moved onto the rim (k, 2)."""
+    height (0 .. ``_MAX_EDGE_MM``), the points moved onto the rim (k, 2) and the fit's covariance
+    of (centre u, centre v, height) (3, 3): the residuals' variance times the inverse of the
+    Gauss-Newton Hessian at the solution."""
     centre, _, _ = _fit_circle(uv, radius)
     facing = np.einsum("ij,ij->i", uv - centre, travel) < 0
     shift = np.where(facing[:, None], travel, 0.0)
     fun = lambda q: np.linalg.norm(uv + q[2] * shift - q[:2], axis=1) - radius  # noqa: E731
-    q = least_squares(fun, np.append(centre, 0.5 * _MAX_EDGE_MM), bounds=([-np.inf, -np.inf, 0.0],
-                      [np.inf, np.inf, _MAX_EDGE_MM]), loss="soft_l1", f_scale=0.05).x
-    return q[:2], float(q[2]), uv + q[2] * shift
+    fit = least_squares(fun, np.append(centre, 0.5 * _MAX_EDGE_MM), bounds=([-np.inf, -np.inf, 0.0],
+                        [np.inf, np.inf, _MAX_EDGE_MM]), loss="soft_l1", f_scale=0.05)
+    q = fit.x
+    dof = max(len(uv) - 3, 1)
+    variance = float(fit.fun @ fit.fun) / dof
+    cov = variance * np.linalg.pinv(fit.jac.T @ fit.jac)
+    return q[:2], float(q[2]), uv + q[2] * shift, cov
 
 
 def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_mm: np.ndarray | None, *,
@@ -298,12 +306,12 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
             break
         if origins is None:
             centre_uv, _, _ = _fit_circle(uv, radius)
-            edge_mm = 0.0
+            edge_mm, cov = 0.0, None
         else:
             ray = edges[fitted] - origins[edge_rows[fitted]]
             drop = -(ray @ normal)  # the normal faces the sensor: rays go down it
             travel = np.column_stack([ray @ e1, ray @ e2]) / np.maximum(drop, 1e-9)[:, None]
-            centre_uv, edge_mm, uv = _fit_rim(uv, travel, radius)
+            centre_uv, edge_mm, uv, cov = _fit_rim(uv, travel, radius)
         rms = float(np.sqrt(np.mean((np.linalg.norm(uv - centre_uv, axis=1) - radius) ** 2)))
         if attempt == 0:
             centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
@@ -326,9 +334,16 @@ def refine_target(intensity: np.ndarray, points_mm: np.ndarray, sensor_origins_m
     if abs(free_r - radius) > radius_tolerance * radius:
         return TargetRefinement(None, "radius")
     centre = origin + centre_uv[0] * e1 + centre_uv[1] * e2
+    if cov is None or not cov[2, 2] > 0:  # no height fitted (or none it could move)
+        height_sigma, per_height = 0.0, np.zeros(3)
+    else:
+        height_sigma = float(np.sqrt(cov[2, 2]))
+        slope = cov[:2, 2] / cov[2, 2]  # the centre's move per mm of height along the fit's valley
+        per_height = slope[0] * e1 + slope[1] * e2
     return TargetRefinement(Target(centre_mm=centre, normal=normal, pixel=(float(pixel[0]), float(pixel[1])),
                                    rms_mm=rms, rim_coverage=float(coverage), free_radius_mm=float(free_r),
-                                   n_edge_points=len(uv), edge_height_mm=edge_mm), None)
+                                   n_edge_points=len(uv), edge_height_mm=edge_mm, edge_height_sigma_mm=height_sigma,
+                                   centre_per_height=per_height), None)
 
 
 def detect_targets(intensity: np.ndarray, points_mm: np.ndarray, *, sticker_diameter_mm: float,

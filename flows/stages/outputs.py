@@ -44,6 +44,9 @@ class PassTargets:
     normals: np.ndarray  # (k, 3) float64, unit, toward the sensor
     rms_mm: np.ndarray  # (k,) float64, rim fit RMS
     rim_coverage: np.ndarray  # (k,) float64, share of the rim seen
+    edge_height_mm: np.ndarray  # (k,) float64: the sticker edge's height the rim fit found
+    edge_height_sigma_mm: np.ndarray  # (k,) float64: that height's 1-sigma from the fit's covariance (0: none)
+    centre_per_height: np.ndarray  # (k, 3) float64: the centre's move per mm of height along the fit's valley
     pixel: np.ndarray  # (k, 2) float64, (profile, column) of the Hough circle
     preview: np.ndarray  # (rows, cols) uint8: the image searched (intensity / 4), area-averaged to at most 640 rows
     grid_spacing_mm: np.ndarray  # (2,) float64: the pass's points apart (between profiles, between columns); NaN: none
@@ -67,8 +70,16 @@ class Registration:
     track_centres_mm: np.ndarray  # (m, 3) float64: that observation's centre, coarse frame
     rim_rms_a_mm: np.ndarray  # (e,) float64: the rim fit RMS of the pair's target in pass a (stage targets' rms_mm)
     rim_rms_b_mm: np.ndarray  # (e,) float64: in pass b
+    edge_height_a_mm: np.ndarray  # (e,) float64: the edge height its rim fit found (stage targets' edge_height_mm)
+    edge_height_b_mm: np.ndarray  # (e,) float64
+    edge_height_sigma_a_mm: np.ndarray  # (e,) float64: that height's own sigma
+    edge_height_sigma_b_mm: np.ndarray  # (e,) float64
+    centre_per_height_a: np.ndarray  # (e,) float64: its centre's move per mm of height (the length of centre_per_height)
+    centre_per_height_b: np.ndarray  # (e,) float64
 
 REGISTRATION = ArrayFile("registration.zarr", Registration)
+# each pair end's rim fit figures in Registration, as (name, unit suffix): f"{name}_{a|b}{unit}"
+END_FIGURES = (("rim_rms", "_mm"), ("edge_height", "_mm"), ("edge_height_sigma", "_mm"), ("centre_per_height", ""))
 REGISTRATION_SUMMARY = JsonFile("registration.json", RegistrationSummary)  # pairs, weak pairs, per-pass RMS
 
 

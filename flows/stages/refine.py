@@ -3,17 +3,19 @@ surfaces together (or, disabled, the target registration's poses: the paper's me
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from flows.stages.contracts import block_rows, zarr_array
-from flows.stages.outputs import CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
+from flows.stages.outputs import END_FIGURES, CLOUD, REFINED, REFINE_SUMMARY, REGISTRATION, RefinedPoses
 from schemas.stage_documents import RefineSummary, SurfacePair
 from tasks.consistency import residual_outliers, surfaces_between_setups
 from tasks.refine import SurfaceSample, refine_poses, surface_sample
+from tasks.target_weights import HeightSpread, centre_sigmas, height_spread
 
-__all__ = ["refine", "refine_arguments", "pass_surface_sample", "target_pairs"]
+__all__ = ["refine", "refine_arguments", "pass_surface_sample", "target_pairs", "weighed_target_pairs", "TargetPairs"]
 
 
 def _thinned_grid(ref, stride: tuple[int, int]) -> np.ndarray:
@@ -45,17 +47,58 @@ def refine_arguments(rc) -> dict[str, Any]:
                 min_normal_cos=rc.min_normal_cos, max_plane_rms_mm=rc.max_plane_rms_mm)
 
 
-def target_pairs(reg, rc) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | np.ndarray]:
-    """The registration's inlier target pairs (passes, centre in a, centre in b) and each pair's
-    expected error (``rc.target_sigma_rim_factor`` x each centre's rim fit RMS, at least
-    ``rc.target_sigma_floor_mm``, the two combined; or ``rc.target_sigma_mm`` for all)."""
+@dataclass(frozen=True)
+class TargetPairs:
+    """The registration's inlier target pairs, as the refinement weighs them (``target_pairs``)."""
+
+    edges: np.ndarray  # (e, 2) int64: the two passes
+    points_a: np.ndarray  # (e, 3) mm: the centre in pass a's coarse frame
+    points_b: np.ndarray  # (e, 3) mm: in pass b's
+    sigma_mm: float | np.ndarray  # each pair's expected error (e,), or one for all
+    heights: HeightSpread | None  # the sample's edge heights, each target once (None: not used)
+    gated: int  # pair ends whose centre's sigma grew for its height
+
+
+def weighed_target_pairs(reg, rc) -> TargetPairs:
+    """The registration's inlier target pairs and each pair's expected error: each centre's from
+    its own rim fit (``tasks.target_weights.centre_sigmas``: ``rc.target_sigma_rim_factor`` x its
+    RMS, at least ``rc.target_sigma_floor_mm``, more where its edge height is off the sample's by
+    over ``rc.target_height_gate`` of its expected spread), the two combined; or
+    ``rc.target_sigma_mm`` for all."""
     inlier = reg.inlier.astype(bool)
     E, A, B = reg.edge_passes[inlier], reg.points_a[inlier], reg.points_b[inlier]
-    if rc.target_sigma_rim_factor is None:
-        return E, A, B, rc.target_sigma_mm
-    a = np.maximum(rc.target_sigma_rim_factor * reg.rim_rms_a_mm[inlier], rc.target_sigma_floor_mm)
-    b = np.maximum(rc.target_sigma_rim_factor * reg.rim_rms_b_mm[inlier], rc.target_sigma_floor_mm)
-    return E, A, B, np.sqrt(a * a + b * b)
+    if rc.target_sigma_rim_factor is None or not len(E):
+        return TargetPairs(E, A, B, rc.target_sigma_mm, None, 0)
+    ends = {end: {name: np.asarray(getattr(reg, f"{name}_{end}{unit}"), np.float64)[inlier]
+                  for name, unit in END_FIGURES} for end in "ab"}
+    spread = None
+    if rc.target_height_gate is not None:  # the sample's heights, each target (pass, centre) once
+        keys = np.concatenate([np.column_stack([E[:, 0], A]), np.column_stack([E[:, 1], B])])
+        _, first = np.unique(keys, axis=0, return_index=True)
+        spread = height_spread(*(np.concatenate([ends["a"][n], ends["b"][n]])[first]
+                                 for n in ("edge_height", "edge_height_sigma")))
+    (a, gated_a), (b, gated_b) = (
+        centre_sigmas(e["rim_rms"], e["edge_height"], e["edge_height_sigma"], e["centre_per_height"], spread,
+                      rim_factor=rc.target_sigma_rim_factor, floor_mm=rc.target_sigma_floor_mm,
+                      gate=rc.target_height_gate, height_factor=rc.target_height_factor,
+                      max_spread_ratio=rc.target_height_max_spread) for e in (ends["a"], ends["b"]))
+    return TargetPairs(E, A, B, np.sqrt(a * a + b * b), spread, int(gated_a.sum() + gated_b.sum()))
+
+
+def target_pairs(reg, rc) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | np.ndarray]:
+    """``weighed_target_pairs``'s pairs (passes, centre in a, centre in b) and sigmas."""
+    t = weighed_target_pairs(reg, rc)
+    return t.edges, t.points_a, t.points_b, t.sigma_mm
+
+
+def _heights_metrics(t: TargetPairs, rc) -> dict[str, Any] | None:
+    """What the sample's edge heights said and did (the stage's metrics), or None where unused."""
+    if t.heights is None:
+        return None
+    h = t.heights
+    return {"median_mm": round(h.median_mm, 6), "spread_mm": round(h.spread_mm, 6),
+            "own_sigma_mm": round(h.own_sigma_mm, 6), "scatter_mm": round(h.scatter_mm, 6),
+            "consistent": h.consistent(rc.target_height_max_spread), "gated_pair_ends": t.gated}
 
 
 def refine(ctx) -> dict[str, Any]:
@@ -63,7 +106,7 @@ def refine(ctx) -> dict[str, Any]:
     reg = REGISTRATION.read(ctx.inputs["registration"])
     T_targets = reg.T_common_pass
     inlier = reg.inlier.astype(bool)
-    pairs, counts, steps, samples = {}, {}, [], []
+    pairs, counts, steps, samples, heights = {}, {}, [], [], None
     T = T_targets
     target_res = reg.residual_mm[inlier]
     if rc.enabled:
@@ -75,8 +118,10 @@ def refine(ctx) -> dict[str, Any]:
                 f"(refine.normal_neighbours) within {rc.neighbour_mm} mm (refine.neighbour_mm) on a plane within "
                 f"{rc.max_plane_rms_mm} mm (refine.max_plane_rms_mm) at this sample's point spacing; widen "
                 f"refine.neighbour_mm or lower refine.normal_neighbours, or set refine.enabled: false")
-        E, A, B, sigma = target_pairs(reg, rc)
-        result = refine_poses(samples, T_targets, E, A, B, **refine_arguments(rc), target_sigma_mm=sigma)
+        weighed = weighed_target_pairs(reg, rc)
+        heights = _heights_metrics(weighed, rc)
+        result = refine_poses(samples, T_targets, weighed.edges, weighed.points_a, weighed.points_b,
+                              **refine_arguments(rc), target_sigma_mm=weighed.sigma_mm)
         T, pairs, counts, steps = result.T_common_pass, result.pair_rms_mm, result.pair_count, result.step_mm
         target_res = result.target_residual_mm
     # each physical target where the refined poses put it: the mean of its observations
@@ -113,6 +158,7 @@ def refine(ctx) -> dict[str, Any]:
             "target_residual_median_mm": float(np.median(target_res)) if len(target_res) else None,
             "target_residual_max_mm": float(np.max(target_res)) if len(target_res) else None,
             "registration_method": {name: "targets" for name in names},
+            "target_heights": heights,
             "checks": {"target_residuals": {"per_pass_median_mm": {p: (round(v, 6) if np.isfinite(v) else None)
                                                                    for p, v in per_pass.items()},
                                             "flagged": flagged},

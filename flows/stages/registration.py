@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from flows.stages.outputs import REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
+from flows.stages.outputs import END_FIGURES, REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
 from schemas.stage_documents import PassPair, RegistrationSummary, SetupEvidence
 from tasks.graph import register_passes
 from tasks.registration import RegistrationError
@@ -24,22 +24,32 @@ def no_target_registration(ctx) -> dict[str, Any]:
         T_common_pass=np.tile(np.eye(4), (n, 1, 1)), residual_mm=empty, inlier=np.zeros(0, bool),
         edge_passes=np.zeros((0, 2), np.int64), points_a=empty3, points_b=empty3, track_positions_mm=empty3,
         specimen_track=np.zeros(0, bool), track_members=np.zeros((0, 2), np.int64), track_centres_mm=empty3,
-        rim_rms_a_mm=empty, rim_rms_b_mm=empty))
+        **{f"{name}_{end}{unit}": empty for name, unit in END_FIGURES for end in "ab"}))
     method = "none: registration surfaces (the scans are registered on their surfaces in stage refine)"
     REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(method=method, pairs=[], pairs_below_min_common=[],
                                                             pass_rms_mm={}, between_setups=[]))
     return {"target_pairs": 0, "method": method}
 
 
-def _rim_rms(found, passes: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Each pair end's rim fit RMS: its target in its pass's detections, by its centre (the graph
-    carries the detected centres themselves, so the match is exact)."""
-    by_centre = [{c.tobytes(): float(r) for c, r in zip(np.asarray(f.centres, np.float64), f.rms_mm)} for f in found]
+
+
+def _figures(f) -> dict[str, np.ndarray]:
+    """One pass's detections' figures, by ``END_FIGURES``'s names, (k,) each."""
+    return {"rim_rms": f.rms_mm, "edge_height": f.edge_height_mm, "edge_height_sigma": f.edge_height_sigma_mm,
+            "centre_per_height": np.linalg.norm(np.asarray(f.centre_per_height).reshape(-1, 3), axis=1)}
+
+
+def _end_figures(found, passes: np.ndarray, centres: np.ndarray, end: str) -> dict[str, np.ndarray]:
+    """Each pair end's rim fit figures (``END_FIGURES``): its target in its pass's detections, by
+    its centre (the graph carries the detected centres themselves, so the match is exact)."""
+    by_centre = [{c.tobytes(): i for i, c in enumerate(np.asarray(f.centres, np.float64))} for f in found]
     try:
-        return np.array([by_centre[p][np.asarray(c, np.float64).tobytes()] for p, c in zip(passes, centres)],
-                        np.float64).reshape(-1)
+        index = [by_centre[p][np.asarray(c, np.float64).tobytes()] for p, c in zip(passes, centres)]
     except KeyError:
         raise RuntimeError("registration: a target pair's centre is none of its pass's detections") from None
+    figures = [_figures(f) for f in found]
+    return {f"{name}_{end}{unit}": np.array([figures[p][name][i] for p, i in zip(passes, index)], np.float64)
+            for name, unit in END_FIGURES}
 
 
 def register(ctx) -> dict[str, Any]:
@@ -62,8 +72,8 @@ def register(ctx) -> dict[str, Any]:
         edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a, points_b=reg.graph.points_b,
         track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track,
         track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3),
-        rim_rms_a_mm=_rim_rms(found, reg.graph.edge_passes[:, 0], reg.graph.points_a),
-        rim_rms_b_mm=_rim_rms(found, reg.graph.edge_passes[:, 1], reg.graph.points_b)))
+        **_end_figures(found, reg.graph.edge_passes[:, 0], reg.graph.points_a, "a"),
+        **_end_figures(found, reg.graph.edge_passes[:, 1], reg.graph.points_b, "b")))
     REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(
         pairs=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common) for p in reg.pairs],
         pairs_below_min_common=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common)

@@ -105,7 +105,9 @@ def targets(ctx) -> dict[str, Any]:
     if isinstance(ctx.entry, ScanEntry):  # a sample registered on its surfaces: no stickers to look for
         empty = np.zeros((0, 3))
         TARGETS.write(ctx.out, PassTargets(centres=empty, normals=empty, rms_mm=np.zeros(0), rim_coverage=np.zeros(0),
-                                           pixel=np.zeros((0, 2)), preview=np.zeros((0, 0), np.uint8),
+                                           edge_height_mm=np.zeros(0), edge_height_sigma_mm=np.zeros(0),
+                                           centre_per_height=empty, pixel=np.zeros((0, 2)),
+                                           preview=np.zeros((0, 0), np.uint8),
                                            grid_spacing_mm=np.full(2, np.nan), grid_shape=np.zeros(2, np.int64)))
         return {"targets": 0, "skipped": "an imported scan (registration: surfaces): no sticker targets sought"}
     found, preview, spacing, shape = _detect(ctx)
@@ -116,6 +118,9 @@ def targets(ctx) -> dict[str, Any]:
     TARGETS.write(ctx.out, PassTargets(centres=np.array([x.centre_mm for x in t]), normals=np.array([x.normal for x in t]),
                                        rms_mm=np.array([x.rms_mm for x in t]),
                                        rim_coverage=np.array([x.rim_coverage for x in t]),
+                                       edge_height_mm=np.array([x.edge_height_mm for x in t]),
+                                       edge_height_sigma_mm=np.array([x.edge_height_sigma_mm for x in t]),
+                                       centre_per_height=np.array([x.centre_per_height for x in t]),
                                        pixel=np.array([x.pixel for x in t], dtype=np.float64), preview=preview,
                                        grid_spacing_mm=np.array(spacing, np.float64),
                                        grid_shape=np.array(shape, np.int64)))

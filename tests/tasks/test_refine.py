@@ -140,18 +140,44 @@ def test_each_target_pair_weighed_by_its_own_sigma(two_passes):
         _refine(samples, start, edges, targets_a, targets_b, target_sigma_mm=np.zeros(len(edges)))
 
 
-def test_target_pairs_sigma_from_the_rim_fits():
+def _registration(**figures):
     from types import SimpleNamespace
 
+    from flows.stages.outputs import END_FIGURES
+
+    ends = {f"{name}_{end}{unit}": np.zeros(3) for name, unit in END_FIGURES for end in "ab"}
+    return SimpleNamespace(inlier=np.array([1, 0, 1], bool), edge_passes=np.array([[0, 1], [0, 2], [1, 2]]),
+                           points_a=np.arange(9.0).reshape(3, 3), points_b=np.arange(9.0).reshape(3, 3) + 1,
+                           **{**ends, **figures})
+
+
+def test_target_pairs_sigma_from_the_rim_fits():
     from flows.stages.refine import target_pairs
 
-    reg = SimpleNamespace(inlier=np.array([1, 0, 1], bool), edge_passes=np.array([[0, 1], [0, 2], [1, 2]]),
-                          points_a=np.arange(9.0).reshape(3, 3), points_b=np.arange(9.0).reshape(3, 3) + 1,
-                          rim_rms_a_mm=np.array([0.01, 0.5, 0.001]), rim_rms_b_mm=np.array([0.02, 0.5, 0.004]))
-    E, A, B, sigma = target_pairs(reg, SETTINGS.model_copy(update={"target_sigma_rim_factor": 0.5}))
+    reg = _registration(rim_rms_a_mm=np.array([0.01, 0.5, 0.001]), rim_rms_b_mm=np.array([0.02, 0.5, 0.004]))
+    E, A, B, sigma = target_pairs(reg, SETTINGS.model_copy(update={"target_sigma_rim_factor": 0.5,
+                                                                   "target_height_gate": None}))
     assert E.tolist() == [[0, 1], [1, 2]] and A.shape == B.shape == (2, 3)
     assert np.allclose(sigma, [np.hypot(0.005, 0.01), np.hypot(0.002, 0.002)])  # 0.5 x the rim RMS, at least 0.002
-    assert target_pairs(reg, SETTINGS)[3] == SETTINGS.target_sigma_mm  # the default: one sigma for all
+    one = SETTINGS.model_copy(update={"target_sigma_rim_factor": None})
+    assert target_pairs(reg, one)[3] == SETTINGS.target_sigma_mm  # off: one sigma for all
+
+
+def test_target_pairs_a_height_off_the_samples_adds_its_centres_move():
+    """The pairs' ends (each target once: pass 1's centre ends one pair and starts the other) found
+    heights 0.1, 0.1, 0.1 and 0.3 mm with own sigmas of 0.01; the 0.3 one, 20 sigmas off the median,
+    gets 4 x its centre's move (0.5 mm per mm) x 0.2 mm on its rim sigma; the outlier pair (index 1)
+    is not counted."""
+    from flows.stages.refine import target_pairs
+
+    reg = _registration(rim_rms_a_mm=np.full(3, 0.01), rim_rms_b_mm=np.full(3, 0.01),
+                        edge_height_a_mm=np.array([0.1, 5.0, 0.1]), edge_height_b_mm=np.array([0.1, 5.0, 0.3]),
+                        edge_height_sigma_a_mm=np.full(3, 0.01), edge_height_sigma_b_mm=np.full(3, 0.01),
+                        centre_per_height_a=np.full(3, 0.5), centre_per_height_b=np.full(3, 0.5))
+    rc = SETTINGS.model_copy(update={"target_sigma_rim_factor": 0.8, "target_height_gate": 2.0,
+                                     "target_height_factor": 4.0})
+    _, _, _, sigma = target_pairs(reg, rc)
+    assert np.allclose(sigma, [np.hypot(0.008, 0.008), np.hypot(0.008, 0.008 + 4.0 * 0.5 * 0.2)])
 
 
 def test_curved_patches_would_bias_the_poses(two_passes):
