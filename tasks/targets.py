@@ -16,17 +16,17 @@
    or all metal and the crossing is only known to within the spacing. Those edges count for the
    rim's coverage, not the fit (on the demo sample, in-plane centre error median 18.7 -> 5.2 um,
    RMS 20.1 -> 8.4 um; at the paper's resolution median 1.2 -> 0.7 um, RMS 3.1 -> 1.6 um). The
-   shares instead of the halfway crossing (not the default yet,
-   ``schemas.reconstruction.TargetsConfig.rim_edge``; 2026-11-29, against the simulator's true
-   stickers, 3-D centre error median: demo 9.9 -> 7.3 um, ci 8.6 -> 5.5 um; the demo's worst pass
-   misalignment after the refinement 30.2 -> 21.2 um with one sigma for all targets;
-   bench/README.md, the targets' sigma).
+   shares instead of the halfway crossing (the default since 2026-11-29,
+   ``schemas.reconstruction.TargetsConfig.rim_edge``; against the simulator's true stickers, 3-D
+   centre error median: demo 9.9 -> 7.3 um, ci 8.6 -> 5.5 um; bench/README.md, the targets' sigma).
    The paper has an edge (about 0.1 mm high). Seen obliquely, the rays that last meet paper on
    the far side graze the top's rim, but on the side facing the sensor they run into the edge and
    the last of them grazes its foot, one edge height below the top: where the rays cross the top's
    plane, that side of the rim lies farther out by the edge height times the tangent of the view
    (60 um at 50 deg). The fit takes the edge height as a third unknown, moving the facing side's
-   rim points along their own rays (``_fit_rim``).
+   rim points along their own rays (``_fit_rim``). Its covariance gives the height's own sigma and
+   how far the centre moves per mm of height along the fit's valley: ``tasks.target_weights``
+   weighs a centre whose height is off its sample's by what that move makes of it.
 3. A quality figure per target: edge-fit RMS, the share of the rim that was seen, the radius a
    free fit finds. Circles cut by the pass border, shadows or glare fail these checks.
 

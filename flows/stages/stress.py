@@ -123,13 +123,24 @@ class _Model:
 
 
 def _crossing(polyline: np.ndarray, frame: SectionFrame) -> np.ndarray | None:
-    """Where the polyline crosses the section's plane, in the points' frame; None: it does not."""
+    """Where the polyline crosses the section's plane, in the points' frame; None: it does not.
+    Each measured toe point stands for the toe half-way to its neighbours, so a plane past the
+    line's first or last point by no more than half the step to the next meets that end point: a
+    line's first section meets its own first toes whatever the sign of the rounding that puts them
+    on its plane, and the other line's, which lie a few um before or after it as the registration
+    has it (before 2026-11-29 a section met them only when they happened to lie after)."""
     s = (polyline - frame.origin) @ frame.along
     for k in np.flatnonzero(np.sign(s[:-1]) != np.sign(s[1:])):
         t = s[k] / (s[k] - s[k + 1])
         return polyline[k] + t * (polyline[k + 1] - polyline[k])
     hit = np.flatnonzero(s == 0)
-    return polyline[hit[0]] if len(hit) else None
+    if len(hit):
+        return polyline[hit[0]]
+    if len(s) >= 2:
+        for end, inner in ((0, 1), (-1, -2)):
+            if abs(s[end]) <= 0.5 * abs(s[end] - s[inner]):
+                return polyline[end]
+    return None
 
 
 def _load(bending: bool):

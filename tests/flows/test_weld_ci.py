@@ -45,8 +45,19 @@ def test_ci_weld_figures_against_the_drawn_weld(weld_run):
     assert errors["flank_angle_deg"]["median_abs"] <= 4.0 and errors["flank_angle_deg"]["p90_abs"] <= 9.0
     assert errors["reinforcement_height_mm"]["median_abs"] <= 0.08
     assert errors["reinforcement_height_mm"]["worst_abs"] <= 0.15  # 0.134 before the plate line's sticker rule
-    # a plate line lifted by a sticker read the plate beside the toe as undercut (0.25 mm where none was drawn)
-    assert errors["undercut_depth_mm"]["worst_abs"] <= 0.1
+    # a plate line lifted by a sticker read the plate beside the toe as undercut (0.25 mm where none was
+    # drawn, confidently). The ci has no undercut drawn: every undercut the fits can pin (1-sigma under
+    # 0.1 mm) is under 0.1 mm; one they cannot (a dip in a few noisy plate points: 2026-11-29, top at
+    # 11 mm, 0.19 +- 2.45 mm) is never passed: its section is judged uncertain (or failed)
+    pinned, loose = [], []
+    for sec in geometry.sections:
+        for side, toe in sec.toes.sides():
+            if toe is not None and toe.undercut_depth_mm.value:
+                (pinned if (toe.undercut_depth_mm.sigma or 0.0) <= 0.1 else loose).append((sec, side, toe))
+    assert all(toe.undercut_depth_mm.value <= 0.1 for _, _, toe in pinned), pinned
+    assert all(sec.verdict in ("uncertain", "fail") and any(f.toe == side and f.figure == "undercut_depth_mm"
+                                                           for f in sec.uncertain + sec.violations)
+               for sec, side, _ in loose), loose
     assert errors["reinforcement_width_mm"]["median_abs"] <= 0.15
     assert errors["reinforcement_width_mm"]["worst_abs"] <= 0.4
     assert errors["toe_radius_mm"]["n"] >= 140 and errors["reinforcement_height_mm"]["n"] >= 70
