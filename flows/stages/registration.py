@@ -31,8 +31,6 @@ def no_target_registration(ctx) -> dict[str, Any]:
     return {"target_pairs": 0, "method": method}
 
 
-
-
 def _figures(f) -> dict[str, np.ndarray]:
     """One pass's detections' figures, by ``END_FIGURES``'s names, (k,) each."""
     return {"rim_rms": f.rms_mm, "edge_height": f.edge_height_mm, "edge_height_sigma": f.edge_height_sigma_mm,
