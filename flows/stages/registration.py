@@ -37,17 +37,22 @@ def _figures(f) -> dict[str, np.ndarray]:
             "centre_per_height": np.linalg.norm(np.asarray(f.centre_per_height).reshape(-1, 3), axis=1)}
 
 
-def _end_figures(found, passes: np.ndarray, centres: np.ndarray, end: str) -> dict[str, np.ndarray]:
-    """Each pair end's rim fit figures (``END_FIGURES``): its target in its pass's detections, by
-    its centre (the graph carries the detected centres themselves, so the match is exact)."""
+def _end_figures(found, graph) -> dict[str, np.ndarray]:
+    """Each pair end's rim fit figures (``END_FIGURES``, both ends): its target in its pass's
+    detections, by its centre (the graph carries the detected centres themselves, so the match is
+    exact)."""
     by_centre = [{c.tobytes(): i for i, c in enumerate(np.asarray(f.centres, np.float64))} for f in found]
-    try:
-        index = [by_centre[p][np.asarray(c, np.float64).tobytes()] for p, c in zip(passes, centres)]
-    except KeyError:
-        raise RuntimeError("registration: a target pair's centre is none of its pass's detections") from None
     figures = [_figures(f) for f in found]
-    return {f"{name}_{end}{unit}": np.array([figures[p][name][i] for p, i in zip(passes, index)], np.float64)
-            for name, unit in END_FIGURES}
+    out = {}
+    for end, passes, centres in (("a", graph.edge_passes[:, 0], graph.points_a),
+                                 ("b", graph.edge_passes[:, 1], graph.points_b)):
+        try:
+            index = [by_centre[p][np.asarray(c, np.float64).tobytes()] for p, c in zip(passes, centres)]
+        except KeyError:
+            raise RuntimeError("registration: a target pair's centre is none of its pass's detections") from None
+        out.update({f"{name}_{end}{unit}": np.array([figures[p][name][i] for p, i in zip(passes, index)], np.float64)
+                    for name, unit in END_FIGURES})
+    return out
 
 
 def register(ctx) -> dict[str, Any]:
@@ -70,8 +75,7 @@ def register(ctx) -> dict[str, Any]:
         edge_passes=reg.graph.edge_passes, points_a=reg.graph.points_a, points_b=reg.graph.points_b,
         track_positions_mm=reg.track_positions_mm, specimen_track=reg.specimen_track,
         track_members=members.reshape(-1, 2), track_centres_mm=centres.reshape(-1, 3),
-        **_end_figures(found, reg.graph.edge_passes[:, 0], reg.graph.points_a, "a"),
-        **_end_figures(found, reg.graph.edge_passes[:, 1], reg.graph.points_b, "b")))
+        **_end_figures(found, reg.graph)))
     REGISTRATION_SUMMARY.write(ctx.out, RegistrationSummary(
         pairs=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common) for p in reg.pairs],
         pairs_below_min_common=[PassPair(a=names[p.pass_a], b=names[p.pass_b], common_targets=p.n_common)

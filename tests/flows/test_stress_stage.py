@@ -73,8 +73,9 @@ def test_the_factors_against_the_true_surface(ci_run, ci_sample):
     sampling blunts): 16 toe sections, median difference 5.1 %, worst 14.3 %; the hot spots +3.2,
     -11.2, -14.3 and -7.3 %, in the same section. 2026-11-29, the targets weighed by their rim
     fits and a section meeting the toe lines' end points: 18 toe sections, median 4.4 %, worst
-    12.6 %; the hot spots +0.4, -9.9, -12.6 and -4.9 %, one of them 10 mm from the truth's. Far from issue 26's 5 % at the hot spot on this
-    coarse preset: the bounds below hold what is measured, so that a change for the worse fails."""
+    12.6 %; the hot spots +0.4, -9.9, -12.6 and -4.9 %, one of them 10 mm from the truth's. Far
+    from issue 26's 5 % at the hot spot on this coarse preset: the bounds below hold what is
+    measured, so that a change for the worse fails."""
     sys.path.insert(0, str(REPO / "bench"))
     from stress_truth import compare
 
