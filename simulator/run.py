@@ -31,12 +31,14 @@ from data_catalog.passes import PassWriter
 from data_catalog.truth import FILLET_TRUTH_NAME, TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
 from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
                               ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
-from schemas.simulation import SimulationConfig
+from schemas.scan_plan import ScanPlan
+from schemas.simulation import PlacementConfig, ScanPlanConfig, SimulationConfig
 from schemas.truth import (GroundTruth, PointLabel, TruePass, TrueSticker, TrueToeLines, WeldSection, WeldSectionDetail,
                            WeldTruth)
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
 from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
+from simulator.planner import plan_sticker_set, planned_passes
 from simulator.robot import PassMotion, PlannedPass, draw_motion, plan_passes
 from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
@@ -46,7 +48,7 @@ from simulator.tjoint import (build_tjoint, place_tjoint_fixture_stickers, plan_
                               tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
 from tasks.frames import invert
 
-__all__ = ["SimulationSummary", "simulate", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
+__all__ = ["SimulationSummary", "simulate", "plan_config", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
 
 TOES_NAME = "toes.json"
 
@@ -238,9 +240,60 @@ def _live_directory(path: Path) -> Iterator[Path]:
         raise
 
 
+def plan_config(plan: ScanPlan, *, seed: int | None = None, sample_id: str | None = None) -> SimulationConfig:
+    """The simulation config that scans ``plan``: its part, its setups, the part put on the
+    fixture within the plan's placement tolerance."""
+    req = plan.requirements
+    update = {"plan": ScanPlanConfig(setups=list(req.setups)),
+              "placement": PlacementConfig(translation_mm=req.placement_tolerance_mm, yaw_deg=req.placement_yaw_deg),
+              "preset": f"plan of {plan.part.preset}"}
+    if seed is not None:
+        update["seed"] = seed
+    if sample_id is not None:
+        update["sample_id"] = sample_id
+    return plan.part.model_copy(update=update)
+
+
+def _stickers_by_hand(plan: ScanPlan, specimen: Specimen, rng: np.random.Generator) -> StickerSet:
+    """The plan's stickers as a hand puts them from the printed map on the real part: each within
+    the plan's sticker tolerance of its mark (uniform over the disc), flat on its face (the
+    plates' misalignment and the walls' taper followed)."""
+    marks = plan_sticker_set(plan)
+    tol = plan.requirements.sticker_tolerance_mm
+    n = marks.normals
+    helper = np.where(np.abs(n[:, [2]]) < 0.9, np.array([[0.0, 0.0, 1.0]]), np.array([[1.0, 0.0, 0.0]]))
+    u = np.cross(n, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(n, u)
+    radius = tol * np.sqrt(rng.random(len(n)))
+    angle = rng.uniform(0, 2 * np.pi, len(n))
+    centres = marks.centres + (radius * np.cos(angle))[:, None] * u + (radius * np.sin(angle))[:, None] * v
+    normals = marks.normals.copy()
+    eps = 0.05
+    for face, z_of, sign in ((Face.TOP, specimen.top_z, 1.0), (Face.BOTTOM, specimen.bottom_z, -1.0)):
+        on = marks.faces == face
+        x, y = centres[on, 0], centres[on, 1]
+        centres[on, 2] = z_of(x, y)
+        dzdx = (z_of(x + eps, y) - z_of(x - eps, y)) / (2 * eps)
+        dzdy = (z_of(x, y + eps) - z_of(x, y - eps)) / (2 * eps)
+        nn = np.stack([-dzdx * sign, -dzdy * sign, np.full_like(x, sign)], 1)
+        normals[on] = nn / np.linalg.norm(nn, axis=1, keepdims=True)
+    for face, side in ((Face.SIDE_NEG, -1.0), (Face.SIDE_POS, 1.0)):
+        on = marks.faces == face
+        x = centres[on, 0]
+        centres[on, 1] = side * specimen.half_width(x)
+        centres[on, 2] += specimen.z_shift(x)
+    return StickerSet(centres=centres, normals=normals, ids=marks.ids, faces=marks.faces,
+                      radius_mm=marks.radius_mm, thickness_mm=marks.thickness_mm)
+
+
 def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str], None] | None = None,
-             previews: bool = True, pace: float | None = None) -> SimulationSummary:
+             previews: bool = True, pace: float | None = None, plan: ScanPlan | None = None) -> SimulationSummary:
     """Simulate the sample described by ``config`` into ``out_dir`` (which must not exist).
+
+    With ``plan`` (``weldrecon plan``; ``config`` from ``plan_config``) the robot runs the plan's
+    passes and the stickers are put by hand where the plan's map marks them, instead of the
+    preset's program and stickers placed for it.
 
     Without ``pace`` the folder appears only when complete (written beside it, then renamed).
     With ``pace`` (1: the robot's own speed, N: N times faster) the folder and the manifest (the
@@ -265,7 +318,9 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     fixture_mesh = build_fixture(config.fixture)
     T_world_specimen = {setup: place_on_fixture(specimen, config.fixture, config.placement, rng_place,
                                                 flipped=(setup == "bottom")) for setup in ("top", "bottom")}
-    if tj is None:
+    if plan is not None:
+        planned = planned_passes(plan)
+    elif tj is None:
         z_top = config.fixture.block_size_mm[2] + config.specimen.thickness_mm
         planned = plan_passes(config.plan, config.specimen, config.robot, z_top_mm=z_top,
                               standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
@@ -281,23 +336,28 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     say(f"specimen meshed: {len(specimen.mesh.triangles):,} triangles; {len(planned)} passes planned")
 
     radius = config.stickers.diameter_mm / 2
-    planning_scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, _empty_stickers(radius),
-                                _empty_stickers(radius)) for s in config.plan.setups}
-    coverage = _planning_coverage(config, planned, motions, planning_scenes)
-    candidates = sticker_candidates(specimen, config) if tj is None else tjoint_sticker_candidates(specimen, config)
-    # Plan for more pairs than the final check will call overlapping: the coarse planning
-    # renders see a little less than the real passes.
-    pairs = _overlapping_pairs(coverage, candidates, config)
-    paired = {i for pair in pairs for i in pair}
-    for index, p in enumerate(planned):
-        if index not in paired:
-            log.warning("pass %s overlaps no other pass with room for stickers: it cannot be registered", p.pass_id)
-    first: tuple[int, ...] = ()
-    if tj is not None and tj.wall_stickers:
-        seen = coverage.disc_masks(candidates.faces, candidates.params(), radius + PLANNING_MARGIN_MM)
-        first = wall_sticker_picks(candidates, seen, specimen, rng_stickers)
-    specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
-                                       margin_mm=PLANNING_MARGIN_MM, first=first)
+    if plan is not None:  # the plan's stickers, put by hand from its map
+        index_of = {p.pass_id: k for k, p in enumerate(planned)}
+        pairs = [(index_of[o.pass_a], index_of[o.pass_b]) for o in plan.overlaps]
+        specimen_stickers = _stickers_by_hand(plan, specimen, rng_stickers)
+    else:
+        planning_scenes = {s: Scene(specimen.mesh, T_world_specimen[s], fixture_mesh, _empty_stickers(radius),
+                                    _empty_stickers(radius)) for s in config.plan.setups}
+        coverage = _planning_coverage(config, planned, motions, planning_scenes)
+        candidates = sticker_candidates(specimen, config) if tj is None else tjoint_sticker_candidates(specimen, config)
+        # Plan for more pairs than the final check will call overlapping: the coarse planning
+        # renders see a little less than the real passes.
+        pairs = _overlapping_pairs(coverage, candidates, config)
+        paired = {i for pair in pairs for i in pair}
+        for index, p in enumerate(planned):
+            if index not in paired:
+                log.warning("pass %s overlaps no other pass with room for stickers: it cannot be registered", p.pass_id)
+        first: tuple[int, ...] = ()
+        if tj is not None and tj.wall_stickers:
+            seen = coverage.disc_masks(candidates.faces, candidates.params(), radius + PLANNING_MARGIN_MM)
+            first = wall_sticker_picks(candidates, seen, specimen, rng_stickers)
+        specimen_stickers = place_stickers(candidates, coverage, pairs, config, rng_stickers,
+                                           margin_mm=PLANNING_MARGIN_MM, first=first)
     if tj is None:
         fixture_stickers = place_fixture_stickers(config, rng_fixture, first_id=len(specimen_stickers.ids))
     else:

@@ -24,9 +24,11 @@ RULES = {
 }
 # flows may import anything; only these functions of flows/cli/simulate.py may touch the simulator
 # (the `simulate` command is the simulator's own command line; `demo` simulates the demo sample;
-# `export-cell` writes a sample as a cell's logs, for trying `import` on known data)
+# `export-cell` writes a sample as a cell's logs, for trying `import` on known data; `plan` plans a scan
+# with the simulated cell's models)
 SIMULATOR_IN_FLOWS = {("flows/cli/simulate.py", "_simulation_config"), ("flows/cli/simulate.py", "_cmd_simulate"),
-                      ("flows/cli/simulate.py", "_cmd_demo"), ("flows/cli/simulate.py", "_cmd_export_cell")}
+                      ("flows/cli/simulate.py", "_cmd_demo"), ("flows/cli/simulate.py", "_cmd_export_cell"),
+                      ("flows/cli/simulate.py", "_cmd_plan")}
 
 
 def _imports(path: Path):

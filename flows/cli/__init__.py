@@ -1,7 +1,7 @@
 """The ``weldrecon`` command line: the parser, assembled from one module per command group, and
 ``main``.
 
-- ``simulate``: simulate, demo, export-cell (the only command code that may import the simulator)
+- ``simulate``: simulate, plan, demo, export-cell (the only command code that may import the simulator)
 - ``reconstruct``: reconstruct
 - ``catalog``: catalog register|list|show|index, batch
 - ``audit``: audit verify|show
@@ -31,6 +31,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     ws = catalog.workspace_option()
     simulate.add_simulate(sub)
+    simulate.add_plan(sub)
     reconstruct.add_reconstruct(sub)
     simulate.add_demo(sub)
     catalog.add_catalog(sub, ws)

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["add_simulate", "add_demo", "add_export_cell"]
+__all__ = ["add_simulate", "add_demo", "add_export_cell", "add_plan"]
 
 _DEMO_CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "configs" / "demo.yaml"
 
@@ -18,7 +18,9 @@ _DEMO_CONFIG = Path(__file__).resolve().parents[2] / "deploy" / "configs" / "dem
 def add_simulate(sub) -> None:
     sim = sub.add_parser("simulate", help="simulate a scanning cell's output for one sample")
     sim.add_argument("out_dir", metavar="OUT_DIR", help="new folder for the sample (must not exist)")
-    sim.add_argument("--preset", default="demo", help="ci, demo, paper, tjoint, tjoint-single or cruciform (default: demo)")
+    sim.add_argument("--preset", help="ci, demo, paper, tjoint, tjoint-single or cruciform (default: demo)")
+    sim.add_argument("--plan", metavar="PLAN_DIR", help="scan a plan made by `weldrecon plan` (its part, passes and "
+                     "sticker map) instead of a preset's")
     sim.add_argument("--config", metavar="FILE", help="YAML file of fields that override the preset")
     sim.add_argument("--seed", type=int, help="override the preset's seed")
     sim.add_argument("--sample-id", help="override the preset's sample id")
@@ -26,6 +28,16 @@ def add_simulate(sub) -> None:
     sim.add_argument("--pace", metavar="realtime|xN", help="write the manifest first, then each pass when the robot "
                      "would have finished it, at its speed (realtime) or N times faster (xN): for --follow")
     sim.set_defaults(func=_cmd_simulate)
+
+
+def add_plan(sub) -> None:
+    plan = sub.add_parser("plan", help="plan the passes and stickers of a scan from the part's drawing")
+    plan.add_argument("part", metavar="PART", help="the part: a simulator preset's (demo, paper, ci, ...)")
+    plan.add_argument("--out", required=True, metavar="PLAN_DIR", help="new folder for the plan (must not exist)")
+    plan.add_argument("--config", metavar="FILE", help="YAML file of fields that override the part's (as simulate's)")
+    plan.add_argument("--requirements", metavar="FILE", help="YAML file of the plan's requirements "
+                      "(schemas/scan_plan.py, PlanRequirements): coverage, placement tolerance, the robot's reach")
+    plan.set_defaults(func=_cmd_plan)
 
 
 def add_demo(sub) -> None:
@@ -74,7 +86,7 @@ def _simulation_config(args: argparse.Namespace):
     from schemas.simulation import SimulationConfig
     from simulator.presets import preset_config
 
-    base = preset_config(args.preset).model_dump()
+    base = preset_config(args.preset or "demo").model_dump()
     if args.config is not None:
         base = _deep_merge(base, read_yaml_mapping(args.config, "simulation config"))
     if args.seed is not None:
@@ -84,7 +96,7 @@ def _simulation_config(args: argparse.Namespace):
     try:
         return SimulationConfig.model_validate(base)
     except ValidationError as exc:
-        source = args.config or f"preset {args.preset}"
+        source = args.config or f"preset {args.preset or 'demo'}"
         raise ValueError(f"{source}: invalid simulation config:\n{_describe(exc)}") from None
 
 
@@ -101,12 +113,59 @@ def _pace(text: str) -> float:
     return factor
 
 
+def _cmd_plan(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+
+    from simulator.plan_files import write_plan_folder
+    from simulator.planner import PlanRefused, plan_scan
+
+    from data_catalog.atomic import check_can_create
+    from data_catalog.textfiles import read_yaml_mapping
+    from schemas.scan_plan import PlanRequirements
+
+    config = _simulation_config(argparse.Namespace(preset=args.part, config=args.config, seed=None, sample_id=None))
+    out = Path(args.out)
+    if out.exists():
+        raise ValueError(f"--out {out} already exists; choose a new folder (nothing was written)")
+    check_can_create(out, f"--out {out}")
+    fields = read_yaml_mapping(args.requirements, "plan requirements") if args.requirements else {}
+    try:
+        requirements = PlanRequirements.model_validate(fields)
+    except ValidationError as exc:
+        raise ValueError(f"{args.requirements}: invalid plan requirements:\n{_describe(exc)}") from None
+    started = time.perf_counter()
+
+    def progress(message: str) -> None:
+        print(f"[{time.perf_counter() - started:7.1f} s] {message}", file=sys.stderr, flush=True)
+
+    progress(f"planning the scan of {config.sample_id!r} (part {args.part})")
+    try:
+        plan = plan_scan(config, requirements, progress=progress)
+    except PlanRefused as exc:
+        for problem in exc.problems:
+            print(f"weldrecon plan: refused: {problem}", file=sys.stderr)
+        print(f"weldrecon plan: no plan written to {out}", file=sys.stderr)
+        return 2
+    write_plan_folder(plan, out)
+    print(f"{out}: {len(plan.passes)} passes, {plan.scan_time_s:.0f} s ({plan.scan_time_s / 60:.1f} min) of scanning, "
+          f"{len(plan.stickers)} stickers; the plan page: {out / 'plan.html'}")
+    return 0
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from simulator.run import simulate
+    from simulator.plan_files import read_plan
+    from simulator.run import plan_config, simulate
 
     from data_catalog.atomic import check_can_create
 
-    config = _simulation_config(args)
+    plan = None
+    if args.plan is not None:
+        if args.preset is not None or args.config is not None:
+            raise ValueError("--plan gives the part, its scanner and its passes: leave out --preset and --config")
+        plan = read_plan(Path(args.plan))
+        config = plan_config(plan, seed=args.seed, sample_id=args.sample_id)
+    else:
+        config = _simulation_config(args)
     out = Path(args.out_dir)
     if out.exists():
         raise ValueError(f"{out} already exists; choose a new folder (nothing was written)")
@@ -118,7 +177,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     pace = _pace(args.pace) if args.pace is not None else None
     progress(f"simulating preset {config.preset!r} (seed {config.seed}) into {out}")
-    summary = simulate(config, out, progress=progress, previews=not args.no_preview, pace=pace)
+    summary = simulate(config, out, progress=progress, previews=not args.no_preview, pace=pace, plan=plan)
     print(f"{summary.out_dir}: {summary.n_passes} passes, {summary.n_points:,} points "
           f"({summary.n_valid_points:,} returns), {summary.n_stickers_specimen} stickers on the specimen, "
           f"{summary.n_stickers_fixture} on the fixture, {summary.seconds:.1f} s")

@@ -1,0 +1,785 @@
+"""Plan a scan from the part's drawing (``weldrecon plan``): the passes and the stickers, chosen
+so that the weld toes are measured at full resolution from both sides, every face is seen, every
+pair of overlapping passes shares at least ``stickers.min_common`` whole stickers not in a line
+wherever the part lies within its placement tolerance, and the setups share enough stickers to
+be matched without doubt; the fastest such plan the search finds.
+
+The plan is checked with the simulated cell's own models: each candidate pass is rendered
+noise-free (about 0.5 mm apart) against the part as drawn (its weld from the part's ranges, with
+the planning seed), on the fixture, at its nominal placement and at the corners of its placement
+tolerance. A sticker counts as seen by a pass only when the pass sees it whole, grown by the
+robot's and the hand's errors, at every one of those placements.
+
+The search (a dog-bone; ``PlanRefused`` for other parts until they are planned) runs over pass
+families, fastest first:
+
+- ``face``: rows along the part's length over its upward face, at the scanner's reference
+  distance, as few as leave room for stickers between neighbours;
+- ``side``: one row along each side wall, rolled toward it (the walls tie the setups);
+- ``end``: one sweep across each end, pitched toward it;
+- ``weld``: two sweeps along the weld, pitched either way across it (each toe lit from over the
+  plate and from over the weld), each aimed a little off the weld's centre so that its line also
+  covers a strip of plate where stickers may go, raised off the reference distance if the strip
+  needs it (as long as the points stay as close as the full-resolution scan's).
+
+Every pass runs at the part's robot speed and profile spacing. A plan that meets no requirement
+set is refused (``PlanRefused``), naming the face, toe or pass pair that fails.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from schemas.scan_plan import (FaceCoverage, PlanOverlap, PlanPass, PlanRequirements, PlanSticker, ScanPlan, SetupLink,
+                               ToeCoverage)
+from schemas.simulation import PlacementConfig, SimulationConfig
+from schemas.truth import PointLabel
+from simulator.coverage import CoverageMap, cell_keys, face_params, spread_off_line_mm
+from simulator.fixture import build_fixture
+from simulator.placement import place_on_fixture
+from simulator.robot import PlannedPass, _sensor_frame
+from simulator.scanner import LineScanner
+from simulator.scene import Scene, StickerSet
+from simulator.specimen import Face, Specimen, build_specimen
+from simulator.stickers import StickerPlacementError, place_stickers, sticker_candidates
+from tasks.arrays import distinct
+from tasks.frames import invert, rotation_deg, translation
+
+__all__ = ["PlanRefused", "plan_scan", "evaluate_passes", "planned_passes", "Evaluation", "PLANNING_SEED_OFFSET"]
+
+log = logging.getLogger(__name__)
+
+RENDER_STEP_MM = 0.5
+CELL_MM = 2.0
+ROBOT_MARGIN_MM = 0.8  # a sticker grown by this for the robot's own pose error (3 sigma of 0.25 mm, and its tilt)
+TOE_STEP_MM = 2.0
+TOE_RADIUS_MM = 1.0  # a toe station is measured by the points this close
+STRAIGHT_DOWN = math.sin(math.radians(10.0))  # a ray this close to the plate's normal lights a toe from both sides
+DETECTABLE = (0.8, 1.2)
+"""A pass finds a sticker where the points along its line lie this many times the pass's median
+spacing apart: the target search looks for circles of one radius on a grid of the pass's median
+spacing (tasks.target_search: HoughCircles from 0.6 to 1.3 of it), so a sticker on a face seen
+more or less obliquely than most of the pass looks like an ellipse it misses (a pass rolled 55 deg
+along a 90 deg edge finds the stickers on the face it meets at 55 deg and none on the other)."""
+SIDE_ROLLS_DEG = (45.0, 50.0, 40.0, 55.0, 35.0)  # tried in this order: the walls and the top edge alike oblique first
+END_PITCHES_DEG = (30.0, 25.0, 35.0)
+WELD_PITCHES_DEG = (25.0, 20.0, 30.0)
+PLANNING_SEED_OFFSET = 7919
+"""The part's weld for planning is drawn with seed ``part.seed + PLANNING_SEED_OFFSET``: a weld from
+the part's ranges that is not the simulated sample's own."""
+
+
+class PlanRefused(ValueError):
+    """No plan the search tried meets the requirements; ``problems`` name the face, toe or pass pair."""
+
+    def __init__(self, problems: list[str]):
+        super().__init__("; ".join(problems))
+        self.problems = problems
+
+
+# ---------------------------------------------------------------------------------------------
+# The part as drawn, on the fixture
+
+
+@dataclass
+class _Part:
+    config: SimulationConfig
+    specimen: Specimen  # as drawn: no plate misalignment
+    scenes: dict[tuple[str, int], Scene]  # per setup and shape (0: as drawn, 1: misaligned the most)
+    placements: list[tuple[int, np.ndarray]]  # (shape, perturbation P, world frame): as drawn at its nominal
+    # placement first, then at the corners of the placement tolerance, then the other shape
+    z_top_mm: float
+
+
+def _empty(radius: float) -> StickerSet:
+    return StickerSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.uint8), radius, 0.0)
+
+
+def planning_mesh(config: SimulationConfig) -> SimulationConfig:
+    """The part's config with a true mesh fine enough to plan on (the scanner is rendered about
+    0.5 mm apart): 0.5 mm on the plates, 0.2 mm over the weld, 0.1 mm at its toes."""
+    m = config.mesh
+    return config.model_copy(update={"mesh": m.model_copy(update={
+        "plate_dx_mm": max(m.plate_dx_mm, 1.0), "weld_dx_mm": max(m.weld_dx_mm, 0.2),
+        "toe_dx_mm": max(m.toe_dx_mm, 0.1), "across_nodes": min(m.across_nodes, 200),
+        "wall_rows": min(m.wall_rows, 11)})})
+
+
+def _part(config: SimulationConfig, req: PlanRequirements) -> _Part:
+    """The part as drawn (its weld from the part's ranges with the planning seed, its plates in
+    line), and the same part with the plates misaligned the most the weld's ranges allow: where
+    a real part's ends may lie. Each rests on the support blocks as ``place_on_fixture`` settles it."""
+    if config.tjoint is not None:
+        kind = "a cruciform joint" if config.tjoint.stems == "both" else "a T-joint"
+        raise PlanRefused([f"part: {kind} is not planned yet (the planner's pass families are a dog-bone's); "
+                           "its preset's hand-made plan is what `weldrecon simulate` scans"])
+    drawn = planning_mesh(config)
+    w = drawn.weld
+    shapes = []
+    for axial, angular in ((0.0, 0.0), (w.axial_misalignment_mm[1], w.angular_misalignment_deg[1])):
+        weld = w.model_copy(update={"axial_misalignment_mm": (axial, axial), "angular_misalignment_deg": (angular, angular)})
+        shapes.append(build_specimen(drawn.specimen, weld, drawn.mesh,
+                                     np.random.default_rng(config.seed + PLANNING_SEED_OFFSET)))
+    fixture = build_fixture(config.fixture)
+    radius = config.stickers.diameter_mm / 2
+    t, yaw = req.placement_tolerance_mm, req.placement_yaw_deg
+    corners = [(sx * t, sy * t, sz * yaw) for sx, sy, sz in itertools.product((-1, 1), repeat=3)] if t or yaw else []
+    placements = [(0, np.eye(4))] + [(0, translation([dx, dy, 0.0]) @ rotation_deg("z", dz)) for dx, dy, dz in corners]
+    placements.append((1, np.eye(4)))
+    still = PlacementConfig(translation_mm=0.0, yaw_deg=0.0)
+    scenes = {}
+    for setup in req.setups:
+        for k, shape in enumerate(shapes):
+            T = place_on_fixture(shape, config.fixture, still, np.random.default_rng(0), flipped=(setup == "bottom"))
+            scenes[(setup, k)] = Scene(shape.mesh, T, fixture, _empty(radius), _empty(radius))
+    return _Part(config, shapes[0], scenes, placements, config.fixture.block_size_mm[2] + config.specimen.thickness_mm)
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering a pass (noise-free, coarse)
+
+
+@dataclass(frozen=True)
+class _View:
+    """What one pass sees at one placement: specimen-frame points, their faces and the laser
+    rays' directions (specimen frame)."""
+
+    face: np.ndarray
+    points: np.ndarray
+    rays: np.ndarray
+    spacing_ratio: np.ndarray  # the point spacing along the line here over the pass's median (see DETECTABLE)
+
+
+class _Renderer:
+    def __init__(self, part: _Part):
+        self.part = part
+        sc = part.config.scanner
+        self.col_stride = max(1, int(RENDER_STEP_MM / sc.x_spacing_mm))
+        n_cols = max(2, math.ceil(sc.points_per_profile / self.col_stride))
+        self.scanner = LineScanner(sc.model_copy(update={"points_per_profile": n_cols,
+                                                          "x_spacing_mm": sc.x_spacing_mm * self.col_stride}))
+        self._cache: dict[tuple, _View] = {}
+
+    def view(self, p: PlannedPass, placement: int) -> _View:
+        """The pass over the part at ``_Part.placements[placement]``: at a corner of the tolerance
+        the part is moved by the corner's perturbation P, rendered as the sensor moved by P^-1 (the
+        fixture, which does not move with the part, is then off by P: a few tenths of a mm)."""
+        key = (p.setup, placement, p.T_world_sensor_start.tobytes(), p.travel_world.tobytes(), p.length_mm)
+        if key not in self._cache:
+            shape, P = self.part.placements[placement]
+            self._cache[key] = self._render(p, self.part.scenes[(p.setup, shape)], invert(P))
+        return self._cache[key]
+
+    def _render(self, p: PlannedPass, scene: Scene, P_inv: np.ndarray) -> _View:
+        step = max(RENDER_STEP_MM, p.speed_mm_s / p.profile_rate_hz)
+        s = np.arange(0.0, p.length_mm + 1e-9, step)
+        T = P_inv[None] @ p.nominal_sensor_poses(s)
+        faces, points, rays, spacing = [], [], [], []
+        R_specimen_world = scene.T_specimen_world[:3, :3]
+        for start in range(0, len(T), 2000):
+            block = T[start:start + 2000]
+            prof = self.scanner.render(scene, block, None, keep_specimen_points=True)
+            returned = prof.label == PointLabel.VALID
+            seen = returned & (prof.face_id != 255)
+            d = np.einsum("mij,nj->mni", block[:, :3, :3], self.scanner.fan)
+            world = prof.point_specimen.astype(np.float64)
+            world[~returned] = np.nan
+            gap = np.linalg.norm(np.diff(world, axis=1), axis=2)  # between neighbouring columns
+            local = np.fmin(np.pad(gap, ((0, 0), (1, 0)), constant_values=np.nan),
+                            np.pad(gap, ((0, 0), (0, 1)), constant_values=np.nan))
+            faces.append(prof.face_id[seen])
+            points.append(world[seen])
+            rays.append(d[seen] @ R_specimen_world.T)
+            spacing.append(local[seen])
+        local = np.concatenate(spacing)
+        # the pass's median spacing, as the target search takes it (tasks.target_search.GridSpacing)
+        median = float(np.nanmedian(local)) if np.isfinite(local).any() else np.nan
+        return _View(np.concatenate(faces), np.concatenate(points), np.concatenate(rays), local / median)
+
+
+# ---------------------------------------------------------------------------------------------
+# Pass families of a dog-bone
+
+
+@dataclass(frozen=True)
+class _Choice:
+    rows: int
+    side_roll_deg: float
+    side_aim: float  # 0: at the wall's middle, 1: at the top edge
+    end_pitch_deg: float
+    end_inset_mm: float
+    weld_pitch_deg: float
+    weld_offset_mm: float
+    weld_standoff_mm: float
+
+
+def _lean(view: np.ndarray, travel: np.ndarray) -> tuple[float, float]:
+    """(tilt along the travel, roll across it) of a view direction, degrees from straight down."""
+    across = np.cross(np.array([0.0, 0.0, 1.0]), travel)
+    return (float(np.degrees(np.arcsin(np.clip(view @ travel, -1, 1)))),
+            float(np.degrees(np.arcsin(np.clip(view @ across, -1, 1)))))
+
+
+@dataclass
+class _Family:
+    passes: list[PlannedPass] = field(default_factory=list)
+    info: list[dict] = field(default_factory=list)
+
+
+def _dog_bone_passes(part: _Part, choice: _Choice, req: PlanRequirements) -> _Family:
+    cfg = part.config
+    sp, sc, robot = cfg.specimen, cfg.scanner, cfg.robot
+    ref = sc.reference_distance_mm
+    rate = robot.profile_rate_hz()
+    v = robot.speed_mm_s
+    L, W, t = sp.length_mm, sp.grip_width_mm, sp.thickness_mm
+    c = part.specimen.weld_top.centre_x_mm
+    w_weld = float(part.specimen.half_width(np.array([c]))[0]) * 2
+    margin = 10.0 + req.placement_tolerance_mm
+    fan = sc.points_per_profile * sc.x_spacing_mm  # the line's length at the reference distance
+    z_top = part.z_top_mm
+    x_axis, y_axis = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    family = _Family()
+
+    def add(setup, purpose, label, view, aim, travel, length, standoff):
+        count = sum(1 for q in family.info if q["setup"] == setup and q["purpose"] == purpose) + 1
+        tag = {"face": "F", "side": "S", "end": "E", "weld": "W"}[purpose]
+        view = view / np.linalg.norm(view)
+        family.passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, label,
+                                         _sensor_frame(travel, view, aim, standoff), travel, length, v, rate))
+        tilt, roll = _lean(view, travel)
+        family.info.append({"setup": setup, "purpose": purpose, "standoff": standoff, "tilt": tilt, "roll": roll})
+
+    for setup in req.setups:
+        # face rows: the outer lines reach 2 mm past the edges
+        n = choice.rows
+        pitch = (W + 4.0 - fan) / (n - 1) if n > 1 else 0.0
+        for k in range(n):
+            y = (k - (n - 1) / 2) * pitch
+            add(setup, "face", "along-length", np.array([0.0, 0.0, -1.0]), np.array([-L / 2 - margin, y, z_top]),
+                x_axis, L + 2 * margin, ref)
+        b = math.radians(choice.side_roll_deg)
+        for side in (-1.0, 1.0):
+            view = np.array([0.0, -side * math.sin(b), -math.cos(b)])
+            # aimed at the wall's middle, or up at the top edge to see more of the top face
+            aim = np.array([-L / 2 - margin, side * W / 2, z_top - (1 - choice.side_aim) * 0.5 * t * math.sin(b)])
+            add(setup, "side", f"along-length, rolled {choice.side_roll_deg:g}", view, aim, x_axis, L + 2 * margin, ref)
+        e = math.radians(choice.end_pitch_deg)
+        for end in (-1.0, 1.0):  # aimed at the end's top edge (moved inward by the inset): the end and the plate
+            view = np.array([-end * math.sin(e), 0.0, -math.cos(e)])
+            aim = np.array([end * (L / 2 - choice.end_inset_mm), -W / 2 - margin, z_top])
+            add(setup, "end", f"across the end, pitched {choice.end_pitch_deg:g}", view, aim, y_axis, W + 2 * margin, ref)
+        g = math.radians(choice.weld_pitch_deg)
+        for sign in (-1.0, 1.0):
+            view = np.array([sign * math.sin(g), 0.0, -math.cos(g)])
+            aim = np.array([c + sign * choice.weld_offset_mm, -w_weld / 2 - margin, z_top])
+            add(setup, "weld", f"along the weld, pitched {sign * choice.weld_pitch_deg:+g}", view, aim, y_axis,
+                w_weld + 2 * margin, choice.weld_standoff_mm)
+    return family
+
+
+def _choices(part: _Part, req: PlanRequirements) -> list[_Choice]:
+    """Every family setting, fastest first (then the reference distance, then the gentlest angles)."""
+    cfg = part.config
+    sc, robot = cfg.scanner, cfg.robot
+    ref, far = sc.reference_distance_mm, sc.z_range_mm[1]
+    full = max(sc.x_spacing_mm, robot.profile_spacing_mm)  # the full-resolution scan's coarsest spacing
+    standoffs = [s for s in np.arange(ref, far - 40.0 + 1e-9, 15.0) if sc.x_spacing_mm * s / ref <= full + 1e-12]
+    fan = sc.points_per_profile * sc.x_spacing_mm
+    # neighbouring rows must overlap by a sticker grown by every error, and a little
+    need = cfg.stickers.diameter_mm + 2 * (ROBOT_MARGIN_MM + req.sticker_tolerance_mm + req.placement_tolerance_mm) + 2.0
+    if need >= fan:
+        raise PlanRefused([f"face rows: the scan line ({fan:.1f} mm) is too short for two rows to share a sticker of "
+                           f"{cfg.stickers.diameter_mm:g} mm with every error ({need:.1f} mm of overlap)"])
+    width = cfg.specimen.grip_width_mm + 4.0
+    first = max(1, math.ceil((width - fan) / (fan - need)) + 1) if width > fan else 1
+    tilt = req.reach.max_tilt_deg
+    sides = [a for a in SIDE_ROLLS_DEG if a <= tilt]
+    ends = [a for a in END_PITCHES_DEG if a <= tilt]
+    welds = [a for a in WELD_PITCHES_DEG if a <= tilt]
+    unreachable = []
+    for options, all_options, what in ((sides, SIDE_ROLLS_DEG, "faces side_neg and side_pos: the passes along the walls"),
+                                       (ends, END_PITCHES_DEG, "faces end_neg and end_pos: the passes across the ends"),
+                                       (welds, WELD_PITCHES_DEG, "the weld's toes: the passes along the weld")):
+        if not options:
+            unreachable.append(f"{what} lean {min(all_options):g} to {max(all_options):g} deg from straight down; the "
+                               f"robot's largest tilt is {tilt:g} deg (reach.max_tilt_deg)")
+    if unreachable:
+        raise PlanRefused(unreachable)
+    out = [_Choice(n, side, aim, end, inset, pitch, offset, standoff)
+           for n in range(first, first + 3)
+           for standoff in standoffs
+           for pitch in welds
+           for offset in (0.0, 6.0, 12.0, -6.0, -12.0)
+           for side in sides
+           for aim in (0.0, 1.0)
+           for end in ends
+           for inset in (0.0, 5.0, 10.0)]
+    room = [ch for ch in out if _weld_strip_mm(part, ch, req) >= 2 * _strip_half_mm(cfg, req)]
+    if out and not room:
+        widest = max(_weld_strip_mm(part, ch, req) for ch in out)
+        raise PlanRefused([f"passes along the weld (W) and the face rows (F) of every setup: a weld pass sees at most "
+                           f"{max(widest, 0.0):.1f} mm of plate beside the weld zone where stickers may go; "
+                           f"{2 * _strip_half_mm(cfg, req):.1f} mm are needed for {cfg.stickers.min_common} stickers "
+                           f"of {cfg.stickers.diameter_mm:g} mm off a line (smaller stickers, or a scanner with a "
+                           "longer line)"])
+    return sorted(room, key=lambda ch: (ch.rows, ch.weld_standoff_mm, -round(_weld_strip_mm(part, ch, req), 1)))
+
+
+def _strip_half_mm(cfg: SimulationConfig, req: PlanRequirements) -> float:
+    """Half the width a strip of sticker centres needs for three stickers off a line."""
+    return 0.75 * (cfg.stickers.min_spread_mm + 2 * (ROBOT_MARGIN_MM + req.sticker_tolerance_mm)) + 1.0
+
+
+def _weld_strip_mm(part: _Part, choice: _Choice, req: PlanRequirements) -> float:
+    """Width of the strip of sticker centres beside the weld zone that a weld sweep's line covers
+    on the plate (the wider side), every error allowed for: sweeps whose strip cannot hold three
+    stickers off a line are not tried."""
+    cfg = part.config
+    sc = cfg.scanner
+    g = math.radians(choice.weld_pitch_deg)
+    phi = math.atan(sc.points_per_profile * sc.x_spacing_mm / 2 / sc.reference_distance_mm)
+    h = choice.weld_standoff_mm * math.cos(g)  # the sensor's height over the plate
+    reach = [h * math.tan(g + phi) - choice.weld_standoff_mm * math.sin(g),
+             h * math.tan(g - phi) - choice.weld_standoff_mm * math.sin(g)]  # the line's ends, from the aim
+    lo, hi = min(reach) + choice.weld_offset_mm, max(reach) + choice.weld_offset_mm
+    margin = ROBOT_MARGIN_MM + req.sticker_tolerance_mm
+    tol = req.placement_tolerance_mm + cfg.specimen.grip_width_mm / 2 * math.sin(math.radians(req.placement_yaw_deg))
+    zone = part.specimen.weld_zone_half_mm() + cfg.stickers.weld_clearance_mm + cfg.stickers.diameter_mm / 2
+    inner = zone + margin + tol
+    edge = cfg.stickers.diameter_mm / 2 + margin + tol
+    return max(hi - edge - inner, -lo - edge - inner)
+
+
+# ---------------------------------------------------------------------------------------------
+# Checking a set of passes
+
+
+@dataclass
+class Evaluation:
+    passes: list[PlannedPass]
+    faces: list[FaceCoverage]
+    toes: list[ToeCoverage]
+    problems: list[str]
+    stickers: StickerSet | None = None
+    overlaps: list[PlanOverlap] = field(default_factory=list)
+    setup_links: list[SetupLink] = field(default_factory=list)
+
+    @property
+    def scan_time_s(self) -> float:
+        return float(sum(p.duration_s for p in self.passes))
+
+
+def _reach_problems(passes: list[PlannedPass], req: PlanRequirements) -> list[str]:
+    lo, hi = np.asarray(req.reach.workspace_min_mm), np.asarray(req.reach.workspace_max_mm)
+    problems = []
+    for p in passes:
+        start = p.T_world_sensor_start[:3, 3]
+        for name, tcp in (("start", start), ("end", start + p.length_mm * p.travel_world)):
+            if np.any(tcp < lo) or np.any(tcp > hi):
+                problems.append(f"pass {p.pass_id}: its TCP at the {name}, {np.round(tcp, 1).tolist()} mm, is outside "
+                                f"the robot's workspace {list(req.reach.workspace_min_mm)}..{list(req.reach.workspace_max_mm)}")
+        tilt = math.degrees(math.acos(np.clip(-p.T_world_sensor_start[2, 2], -1, 1)))
+        if tilt > req.reach.max_tilt_deg + 1e-9:
+            problems.append(f"pass {p.pass_id}: its view leans {tilt:.0f} deg from straight down, more than the "
+                            f"robot's largest tilt, {req.reach.max_tilt_deg:g} deg")
+    return problems
+
+
+FACE_SAMPLE_MM2 = 1.0  # the drawn faces sampled about one point per mm^2
+SEEN_WITHIN_MM = 1.0  # a face sample is seen by a pass with a point this close on the same face
+
+
+@dataclass(frozen=True)
+class _Targets:
+    """What a plan must see: samples of every face, the toe stations."""
+
+    face: np.ndarray  # (k,) face of each sample
+    samples: np.ndarray  # (k, 3) specimen frame
+    areas: dict[int, float]
+    toes: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _targets(specimen: Specimen) -> _Targets:
+    mesh = specimen.mesh
+    v = mesh.vertices[mesh.triangles]
+    area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    rng = np.random.default_rng(0)
+    count = rng.poisson(area / FACE_SAMPLE_MM2)
+    tri = np.repeat(np.arange(len(v)), count)
+    a, b = rng.random(tri.size), rng.random(tri.size)
+    flip = a + b > 1
+    a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
+    pts = v[tri, 0] + a[:, None] * (v[tri, 1] - v[tri, 0]) + b[:, None] * (v[tri, 2] - v[tri, 0])
+    areas = {int(f): float(area[mesh.face_id == f].sum()) for f in np.unique(mesh.face_id)}
+    return _Targets(mesh.face_id[tri], pts, areas, _toe_stations(specimen))
+
+
+class _Seen:
+    """Per pass (rendered at the nominal placement): which face samples it sees, and which toe
+    stations it measures from over the plate and from over the weld. Cached, so that a candidate
+    plan's coverage is the union of its passes'."""
+
+    def __init__(self, renderer: "_Renderer", targets: _Targets, req: PlanRequirements):
+        self.renderer, self.targets, self.req = renderer, targets, req
+        self._faces: dict[int, cKDTree] = {}
+        self._cache: dict[tuple, tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]] = {}
+
+    def of(self, p: PlannedPass) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+        key = (p.setup, p.T_world_sensor_start.tobytes(), p.travel_world.tobytes(), p.length_mm)
+        if key not in self._cache:
+            view = self.renderer.view(p, 0)
+            self._cache[key] = (self._face_mask(view), self._toe_masks(view))
+        return self._cache[key]
+
+    def _face_mask(self, view: _View) -> np.ndarray:
+        t = self.targets
+        seen = np.zeros(len(t.samples), bool)
+        for f in np.unique(view.face):
+            on = np.flatnonzero(t.face == f)
+            if on.size == 0:
+                continue
+            d, _ = cKDTree(view.points[view.face == f]).query(t.samples[on], distance_upper_bound=SEEN_WITHIN_MM)
+            seen[on[np.isfinite(d)]] = True
+        return seen
+
+    def _toe_masks(self, view: _View) -> list[tuple[np.ndarray, np.ndarray]]:
+        cos_limit = math.cos(math.radians(self.req.toe_incidence_limit_deg))
+        out = []
+        for _, stations, outward, normal in self.targets.toes:
+            plate = np.zeros(len(stations), bool)
+            weld = np.zeros(len(stations), bool)
+            d, hit = cKDTree(stations).query(view.points, distance_upper_bound=TOE_RADIUS_MM)
+            near = np.isfinite(d) & (-(view.rays @ normal) >= cos_limit)
+            lean = view.rays[near] @ outward  # < 0: the laser comes from over the plate
+            plate[hit[near][lean < STRAIGHT_DOWN]] = True
+            weld[hit[near][lean > -STRAIGHT_DOWN]] = True
+            out.append((plate, weld))
+        return out
+
+    def faces(self, passes: list[PlannedPass]) -> tuple[list[FaceCoverage], list[str]]:
+        t = self.targets
+        counts = np.zeros(len(t.samples), np.int32)
+        for p in passes:
+            counts += self.of(p)[0]
+        out, problems = [], []
+        for f in sorted(t.areas):
+            on = t.face == f
+            share = float(np.count_nonzero(counts[on]) / max(np.count_nonzero(on), 1))
+            median = float(np.median(counts[on][counts[on] > 0])) if np.any(counts[on]) else 0.0
+            name = Face.NAMES[f]
+            out.append(FaceCoverage(face=name, area_mm2=round(t.areas[f], 1), seen=round(share, 4),
+                                    passes_median=median))
+            if share < self.req.face_coverage:
+                problems.append(f"face {name}: {100 * share:.1f} % of it is seen, the plan must see "
+                                f"{100 * self.req.face_coverage:.0f} %")
+        return out, problems
+
+    def toes(self, passes: list[PlannedPass]) -> tuple[list[ToeCoverage], list[str]]:
+        out, problems = [], []
+        for k, (name, stations, _, _) in enumerate(self.targets.toes):
+            plate = np.zeros(len(stations), bool)
+            weld = np.zeros(len(stations), bool)
+            for p in passes:
+                pm, wm = self.of(p)[1][k]
+                plate |= pm
+                weld |= wm
+            both = plate & weld
+            length = float(np.linalg.norm(np.diff(stations, axis=0), axis=1).sum())
+            out.append(ToeCoverage(toe=name, length_mm=round(length, 1), stations=len(stations),
+                                   plate_side=round(float(plate.mean()), 4), weld_side=round(float(weld.mean()), 4),
+                                   both_sides=round(float(both.mean()), 4)))
+            if both.mean() < self.req.toe_coverage:
+                missing = stations[~both, 1]
+                problems.append(f"toe {name}: {100 * both.mean():.1f} % of it is measured from both sides, the plan "
+                                f"must reach {100 * self.req.toe_coverage:.0f} % (missed between y = "
+                                f"{missing.min():.0f} and {missing.max():.0f} mm)")
+        return out, problems
+
+
+def _toe_stations(specimen: Specimen) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
+    """(name, stations (k, 3) specimen frame, outward direction (3,), plate normal (3,)) per toe."""
+    out = []
+    for side, cap, z_of, normal in (("top", specimen.weld_top, specimen.top_z, (0.0, 0.0, 1.0)),
+                                    ("bottom", specimen.weld_bottom, specimen.bottom_z, (0.0, 0.0, -1.0))):
+        hw = float(specimen.half_width(np.array([cap.centre_x_mm]))[0])
+        y = np.arange(-hw + 1.0, hw - 1.0 + 1e-9, TOE_STEP_MM)
+        centre, width = cap.centre(y), cap.width(y)
+        for toe, sign in (("neg", -1.0), ("pos", 1.0)):
+            x = centre + sign * width / 2
+            stations = np.stack([x, y, z_of(x, y)], axis=1)
+            out.append((f"{side}-{toe}", stations, np.array([sign, 0.0, 0.0]), np.array(normal)))
+    return out
+
+
+def _sticker_coverage(renderer: _Renderer, passes: list[PlannedPass]) -> CoverageMap:
+    """Cells each pass sees at every placement within tolerance, where it can find a sticker
+    (``DETECTABLE``)."""
+    n_placements = len(renderer.part.placements)
+    coverage = CoverageMap([p.pass_id for p in passes], CELL_MM)
+    lo, hi = DETECTABLE
+    for index, p in enumerate(passes):
+        keys = None
+        for k in range(n_placements):
+            view = renderer.view(p, k)
+            ok = (view.spacing_ratio >= lo) & (view.spacing_ratio <= hi)
+            these = distinct(cell_keys(view.face[ok], face_params(view.face[ok], view.points[ok]), CELL_MM))
+            keys = these if keys is None else np.intersect1d(keys, these, assume_unique=True)
+        coverage._seen[index] = keys
+    return coverage
+
+
+def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: PlanRequirements,
+           rng: np.random.Generator) -> tuple[StickerSet, list[PlanOverlap], list[SetupLink], list[str]]:
+    cfg = part.config
+    st = cfg.stickers
+    margin = ROBOT_MARGIN_MM + req.sticker_tolerance_mm
+    candidates = sticker_candidates(part.specimen, cfg)
+    radius = st.diameter_mm / 2
+    # Two passes overlap when the room both see for stickers is wide enough: in a strip of centres
+    # h either side of its middle, three stickers lie at most 4/3 h off their best line (two on
+    # one edge, one on the other), and a greedy placement needs a millimetre more; the stickers
+    # placed are checked against the rule below.
+    pairs = coverage.overlapping_pairs(candidates.faces, candidates.params(), candidates.centres,
+                                       radius_mm=radius + margin, min_area_mm2=st.overlap_area_mm2,
+                                       area_per_point_mm2=candidates.step_mm**2,
+                                       min_spread_mm=_strip_half_mm(cfg, req))
+    # Within a setup the passes are tied pair by pair; the setups are tied by the stickers both see
+    # (tasks.graph: the setups matched on all of them at once), so passes of different setups
+    # sharing one wall's strip need not hold three stickers off a line between them.
+    pairs = [(i, j) for i, j in pairs if passes[i].setup == passes[j].setup]
+    problems = []
+    parent = list(range(len(passes)))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in pairs:
+        parent[find(i)] = find(j)
+    for setup in req.setups:
+        groups: dict[int, list[str]] = {}
+        for i, p in enumerate(passes):
+            if p.setup == setup:
+                groups.setdefault(find(i), []).append(p.pass_id)
+        if len(groups) > 1:
+            biggest = max(groups.values(), key=len)
+            for members in groups.values():
+                if members is not biggest:
+                    problems.append(f"passes {', '.join(members)}: no overlap with room for {st.min_common} whole "
+                                    f"stickers ties them to the rest of setup {setup}")
+    masks = coverage.disc_masks(candidates.faces, candidates.params(), radius + margin)
+    first = _link_picks(candidates, masks, passes, req, cfg, rng)
+    try:
+        stickers = place_stickers(candidates, coverage, pairs, cfg, rng, margin_mm=margin, first=first)
+    except StickerPlacementError as exc:
+        return _empty(radius), [], [], problems + [str(exc)]
+    masks = coverage.disc_masks(stickers.faces, face_params(stickers.faces, stickers.centres), radius + margin)
+    overlaps = []
+    for i, j in pairs:
+        both = (np.uint64(1) << np.uint64(i)) | (np.uint64(1) << np.uint64(j))
+        ids = [int(k) for k in stickers.ids if masks[k] & both == both]
+        spread = spread_off_line_mm(stickers.centres[ids])
+        overlaps.append(PlanOverlap(pass_a=passes[i].pass_id, pass_b=passes[j].pass_id, sticker_ids=ids,
+                                    spread_mm=round(spread, 2)))
+        if len(ids) < st.min_common or spread < st.min_spread_mm:
+            problems.append(f"passes {passes[i].pass_id} and {passes[j].pass_id}: {len(ids)} whole stickers shared, "
+                            f"{spread:.1f} mm off a line; {st.min_common} and {st.min_spread_mm:g} mm needed")
+    links = []
+    setups = list(req.setups)
+    for a, b in itertools.combinations(setups, 2):
+        in_a = np.uint64(sum(1 << i for i, p in enumerate(passes) if p.setup == a))
+        in_b = np.uint64(sum(1 << i for i, p in enumerate(passes) if p.setup == b))
+        ids = [int(k) for k in stickers.ids if (masks[k] & in_a) and (masks[k] & in_b)]
+        spread = spread_off_line_mm(stickers.centres[ids])
+        links.append(SetupLink(setups=(a, b), sticker_ids=ids, spread_mm=round(spread, 2)))
+        if len(ids) < req.min_setup_stickers or spread < st.min_spread_mm:
+            problems.append(f"setups {a} and {b}: {len(ids)} stickers are seen whole from both ({spread:.1f} mm off a "
+                            f"line); {req.min_setup_stickers} not in a line are needed to match them without doubt")
+    return stickers, overlaps, links, problems
+
+
+def _link_picks(candidates, masks: np.ndarray, passes: list[PlannedPass], req: PlanRequirements,
+                cfg: SimulationConfig, rng: np.random.Generator) -> tuple[int, ...]:
+    """Stickers for the setups to share: among the places passes of every setup see whole, as
+    many as ``min_setup_stickers`` and two more, each as far from those already picked as it can
+    be (the first at random), never closer than the stickers' spacing."""
+    setups = list(req.setups)
+    if len(setups) < 2:
+        return ()
+    eligible = np.ones(len(masks), bool)
+    for setup in setups:
+        in_setup = np.uint64(sum(1 << i for i, p in enumerate(passes) if p.setup == setup))
+        eligible &= (masks & in_setup) != 0
+    pool = np.flatnonzero(eligible)
+    if pool.size == 0:
+        return ()
+    spacing = cfg.stickers.spacing_factor * cfg.stickers.diameter_mm
+    centres = candidates.centres[pool]
+    picks = [int(rng.integers(pool.size))]
+    nearest = np.linalg.norm(centres - centres[picks[0]], axis=1)
+    while len(picks) < req.min_setup_stickers + 2:
+        k = int(np.argmax(nearest))
+        if nearest[k] < spacing:
+            break
+        picks.append(k)
+        nearest = np.minimum(nearest, np.linalg.norm(centres - centres[k], axis=1))
+    return tuple(int(pool[k]) for k in picks)
+
+
+def _resolution_problems(part: _Part, passes: list[PlannedPass], info: list[dict], req: PlanRequirements) -> list[str]:
+    sc, robot = part.config.scanner, part.config.robot
+    full = max(sc.x_spacing_mm, robot.profile_spacing_mm)
+    plate = req.plate_spacing_mm if req.plate_spacing_mm is not None else sc.x_spacing_mm
+    problems = []
+    for p, meta in zip(passes, info):
+        spacing = sc.x_spacing_mm * meta["standoff"] / sc.reference_distance_mm
+        limit = full if meta["purpose"] == "weld" else plate
+        if spacing > limit + 1e-9:
+            problems.append(f"pass {p.pass_id}: {spacing:.3f} mm between points at its {meta['standoff']:.0f} mm "
+                            f"stand-off, coarser than the {limit:.3f} mm required")
+    return problems
+
+
+def evaluate_passes(part_config: SimulationConfig, req: PlanRequirements, passes: list[PlannedPass], *,
+                    stickers: bool = True) -> Evaluation:
+    """Check a set of passes (a plan's, or a preset's hand-made one) against the requirements."""
+    part = _part(part_config, req)
+    seen = _Seen(_Renderer(part), _targets(part.specimen), req)
+    problems = _reach_problems(passes, req)
+    toes, toe_problems = seen.toes(passes)
+    faces, face_problems = seen.faces(passes)
+    evaluation = Evaluation(passes, faces, toes, problems + toe_problems + face_problems)
+    if stickers:
+        coverage = _sticker_coverage(seen.renderer, passes)
+        rng = np.random.default_rng(part_config.seed)
+        evaluation.stickers, evaluation.overlaps, evaluation.setup_links, more = _place(part, passes, coverage, req, rng)
+        evaluation.problems += more
+    return evaluation
+
+
+# ---------------------------------------------------------------------------------------------
+# The search
+
+
+def plan_scan(config: SimulationConfig, req: PlanRequirements, *,
+              progress: Callable[[str], None] | None = None) -> ScanPlan:
+    """The fastest plan of the search that meets every requirement; ``PlanRefused`` naming what
+    the best candidate still missed when none does."""
+    say = progress or (lambda message: log.info(message))
+    part = _part(config, req)
+    renderer = _Renderer(part)
+    seen = _Seen(renderer, _targets(part.specimen), req)
+    say(f"part drawn: {len(part.specimen.mesh.triangles):,} triangles, {len(req.setups)} setup(s), "
+        f"{len(part.placements)} placements each")
+    best: tuple[int, list[str]] | None = None
+    tried = 0
+    dead: set[tuple] = set()  # family settings whose passes were left without stickers to share
+
+    def keys(choice: _Choice) -> dict[str, tuple]:
+        return {"face": ("face", choice.rows), "side": ("side", choice.rows, choice.side_roll_deg, choice.side_aim),
+                "end": ("end", choice.rows, choice.end_pitch_deg, choice.end_inset_mm),
+                "weld": ("weld", choice.rows, choice.weld_pitch_deg, choice.weld_offset_mm, choice.weld_standoff_mm)}
+
+    for choice in _choices(part, req):
+        if any(k in dead for k in keys(choice).values()):
+            continue
+        tried += 1
+        family = _dog_bone_passes(part, choice, req)
+        passes = family.passes
+        problems = _reach_problems(passes, req) + _resolution_problems(part, passes, family.info, req)
+        stage = 0
+        if not problems:
+            stage = 1
+            toes, problems = seen.toes(passes)
+        if not problems:
+            stage = 2
+            faces, problems = seen.faces(passes)
+        if not problems:
+            stage = 3
+            coverage = _sticker_coverage(renderer, passes)
+            stickers, overlaps, links, problems = _place(part, passes, coverage, req, np.random.default_rng(config.seed))
+        if not problems:
+            say(f"plan found after {tried} candidates: {len(passes)} passes, {sum(p.duration_s for p in passes):.0f} s "
+                f"scan time, {len(stickers.ids)} stickers")
+            return _scan_plan(config, req, passes, family.info, stickers, overlaps, links, faces, toes, tried,
+                              part.specimen)
+        # a family left without stickers to share (isolated, or no room in an overlap) is not
+        # tried again with the same settings: the narrower family of a pair is blamed
+        purpose_of = {p.pass_id: meta["purpose"] for p, meta in zip(passes, family.info)}
+        for q in problems:
+            if "ties them" in q:
+                isolated = {purpose_of.get(name) for name in q.split(":")[0].removeprefix("passes ").split(", ")}
+                if len(isolated) == 1 and None not in isolated:
+                    dead.add(keys(choice)[isolated.pop()])
+        for q in problems:
+            named = [purpose_of[w] for w in q.replace(",", " ").split() if w in purpose_of]
+            if "leave no room" in q and len(named) == 2:
+                blamed = [x for x in named if x != "face"] or named
+                dead.add(keys(choice)[blamed[0]])
+        if best is None or stage > best[0] or (stage == best[0] and len(problems) < len(best[1])):
+            best = (stage, problems)
+        log.debug("candidate %s: %s", choice, "; ".join(problems))
+        if tried % 20 == 0:
+            say(f"{tried} candidates checked; the best so far still misses: {best[1][0]}")
+    raise PlanRefused(best[1] if best else ["no candidate plan"])
+
+
+def _as_drawn(specimen: Specimen, stickers: StickerSet) -> tuple[np.ndarray, np.ndarray]:
+    """The stickers' marks on the part as drawn: the planning weld's plate misalignment taken
+    out (top and bottom faces flat at +-thickness/2, the walls' heights from the mid-plane), so
+    that a hand (``simulator.run``) puts them on the real part, whatever its misalignment."""
+    centres, normals = stickers.centres.copy(), stickers.normals.copy()
+    half_t = specimen.config.thickness_mm / 2
+    for face, z in ((Face.TOP, half_t), (Face.BOTTOM, -half_t)):
+        on = stickers.faces == face
+        centres[on, 2] = z
+        normals[on] = (0.0, 0.0, np.sign(z))
+    walls = np.isin(stickers.faces, (Face.SIDE_NEG, Face.SIDE_POS))
+    centres[walls, 2] -= specimen.z_shift(centres[walls, 0])
+    return centres, normals
+
+
+def _scan_plan(config, req, passes, info, stickers, overlaps, links, faces, toes, tried, specimen) -> ScanPlan:
+    plan_passes = [PlanPass(pass_id=p.pass_id, setup=p.setup, purpose=meta["purpose"], direction=p.direction,
+                            T_world_sensor_start=np.round(p.T_world_sensor_start, 9).tolist(),
+                            travel_world=tuple(float(v) for v in p.travel_world), length_mm=round(p.length_mm, 6),
+                            speed_mm_s=p.speed_mm_s, profile_rate_hz=p.profile_rate_hz,
+                            standoff_mm=round(float(meta["standoff"]), 6), tilt_deg=round(meta["tilt"], 3),
+                            roll_deg=round(meta["roll"], 3))
+                   for p, meta in zip(passes, info)]
+    plan_stickers = [PlanSticker(sticker_id=int(k), face=Face.NAMES[stickers.faces[row]],
+                                 centre_mm=tuple(round(float(v), 4) for v in centre),
+                                 normal=tuple(round(float(v), 6) for v in normal))
+                     for row, (k, centre, normal) in enumerate(zip(stickers.ids, *_as_drawn(specimen, stickers)))]
+    keep_out = specimen.weld_zone_half_mm() + config.stickers.weld_clearance_mm
+    c = specimen.weld_top.centre_x_mm
+    return ScanPlan(part=config, requirements=req, passes=plan_passes, stickers=plan_stickers, overlaps=overlaps,
+                    no_sticker_x_mm=(round(c - keep_out, 3), round(c + keep_out, 3)),
+                    setup_links=links, faces=faces, toes=toes,
+                    scan_time_s=round(sum(p.duration_s for p in plan_passes), 3), candidates_tried=tried)
+
+
+def planned_passes(plan: ScanPlan) -> list[PlannedPass]:
+    """The plan's passes as the simulator's robot program."""
+    return [PlannedPass(p.pass_id, p.setup, p.direction, np.asarray(p.T_world_sensor_start, float),
+                        np.asarray(p.travel_world, float), p.length_mm, p.speed_mm_s, p.profile_rate_hz)
+            for p in plan.passes]
+
+
+def plan_sticker_set(plan: ScanPlan) -> StickerSet:
+    """The plan's stickers where the map puts them on the part as drawn (specimen frame)."""
+    faces = np.array([Face.NAMES.index(s.face) for s in plan.stickers], np.uint8)
+    return StickerSet(centres=np.array([s.centre_mm for s in plan.stickers], float).reshape(-1, 3),
+                      normals=np.array([s.normal for s in plan.stickers], float).reshape(-1, 3),
+                      ids=np.array([s.sticker_id for s in plan.stickers], np.int64), faces=faces,
+                      radius_mm=plan.part.stickers.diameter_mm / 2, thickness_mm=plan.part.stickers.thickness_mm)

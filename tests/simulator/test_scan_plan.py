@@ -1,0 +1,175 @@
+"""``weldrecon plan``: a plan of the ci coupon that meets its requirements, its folder's files,
+its scan in the simulated cell (the guarantee checked against the truth), and the plans it
+refuses, naming the face or pass pair."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+
+import numpy as np
+import pytest
+
+from data_catalog.manifests import load_manifest
+from data_catalog.truth import read_truth
+from schemas.manifest import Setup
+from schemas.scan_plan import PlanRequirements, ReachModel, ScanPlan
+from simulator.coverage import spread_off_line_mm
+from simulator.plan_files import PLAN_NAME, PlanFolderError, read_plan, write_plan_folder
+from simulator.planner import PlanRefused, plan_scan
+from simulator.presets import preset_config
+from simulator.robot import plan_passes
+from simulator.run import plan_config, simulate
+from tests.flows.cli import weldrecon
+
+
+@pytest.fixture(scope="module")
+def ci_plan() -> ScanPlan:
+    return plan_scan(preset_config("ci"), PlanRequirements())
+
+
+@pytest.fixture(scope="module")
+def plan_dir(ci_plan, tmp_path_factory):
+    return write_plan_folder(ci_plan, tmp_path_factory.mktemp("plan") / "ci-plan")
+
+
+@pytest.fixture(scope="module")
+def planned_sample(plan_dir, tmp_path_factory):
+    plan = read_plan(plan_dir)
+    return simulate(plan_config(plan, sample_id="sim-ci-plan"), tmp_path_factory.mktemp("planned") / "sample",
+                    previews=False, plan=plan).out_dir
+
+
+def _hand_plan_seconds(config) -> float:
+    hand = plan_passes(config.plan, config.specimen, config.robot,
+                       z_top_mm=config.fixture.block_size_mm[2] + config.specimen.thickness_mm,
+                       standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
+    return sum(p.duration_s for p in hand)
+
+
+def test_the_plan_meets_its_requirements_and_is_faster_than_the_hand_made_one(ci_plan):
+    req, stickers = ci_plan.requirements, ci_plan.part.stickers
+    assert all(t.both_sides >= req.toe_coverage for t in ci_plan.toes) and len(ci_plan.toes) == 4
+    assert {f.face for f in ci_plan.faces} >= {"top", "bottom", "side_neg", "side_pos", "end_neg", "end_pos"}
+    assert all(f.seen >= req.face_coverage for f in ci_plan.faces)
+    by_id = {s.sticker_id: np.array(s.centre_mm) for s in ci_plan.stickers}
+    assert ci_plan.overlaps
+    for o in ci_plan.overlaps:  # every overlap holds three whole stickers off a line, recomputed here
+        assert len(o.sticker_ids) >= stickers.min_common
+        assert spread_off_line_mm(np.array([by_id[k] for k in o.sticker_ids])) >= stickers.min_spread_mm
+    # every pass is tied into its setup
+    for setup in req.setups:
+        ids = {p.pass_id for p in ci_plan.passes if p.setup == setup}
+        reached = {next(iter(sorted(ids)))}
+        grown = True
+        while grown:
+            grown = False
+            for o in ci_plan.overlaps:
+                if (o.pass_a in reached) != (o.pass_b in reached) and {o.pass_a, o.pass_b} <= ids:
+                    reached |= {o.pass_a, o.pass_b}
+                    grown = True
+        assert reached == ids
+    (link,) = ci_plan.setup_links
+    assert len(link.sticker_ids) >= req.min_setup_stickers and link.spread_mm >= stickers.min_spread_mm
+    assert ci_plan.scan_time_s == pytest.approx(sum(p.duration_s for p in ci_plan.passes))
+    assert ci_plan.scan_time_s < _hand_plan_seconds(preset_config("ci"))
+
+
+def test_the_plan_is_the_same_bytes_when_made_again(ci_plan):
+    again = plan_scan(preset_config("ci"), PlanRequirements())
+    assert again.model_dump_json() == ci_plan.model_dump_json()
+
+
+def test_the_plan_folder_holds_the_program_the_manifest_setups_and_1_to_1_sticker_maps(ci_plan, plan_dir):
+    assert read_plan(plan_dir) == ci_plan
+    setups = [Setup.model_validate(s) for s in json.loads((plan_dir / "manifest_setups.json").read_text())["setups"]]
+    assert [s.name for s in setups] == ci_plan.requirements.setups
+    assert sum(len(s.passes) for s in setups) == len(ci_plan.passes)
+    rows = list(csv.DictReader((plan_dir / "robot_program.csv").open()))
+    assert len(rows) == 2 * len(ci_plan.passes)
+    for p in ci_plan.passes:  # start and end TCPs: the start pose, then the pass's length along its travel
+        start, end = (np.array([float(r[k]) for k in ("x_mm", "y_mm", "z_mm")]) for r in rows
+                      if r["pass_id"] == p.pass_id)
+        assert np.allclose(start, np.asarray(p.T_world_sensor_start)[:3, 3], atol=1e-3)
+        assert np.linalg.norm(end - start) == pytest.approx(p.length_mm, abs=1e-3)
+    program = json.loads((plan_dir / "robot_program.json").read_text())
+    assert [q["pass_id"] for q in program["passes"]] == [p.pass_id for p in ci_plan.passes]
+    length = ci_plan.part.specimen.length_mm
+    faces_with_stickers = {s.face for s in ci_plan.stickers}
+    for face in faces_with_stickers:
+        svg = (plan_dir / f"stickers-{face}.svg").read_text()
+        width_mm = float(re.search(r'width="([0-9.]+)mm"', svg).group(1))
+        view_w = float(re.search(r'viewBox="0 0 ([0-9.]+) ', svg).group(1))
+        assert width_mm == pytest.approx(view_w, abs=0.1)  # one user unit is one millimetre: prints 1:1
+        assert width_mm >= length
+        assert svg.count("<circle") == sum(1 for s in ci_plan.stickers if s.face == face)
+    page = (plan_dir / "plan.html").read_text()
+    assert f"{ci_plan.scan_time_s:.0f} s" in page and 'aria-label="overlap graph"' in page
+
+
+def test_the_simulated_scan_of_the_plan_keeps_the_plans_promise(ci_plan, planned_sample):
+    truth = read_truth(planned_sample / "truth" / "truth.json")
+    manifest = load_manifest(planned_sample)
+    assert [p.pass_id for _, p in manifest.passes()] == [p.pass_id for p in ci_plan.passes]
+    assert sum(1 for s in truth.stickers if s.on == "specimen") == len(ci_plan.stickers)
+    for o in ci_plan.overlaps:  # what the plan promised, every sticker seen whole by both passes
+        seen = set(truth.common_stickers[f"{o.pass_a}|{o.pass_b}"])
+        assert set(o.sticker_ids) <= seen, (o.pass_a, o.pass_b)
+    # the part was put within the plan's tolerance
+    tol = ci_plan.requirements.placement_tolerance_mm
+    for setup, T in truth.T_world_specimen.items():
+        assert np.all(np.abs(np.asarray(T)[:2, 3]) <= tol + 1e-9)
+
+
+def test_a_face_the_robot_cannot_reach_is_refused_by_name():
+    req = PlanRequirements(reach=ReachModel(max_tilt_deg=20.0))
+    with pytest.raises(PlanRefused) as refused:
+        plan_scan(preset_config("ci"), req)
+    assert any(p.startswith("faces side_neg and side_pos:") and "20 deg" in p for p in refused.value.problems)
+
+
+@pytest.mark.parametrize("diameter, expected", [
+    (8.0, r"passes [a-z]+-[A-Z]\d\d and [a-z]+-[A-Z]\d\d overlap but leave no room for sticker 3 of 3"),
+    (12.0, r"passes along the weld \(W\) and the face rows \(F\) .* 11.9 mm are needed for 3 stickers of 12 mm"),
+])
+def test_a_part_too_small_for_three_stickers_per_overlap_is_refused_naming_the_passes(diameter, expected):
+    config = preset_config("ci")
+    config = config.model_copy(update={"stickers": config.stickers.model_copy(update={"diameter_mm": diameter})})
+    with pytest.raises(PlanRefused) as refused:
+        plan_scan(config, PlanRequirements())
+    assert any(re.search(expected, p) for p in refused.value.problems), refused.value.problems
+
+
+def test_the_command_line_writes_a_plan_and_refuses_one_line_per_problem(tmp_path):
+    requirements = tmp_path / "req.yaml"
+    requirements.write_text("reach:\n  max_tilt_deg: 20\n")
+    done = weldrecon("plan", "ci", "--out", str(tmp_path / "refused"), "--requirements", str(requirements))
+    assert done.returncode == 2 and not (tmp_path / "refused").exists()
+    lines = done.stderr.strip().splitlines()
+    assert lines[-1] == f"weldrecon plan: no plan written to {tmp_path / 'refused'}"
+    assert all(line.startswith("weldrecon plan: refused: ") for line in lines[:-1] if not line.startswith("["))
+    requirements.write_text("toe_coverage: 2\n")
+    done = weldrecon("plan", "ci", "--out", str(tmp_path / "bad"), "--requirements", str(requirements))
+    assert done.returncode == 2 and "toe_coverage" in done.stderr and not (tmp_path / "bad").exists()
+
+
+def test_simulate_names_the_field_of_a_broken_plan(plan_dir, tmp_path):
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    doc = json.loads((plan_dir / PLAN_NAME).read_text())
+    doc["passes"][0]["speed_mm_s"] = -1
+    (broken / PLAN_NAME).write_text(json.dumps(doc))
+    with pytest.raises(PlanFolderError, match=r"plan.json: field passes.0.speed_mm_s"):
+        read_plan(broken)
+    done = weldrecon("simulate", str(tmp_path / "out"), "--plan", str(broken))
+    assert done.returncode == 2 and "passes.0.speed_mm_s" in done.stderr and not (tmp_path / "out").exists()
+    done = weldrecon("simulate", str(tmp_path / "out"), "--plan", str(tmp_path / "nowhere"))
+    assert done.returncode == 2 and "no plan.json" in done.stderr
+    done = weldrecon("simulate", str(tmp_path / "out"), "--plan", str(plan_dir), "--preset", "ci")
+    assert done.returncode == 2 and "leave out --preset" in done.stderr
+
+
+def test_a_part_the_planner_has_no_passes_for_is_refused_not_planned_badly():
+    with pytest.raises(PlanRefused, match=r"part: a T-joint is not planned yet"):
+        plan_scan(preset_config("tjoint"), PlanRequirements())
