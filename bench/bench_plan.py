@@ -1,10 +1,10 @@
 """A planned scan against the preset's hand-made plan, side by side, on the same part and scanner.
 
-    .venv/bin/python bench/bench_plan.py PRESET WORK_DIR [--json OUT.json] [--config RECON.yaml]
+    .venv/bin/python bench/bench_plan.py PRESET WORK_DIR [--seed N] [--json OUT.json] [--config RECON.yaml]
 
 For PRESET (a dog-bone: demo, ci, paper): ``weldrecon plan PRESET``; the preset's own sample
-and the plan's scan (``weldrecon simulate --plan``, the preset's seed: the same specimen and weld)
-simulated and reconstructed with the same settings; then, for each:
+and the plan's scan (``weldrecon simulate --plan``) simulated with the same seed (the preset's, or
+``--seed``: the same specimen and weld) and reconstructed with the same settings; then, for each:
 
 - the scan time, passes and stickers; the predicted coverage (``simulator.planner.evaluate_passes``
   on both plans, the same requirements);
@@ -91,6 +91,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("preset")
     parser.add_argument("work", type=Path)
+    parser.add_argument("--seed", type=int, help="simulate both with this seed instead of the preset's")
     parser.add_argument("--json", type=Path)
     parser.add_argument("--config", default=str(ROOT / "deploy" / "configs" / "demo.yaml"))
     args = parser.parse_args()
@@ -102,7 +103,7 @@ def main() -> int:
 
     work = args.work
     work.mkdir(parents=True, exist_ok=True)
-    result: dict = {"preset": args.preset}
+    result: dict = {"preset": args.preset, "seed": args.seed}
     plan_dir = work / "plan"
     if not plan_dir.exists():
         result["plan_s"] = round(run([WELDRECON, "plan", args.preset, "--out", str(plan_dir)], work / "plan.log"), 1)
@@ -124,7 +125,8 @@ def main() -> int:
     for name, extra in (("hand", ["--preset", args.preset]), ("plan", ["--plan", str(plan_dir)])):
         sample = work / f"{name}-sample"
         if not sample.exists():
-            run([WELDRECON, "simulate", str(sample), *extra, "--no-preview"], work / f"{name}-simulate.log")
+            seed = [] if args.seed is None else ["--seed", str(args.seed)]
+            run([WELDRECON, "simulate", str(sample), *extra, *seed, "--no-preview"], work / f"{name}-simulate.log")
         rec = work / f"{name}-run"
         if not (rec / "results" / "report.json").exists():
             result[name]["reconstruct_s"] = round(run([WELDRECON, "reconstruct", str(sample), "--out", str(rec),

@@ -61,7 +61,11 @@ CELL_MM = 2.0
 ROBOT_MARGIN_MM = 0.8  # a sticker grown by this for the robot's own pose error (3 sigma of 0.25 mm, and its tilt)
 TOE_STEP_MM = 2.0
 TOE_RADIUS_MM = 1.0  # a toe station is measured by the points this close
-STRAIGHT_DOWN = math.sin(math.radians(10.0))  # a ray this close to the plate's normal lights a toe from both sides
+SIDE_LEAN = math.sin(math.radians(10.0))
+"""A ray lights a toe from over the plate (or from over the weld) when it leans at least 10 deg
+that way across the toe; a ray straight down the plate's normal lights it from neither side (it
+sees both surfaces at the toe, but one viewing direction, where the paper's plan and ours look
+from two)."""
 DETECTABLE = (0.8, 1.2)
 """A pass finds a sticker where the points along its line lie this many times the pass's median
 spacing apart: the target search looks for circles of one radius on a grid of the pass's median
@@ -459,8 +463,8 @@ class _Seen:
             d, hit = cKDTree(stations).query(view.points, distance_upper_bound=TOE_RADIUS_MM)
             near = np.isfinite(d) & (-(view.rays @ normal) >= cos_limit)
             lean = view.rays[near] @ outward  # < 0: the laser comes from over the plate
-            plate[hit[near][lean < STRAIGHT_DOWN]] = True
-            weld[hit[near][lean > -STRAIGHT_DOWN]] = True
+            plate[hit[near][lean <= -SIDE_LEAN]] = True
+            weld[hit[near][lean >= SIDE_LEAN]] = True
             out.append((plate, weld))
         return out
 
@@ -580,7 +584,11 @@ def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: P
     masks = coverage.disc_masks(candidates.faces, candidates.params(), radius + margin)
     first = _link_picks(candidates, masks, passes, req, cfg, rng)
     try:
-        stickers = place_stickers(candidates, coverage, pairs, cfg, rng, margin_mm=margin, first=first)
+        # then the requirement's extra stickers (the part's own fill density is the simulator's
+        # way to put some on a preset's part)
+        extra = st.model_copy(update={"fill_density_per_1000mm2": req.extra_stickers_per_1000mm2})
+        stickers = place_stickers(candidates, coverage, pairs, cfg.model_copy(update={"stickers": extra}), rng,
+                                  margin_mm=margin, first=first)
     except StickerPlacementError as exc:
         return _empty(radius), [], [], problems + [str(exc)]
     masks = coverage.disc_masks(stickers.faces, face_params(stickers.faces, stickers.centres), radius + margin)

@@ -173,3 +173,25 @@ def test_simulate_names_the_field_of_a_broken_plan(plan_dir, tmp_path):
 def test_a_part_the_planner_has_no_passes_for_is_refused_not_planned_badly():
     with pytest.raises(PlanRefused, match=r"part: a T-joint is not planned yet"):
         plan_scan(preset_config("tjoint"), PlanRequirements())
+
+
+def test_toes_are_seen_from_both_sides_only_by_passes_leaning_across_them(ci_plan):
+    """Known answers: rows straight down (the plan's own face rows, alone) light no toe from either
+    side; its two sweeps along the weld, pitched either way, light every toe from both."""
+    from simulator.planner import evaluate_passes, planned_passes
+
+    passes = {p.pass_id: p for p in planned_passes(ci_plan)}
+    purpose = {p.pass_id: p.purpose for p in ci_plan.passes}
+    rows = [p for k, p in passes.items() if purpose[k] == "face"]
+    welds = [p for k, p in passes.items() if purpose[k] == "weld"]
+    alone = evaluate_passes(ci_plan.part, ci_plan.requirements, rows, stickers=False)
+    assert all(t.plate_side == 0 and t.weld_side == 0 for t in alone.toes)
+    assert any(p.startswith("toe top-neg: 0.0 %") for p in alone.problems)
+    swept = evaluate_passes(ci_plan.part, ci_plan.requirements, welds, stickers=False)
+    assert all(t.both_sides == 1.0 for t in swept.toes)
+    one_way = evaluate_passes(ci_plan.part, ci_plan.requirements, [p for p in welds if p.setup == "top"][:1],
+                              stickers=False)
+    top = {t.toe: t for t in one_way.toes}
+    # one sweep pitched one way: one top toe from over its plate, the other from over the weld
+    assert {(top["top-neg"].plate_side, top["top-neg"].weld_side), (top["top-pos"].plate_side,
+                                                                     top["top-pos"].weld_side)} == {(1.0, 0.0), (0.0, 1.0)}
