@@ -95,7 +95,6 @@ def main() -> int:
     parser.add_argument("--json", type=Path)
     parser.add_argument("--config", default=str(ROOT / "deploy" / "configs" / "demo.yaml"))
     args = parser.parse_args()
-    from schemas.scan_plan import PlanRequirements
     from simulator.plan_files import read_plan
     from simulator.planner import evaluate_passes, planned_passes
     from simulator.presets import preset_config
