@@ -39,7 +39,9 @@ from scipy.spatial import cKDTree
 
 from schemas.scan_plan import (FaceCoverage, PlanOverlap, PlanPass, PlanRequirements, PlanSticker, ScanPlan, SetupLink,
                                ToeCoverage)
-from schemas.simulation import PlacementConfig, SimulationConfig
+from schemas.manifest import DogBoneSpecimen, SampleManifest
+from schemas.simulation import (FixtureConfig, PlacementConfig, RobotConfig, ScannerConfig, SimulationConfig,
+                                SpecimenConfig, StickerConfig, WeldConfig)
 from schemas.truth import PointLabel
 from simulator.coverage import CoverageMap, cell_keys, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
@@ -52,7 +54,8 @@ from simulator.stickers import StickerPlacementError, place_stickers, sticker_ca
 from tasks.arrays import distinct
 from tasks.frames import invert, rotation_deg, translation
 
-__all__ = ["PlanRefused", "plan_scan", "evaluate_passes", "planned_passes", "Evaluation", "PLANNING_SEED_OFFSET"]
+__all__ = ["PlanRefused", "plan_scan", "evaluate_passes", "planned_passes", "Evaluation", "PLANNING_SEED_OFFSET",
+           "part_from_manifest"]
 
 log = logging.getLogger(__name__)
 
@@ -72,6 +75,7 @@ spacing apart: the target search looks for circles of one radius on a grid of th
 spacing (tasks.target_search: HoughCircles from 0.6 to 1.3 of it), so a sticker on a face seen
 more or less obliquely than most of the pass looks like an ellipse it misses (a pass rolled 55 deg
 along a 90 deg edge finds the stickers on the face it meets at 55 deg and none on the other)."""
+PLACEMENT_TRIES = 5
 SIDE_ROLLS_DEG = (45.0, 50.0, 40.0, 55.0, 35.0)  # tried in this order: the walls and the top edge alike oblique first
 END_PITCHES_DEG = (30.0, 25.0, 35.0)
 WELD_PITCHES_DEG = (25.0, 20.0, 30.0)
@@ -90,6 +94,47 @@ class PlanRefused(ValueError):
 
 # ---------------------------------------------------------------------------------------------
 # The part as drawn, on the fixture
+
+
+def part_from_manifest(manifest: SampleManifest, *, source: str) -> SimulationConfig:
+    """The part a sample manifest describes, to plan its next scan: its dog-bone, its weld's
+    treatment, its stickers' size, its scanner and the speed and profile rate of its first pass
+    (the robot's defaults without one); the weld's ranges are the simulator's defaults, and the
+    fixture is two support blocks 60 mm long under the grips, 45 mm in from the ends. Refused
+    (``PlanRefused``, naming ``source``) for a part the planner has no passes for."""
+    part = manifest.specimen
+    if not isinstance(part, DogBoneSpecimen):
+        kind = getattr(part, "kind", None) or "no specimen"
+        raise PlanRefused([f"{source}: part: {kind} is not planned yet (the planner's pass families are a dog-bone's)"])
+    if manifest.sticker_diameter_mm is None or manifest.scanner is None:
+        raise PlanRefused([f"{source}: the manifest gives no sticker_diameter_mm or scanner: a plan needs both"])
+    lines = manifest.weld_lines() or []
+    xs = [p[0] for line in lines for p in line.points_mm]
+    if not xs or max(abs(x) for x in xs) > 0.5:
+        raise PlanRefused([f"{source}: weld: the planner draws a butt weld across the middle (x = 0); this part's weld "
+                           f"lines lie at x = {min(xs, default=float('nan')):g}..{max(xs, default=float('nan')):g} mm"])
+    sc = manifest.scanner
+    robot = RobotConfig(T_flange_sensor=sc.T_flange_sensor)
+    passes = [entry for _, entry in manifest.passes() if getattr(entry, "nominal_motion", None) is not None]
+    if passes:
+        motion = passes[0].nominal_motion
+        robot = robot.model_copy(update={"speed_mm_s": motion.speed_mm_s,
+                                         "profile_spacing_mm": motion.speed_mm_s / motion.profile_rate_hz})
+    L, W = part.length_mm, part.grip_width_mm
+    fixture = FixtureConfig(plate_size_mm=(L + 230.0, max(320.0, W + 220.0), 15.0),
+                            block_size_mm=(60.0, min(50.0, 0.8 * W), 40.0), block_centres_x_mm=(-(L / 2 - 45.0), L / 2 - 45.0))
+    return SimulationConfig(
+        preset="manifest", seed=0, sample_id=manifest.sample_id,
+        specimen=SpecimenConfig(length_mm=L, grip_width_mm=W, gauge_width_mm=part.gauge_width_mm,
+                                gauge_length_mm=part.gauge_length_mm, transition_radius_mm=part.transition_radius_mm,
+                                thickness_mm=part.thickness_mm),
+        weld=WeldConfig(treatment=manifest.weld.treatment if manifest.weld is not None else "as-welded"),
+        stickers=StickerConfig(diameter_mm=manifest.sticker_diameter_mm),
+        fixture=fixture,
+        scanner=ScannerConfig(model=sc.model, points_per_profile=sc.points_per_profile, x_spacing_mm=sc.x_spacing_mm,
+                              reference_distance_mm=sc.reference_distance_mm, z_range_mm=sc.z_range_mm,
+                              z_resolution_mm=sc.z_resolution_mm, camera_offset_mm=sc.camera_offset_mm),
+        robot=robot)
 
 
 @dataclass
@@ -582,15 +627,22 @@ def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: P
                     problems.append(f"passes {', '.join(members)}: no overlap with room for {st.min_common} whole "
                                     f"stickers ties them to the rest of setup {setup}")
     masks = coverage.disc_masks(candidates.faces, candidates.params(), radius + margin)
-    first = _link_picks(candidates, masks, passes, req, cfg, rng)
-    try:
-        # then the requirement's extra stickers (the part's own fill density is the simulator's
-        # way to put some on a preset's part)
-        extra = st.model_copy(update={"fill_density_per_1000mm2": req.extra_stickers_per_1000mm2})
-        stickers = place_stickers(candidates, coverage, pairs, cfg.model_copy(update={"stickers": extra}), rng,
-                                  margin_mm=margin, first=first)
-    except StickerPlacementError as exc:
-        return _empty(radius), [], [], problems + [str(exc)]
+    # then the requirement's extra stickers (the part's own fill density is the simulator's way to
+    # put some on a preset's part). The placement is greedy and random: where a narrow overlap is
+    # left without three stickers off a line, it is tried again from the start with other draws
+    # (PLACEMENT_TRIES in all, each deterministic) before the candidate is given up.
+    extra = cfg.model_copy(update={"stickers": st.model_copy(
+        update={"fill_density_per_1000mm2": req.extra_stickers_per_1000mm2})})
+    for attempt in range(PLACEMENT_TRIES):
+        draw = rng if attempt == 0 else np.random.default_rng([cfg.seed, PLANNING_SEED_OFFSET, attempt])
+        try:
+            first = _link_picks(candidates, masks, passes, req, cfg, draw)
+            stickers = place_stickers(candidates, coverage, pairs, extra, draw, margin_mm=margin, first=first)
+            break
+        except StickerPlacementError as exc:
+            failure = str(exc)
+    else:
+        return _empty(radius), [], [], problems + [f"{failure} ({PLACEMENT_TRIES} placements tried)"]
     masks = coverage.disc_masks(stickers.faces, face_params(stickers.faces, stickers.centres), radius + margin)
     overlaps = []
     for i, j in pairs:

@@ -32,7 +32,8 @@ def add_simulate(sub) -> None:
 
 def add_plan(sub) -> None:
     plan = sub.add_parser("plan", help="plan the passes and stickers of a scan from the part's drawing")
-    plan.add_argument("part", metavar="PART", help="the part: a simulator preset's (demo, paper, ci, ...)")
+    plan.add_argument("part", metavar="PART", help="the part: a simulator preset's (demo, paper, ci, ...), or a sample's "
+                      "manifest.json (or its folder): the dog-bone, stickers and scanner it describes")
     plan.add_argument("--out", required=True, metavar="PLAN_DIR", help="new folder for the plan (must not exist)")
     plan.add_argument("--config", metavar="FILE", help="YAML file of fields that override the part's (as simulate's)")
     plan.add_argument("--requirements", metavar="FILE", help="YAML file of the plan's requirements "
@@ -123,7 +124,24 @@ def _cmd_plan(args: argparse.Namespace) -> int:
     from data_catalog.textfiles import read_yaml_mapping
     from schemas.scan_plan import PlanRequirements
 
-    config = _simulation_config(argparse.Namespace(preset=args.part, config=args.config, seed=None, sample_id=None))
+    if Path(args.part).exists():  # a sample's manifest (or its folder): the part it describes
+        from pydantic import ValidationError as _Invalid
+
+        from data_catalog.manifests import load_manifest
+        from simulator.planner import part_from_manifest
+
+        try:
+            config = part_from_manifest(load_manifest(Path(args.part)), source=args.part)
+        except PlanRefused as exc:
+            raise ValueError(str(exc)) from None
+        if args.config is not None:
+            try:
+                config = type(config).model_validate(_deep_merge(config.model_dump(),
+                                                                 read_yaml_mapping(args.config, "part config")))
+            except _Invalid as exc:
+                raise ValueError(f"{args.config}: invalid part config:\n{_describe(exc)}") from None
+    else:
+        config = _simulation_config(argparse.Namespace(preset=args.part, config=args.config, seed=None, sample_id=None))
     out = Path(args.out)
     if out.exists():
         raise ValueError(f"--out {out} already exists; choose a new folder (nothing was written)")

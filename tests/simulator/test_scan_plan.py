@@ -195,3 +195,28 @@ def test_toes_are_seen_from_both_sides_only_by_passes_leaning_across_them(ci_pla
     # one sweep pitched one way: one top toe from over its plate, the other from over the weld
     assert {(top["top-neg"].plate_side, top["top-neg"].weld_side), (top["top-pos"].plate_side,
                                                                      top["top-pos"].weld_side)} == {(1.0, 0.0), (0.0, 1.0)}
+
+
+def test_a_samples_manifest_is_a_part_to_plan(ci_sample, tmp_path):
+    """PART may be a sample (its manifest): the plan is of the dog-bone, stickers and scanner it
+    describes; a manifest of a part the planner has no passes for is refused naming the file."""
+    manifest = load_manifest(ci_sample)
+    # a manifest does not say what welds to expect: the coupon's narrower caps (the ci preset's
+    # ranges) given with --config, as a lab would for its own parts
+    config = tmp_path / "part.yaml"
+    config.write_text("weld:\n  cap_height_mm: [1.5, 3.0]\n  cap_width_mm: [10.0, 13.0]\n"
+                      "  flank_angle_deg: [30.0, 60.0]\n")
+    done = weldrecon("plan", str(ci_sample), "--out", str(tmp_path / "plan"), "--config", str(config))
+    assert done.returncode == 0, done.stderr
+    plan = read_plan(tmp_path / "plan")
+    assert plan.part.specimen.length_mm == manifest.specimen.length_mm
+    assert plan.part.scanner.points_per_profile == manifest.scanner.points_per_profile
+    assert plan.part.stickers.diameter_mm == manifest.sticker_diameter_mm
+    assert all(t.both_sides >= plan.requirements.toe_coverage for t in plan.toes)
+    tjoint = tmp_path / "tjoint.json"
+    doc = json.loads((ci_sample / "manifest.json").read_text())
+    doc["specimen"] = {"kind": "plate", "length_mm": 200.0, "width_mm": 100.0, "thickness_mm": 10.0}
+    tjoint.write_text(json.dumps(doc))
+    done = weldrecon("plan", str(tjoint), "--out", str(tmp_path / "refused"))
+    assert done.returncode == 2 and not (tmp_path / "refused").exists()
+    assert f"{tjoint}: part: plate is not planned yet" in done.stderr
