@@ -24,10 +24,12 @@ from pydantic import ValidationError
 from scipy.spatial.transform import Rotation
 
 from data_catalog.atomic import atomic_directory
-from schemas.manifest import NominalMotion, PassEntry, Setup
+from schemas.manifest import Setup
 from schemas.scan_plan import ScanPlan
-from simulator.placement import nominal_placement
-from tasks.frames import invert
+from schemas.simulation import PlacementConfig
+from simulator.placement import nominal_placement, placement_tolerance_mm
+from simulator.planner import planned_passes
+from simulator.robot import pass_entry
 from tasks.pass_coverage import dog_bone_half_width
 
 __all__ = ["PLAN_NAME", "write_plan_folder", "read_plan", "PlanFolderError", "manifest_setups"]
@@ -57,28 +59,18 @@ def read_plan(folder: Path) -> ScanPlan:
 def manifest_setups(plan: ScanPlan) -> list[Setup]:
     """The plan's setups as a manifest's (``schemas.manifest.Setup``), content hashes left out."""
     cfg = plan.part
-    T_sensor_flange = invert(np.asarray(cfg.robot.T_flange_sensor))
     req = plan.requirements
+    passes = planned_passes(plan)
     out = []
     for setup in req.setups:
-        entries = []
-        for p in plan.passes:
-            if p.setup != setup:
-                continue
-            T = np.asarray(p.T_world_sensor_start) @ T_sensor_flange
-            n_profiles = int(round(p.length_mm / p.speed_mm_s * p.profile_rate_hz)) + 1
-            entries.append(PassEntry(
-                pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction, n_profiles=n_profiles,
-                duration_s=p.duration_s, has_profile_poses=cfg.robot.log_profile_poses,
-                nominal_motion=NominalMotion(T_world_flange_start=T.tolist(), direction_world=p.travel_world,
-                                             speed_mm_s=p.speed_mm_s, profile_rate_hz=p.profile_rate_hz,
-                                             length_mm=p.length_mm)))
+        entries = [pass_entry(p, cfg.robot) for p in passes if p.setup == setup]
         description = "top face up, against the fixture's stops" if setup == "top" else \
             "turned 180 deg about its length, against the fixture's stops"
         nominal = nominal_placement(cfg.fixture, cfg.specimen.thickness_mm, flipped=(setup == "bottom"))
-        tol = req.placement_tolerance_mm + cfg.specimen.grip_width_mm / 2 * math.sin(math.radians(req.placement_yaw_deg))
+        placement = PlacementConfig(translation_mm=req.placement_tolerance_mm, yaw_deg=req.placement_yaw_deg)
+        tol = placement_tolerance_mm(placement, cfg.specimen.grip_width_mm / 2)
         out.append(Setup(name=setup, description=description, passes=entries,
-                         T_world_specimen_nominal=nominal.tolist(), placement_tolerance_mm=round(tol + 0.5, 3)))
+                         T_world_specimen_nominal=nominal.tolist(), placement_tolerance_mm=round(tol, 3)))
     return out
 
 

@@ -238,13 +238,13 @@ class _Renderer:
             returned = prof.label == PointLabel.VALID
             seen = returned & (prof.face_id != 255)
             d = np.einsum("mij,nj->mni", block[:, :3, :3], self.scanner.fan)
-            world = prof.point_specimen.astype(np.float64)
-            world[~returned] = np.nan
-            gap = np.linalg.norm(np.diff(world, axis=1), axis=2)  # between neighbouring columns
+            hits = prof.point_specimen.astype(np.float64)  # specimen frame
+            hits[~returned] = np.nan
+            gap = np.linalg.norm(np.diff(hits, axis=1), axis=2)  # between neighbouring columns
             local = np.fmin(np.pad(gap, ((0, 0), (1, 0)), constant_values=np.nan),
                             np.pad(gap, ((0, 0), (0, 1)), constant_values=np.nan))
             faces.append(prof.face_id[seen])
-            points.append(world[seen])
+            points.append(hits[seen])
             rays.append(d[seen] @ R_specimen_world.T)
             spacing.append(local[seen])
         local = np.concatenate(spacing)
@@ -371,15 +371,16 @@ def _choices(part: _Part, req: PlanRequirements) -> list[_Choice]:
            for aim in (0.0, 1.0)
            for end in ends
            for inset in (0.0, 5.0, 10.0)]
-    room = [ch for ch in out if _weld_strip_mm(part, ch, req) >= 2 * _strip_half_mm(cfg, req)]
+    strip = {ch: _weld_strip_mm(part, ch, req) for ch in out}
+    room = [ch for ch in out if strip[ch] >= 2 * _strip_half_mm(cfg, req)]
     if out and not room:
-        widest = max(_weld_strip_mm(part, ch, req) for ch in out)
+        widest = max(strip.values())
         raise PlanRefused([f"passes along the weld (W) and the face rows (F) of every setup: a weld pass sees at most "
                            f"{max(widest, 0.0):.1f} mm of plate beside the weld zone where stickers may go; "
                            f"{2 * _strip_half_mm(cfg, req):.1f} mm are needed for {cfg.stickers.min_common} stickers "
                            f"of {cfg.stickers.diameter_mm:g} mm off a line (smaller stickers, or a scanner with a "
                            "longer line)"])
-    return sorted(room, key=lambda ch: (ch.rows, ch.weld_standoff_mm, -round(_weld_strip_mm(part, ch, req), 1)))
+    return sorted(room, key=lambda ch: (ch.rows, ch.weld_standoff_mm, -round(strip[ch], 1)))
 
 
 def _strip_half_mm(cfg: SimulationConfig, req: PlanRequirements) -> float:
@@ -478,7 +479,6 @@ class _Seen:
 
     def __init__(self, renderer: "_Renderer", targets: _Targets, req: PlanRequirements):
         self.renderer, self.targets, self.req = renderer, targets, req
-        self._faces: dict[int, cKDTree] = {}
         self._cache: dict[tuple, tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]] = {}
 
     def of(self, p: PlannedPass) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:

@@ -13,10 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from schemas.manifest import NominalMotion, PassEntry
 from schemas.simulation import RobotConfig, ScanPlanConfig, SpecimenConfig
 from tasks.frames import frame_from_axes, invert, make_pose
 
-__all__ = ["PlannedPass", "plan_passes", "PassMotion", "draw_motion"]
+__all__ = ["PlannedPass", "plan_passes", "PassMotion", "draw_motion", "pass_entry"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,18 @@ class PlannedPass:
         T = np.repeat(self.T_world_sensor_start[None], len(s_mm), axis=0)
         T[:, :3, 3] += s_mm[:, None] * self.travel_world[None, :]
         return T
+
+
+def pass_entry(p: PlannedPass, robot: RobotConfig, content_sha256: str | None = None) -> PassEntry:
+    """The pass as the sample manifest lists it: its nominal flange motion, the store's name."""
+    T_sensor_flange = invert(np.asarray(robot.T_flange_sensor))
+    motion = NominalMotion(
+        T_world_flange_start=(p.T_world_sensor_start @ T_sensor_flange).tolist(),
+        direction_world=tuple(float(v) for v in p.travel_world), speed_mm_s=p.speed_mm_s,
+        profile_rate_hz=p.profile_rate_hz, length_mm=p.length_mm)
+    return PassEntry(pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction,
+                     n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
+                     has_profile_poses=robot.log_profile_poses, content_sha256=content_sha256)
 
 
 def _sensor_frame(travel: np.ndarray, view: np.ndarray, aim: np.ndarray, standoff: float) -> np.ndarray:

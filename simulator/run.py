@@ -29,8 +29,8 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
 from data_catalog.truth import FILLET_TRUTH_NAME, TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
-from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, NominalMotion, PassEntry, SampleManifest,
-                              ScannerSettings, Setup, WeldDescription, dog_bone_weld_lines)
+from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, SampleManifest, ScannerSettings, Setup,
+                              WeldDescription, dog_bone_weld_lines)
 from schemas.scan_plan import ScanPlan
 from schemas.simulation import PlacementConfig, ScanPlanConfig, SimulationConfig
 from schemas.truth import (GroundTruth, PointLabel, TruePass, TrueSticker, TrueToeLines, WeldSection, WeldSectionDetail,
@@ -39,14 +39,13 @@ from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
 from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
 from simulator.planner import plan_sticker_set, planned_passes
-from simulator.robot import PassMotion, PlannedPass, draw_motion, plan_passes
+from simulator.robot import PassMotion, PlannedPass, draw_motion, pass_entry, plan_passes
 from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
 from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
 from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
 from simulator.tjoint import (build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
                               tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
-from tasks.frames import invert
 
 __all__ = ["SimulationSummary", "simulate", "plan_config", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
 
@@ -172,21 +171,9 @@ def _write_mesh(path: Path, mesh: SurfaceMesh) -> None:
 
 def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict[str, str]) -> SampleManifest:
     sp, sc, robot = config.specimen, config.scanner, config.robot
-    T_sensor_flange = invert(np.asarray(robot.T_flange_sensor))
     setups = []
     for setup in config.plan.setups:
-        entries = []
-        for p in planned:
-            if p.setup != setup:
-                continue
-            motion = NominalMotion(
-                T_world_flange_start=(p.T_world_sensor_start @ T_sensor_flange).tolist(),
-                direction_world=tuple(float(v) for v in p.travel_world), speed_mm_s=p.speed_mm_s,
-                profile_rate_hz=p.profile_rate_hz, length_mm=p.length_mm)
-            entries.append(PassEntry(
-                pass_id=p.pass_id, file=f"passes/{p.pass_id}.zarr", direction=p.direction,
-                n_profiles=p.n_profiles, duration_s=p.duration_s, nominal_motion=motion,
-                has_profile_poses=robot.log_profile_poses, content_sha256=hashes.get(p.pass_id)))
+        entries = [pass_entry(p, robot, hashes.get(p.pass_id)) for p in planned if p.setup == setup]
         tj = config.tjoint
         if tj is None:
             description = "as welded, top face up" if setup == "top" else "turned 180 deg about its length by hand"
