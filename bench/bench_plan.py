@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/bench_plan.py PRESET WORK_DIR [--seed N] [--json OUT.json] [--config RECON.yaml]
 
-For PRESET (a dog-bone: demo, ci, paper): ``weldrecon plan PRESET``; the preset's own sample
+For PRESET (demo, ci, paper, tjoint, cruciform): ``weldrecon plan PRESET``; the preset's own sample
 and the plan's scan (``weldrecon simulate --plan``) simulated with the same seed (the preset's, or
 ``--seed``: the same specimen and weld) and reconstructed with the same settings; then, for each:
 
@@ -16,6 +16,12 @@ and the plan's scan (``weldrecon simulate --plan``) simulated with the same seed
   within 0.5 mm;
 - the weld measurement: sections measured of those tried, toe radius and flank angle against the
   truth (``bench/bench_weld_geometry.py``'s comparison, when it applies).
+
+A T-joint or a cruciform (``truth/toes.json``): the toe coverage every 1 mm along each true toe
+line (a measured point within 0.2 mm, in 3-D); the fillets' figures against the drawn ones
+(``simulator.evaluate.fillet_errors``: median and 90th percentile of |error|); the stress at the
+toes against the same sections of the true surface (``bench/stress_truth.py``). Reconstruct these
+with ``--config tests/data/fillet.yaml`` (the ci settings, the weld every 2 mm: the tests' own).
 """
 
 from __future__ import annotations
@@ -76,6 +82,59 @@ def toe_coverage(sample: Path, run_dir: Path) -> dict:
     return out
 
 
+def toe_coverage_fillets(sample: Path, run_dir: Path) -> dict:
+    """Every 1 mm along each true toe line (``truth/toes.json``), 1 mm in from the ends: the share
+    with a measured point within 0.2 mm, the median count within 0.5 mm."""
+    from scipy.spatial import cKDTree
+
+    from data_catalog.stages import load_arrays
+    from data_catalog.truth import TRUTH_DIR, read_true_toes
+    from simulator.evaluate import fit_gauge
+
+    refined = load_arrays(latest_stage(run_dir, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
+    positions = refined["track_positions_mm"]
+    on_specimen = refined["specimen_track"].astype(bool)
+    gauge = fit_gauge(sample, positions[on_specimen] if on_specimen.any() else positions, positions)
+    G_inv = np.linalg.inv(gauge.T_recon_specimen)
+    cloud = load_arrays(latest_stage(run_dir, "segment") / "specimen.zarr", "points", "measured")
+    pts = np.asarray(cloud["points"][cloud["measured"].astype(bool)], np.float64) @ G_inv[:3, :3].T + G_inv[:3, 3]
+    tree = cKDTree(pts)
+    out = {}
+    for toe in read_true_toes(sample / TRUTH_DIR / "toes.json").toes:
+        line = np.asarray(toe.points_mm, float)
+        y = np.arange(line[0, 1] + 1.0, line[-1, 1] - 1.0 + 1e-9, 1.0)
+        st = np.stack([np.interp(y, line[:, 1], line[:, 0]), y, np.interp(y, line[:, 1], line[:, 2])], axis=1)
+        d, _ = tree.query(st, distance_upper_bound=0.2)
+        counts = tree.query_ball_point(st, 0.5, return_length=True)
+        out[toe.name] = {"stations": int(len(st)), "covered": round(float(np.isfinite(d).mean()), 4),
+                         "points_within_0.5mm_median": float(np.median(counts))}
+    out["all"] = {"covered": round(float(np.mean([v["covered"] for v in out.values()])), 4)}
+    return out
+
+
+def fillet_figures(sample: Path, run_dir: Path, config: str) -> dict:
+    """The fillets' figures against the drawn ones (median and p90 of |error|), and the stress at
+    the toes against the true surface's."""
+    from data_catalog.manifests import load_manifest
+    from flows.preflight import load_config
+    from flows.stages.outputs import REFINED, WELD_GEOMETRY
+    from simulator.evaluate import T_true_specimen_nominal, fillet_errors
+    from stress_truth import compare
+
+    from bench.accuracy import stage_folder
+
+    geometry = WELD_GEOMETRY.read(stage_folder(run_dir, "weld"))
+    T = T_true_specimen_nominal(sample, load_manifest(sample), REFINED.open(stage_folder(run_dir, "refine")))
+    out = {}
+    for name, pairs in fillet_errors(sample, geometry, T).items():
+        e = np.abs([err for err, _ in pairs])
+        out[name] = {"n": int(len(e)), "median": round(float(np.median(e)), 4), "p90": round(float(np.percentile(e, 90)), 4)}
+    stress = compare(run_dir, sample, config=load_config(config))
+    out["stress"] = {k: stress[k] for k in ("median_difference", "worst_difference", "toe_sections")}
+    out["stress"]["hot_spots"] = {k: v["difference"] for k, v in stress["toes"].items()}
+    return out
+
+
 def weld_figures(run_dir: Path) -> dict:
     """The weld stage's count of sections, and its figures' spreads (``report.json``)."""
     weld = json.loads((run_dir / "results" / "report.json").read_text())["weld"]
@@ -99,7 +158,9 @@ def main() -> int:
     from simulator.planner import evaluate_passes, planned_passes
     from simulator.presets import preset_config
     from simulator.robot import plan_passes
+    from simulator.tjoint import plan_tjoint_passes
 
+    sys.path.insert(0, str(ROOT / "bench"))
     work = args.work
     work.mkdir(parents=True, exist_ok=True)
     result: dict = {"preset": args.preset, "seed": args.seed}
@@ -108,9 +169,13 @@ def main() -> int:
         result["plan_s"] = round(run([WELDRECON, "plan", args.preset, "--out", str(plan_dir)], work / "plan.log"), 1)
     plan = read_plan(plan_dir)
     config = preset_config(args.preset)
-    hand = plan_passes(config.plan, config.specimen, config.robot,
-                       z_top_mm=config.fixture.block_size_mm[2] + config.specimen.thickness_mm,
-                       standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
+    if config.tjoint is None:
+        hand = plan_passes(config.plan, config.specimen, config.robot,
+                           z_top_mm=config.fixture.block_size_mm[2] + config.specimen.thickness_mm,
+                           standoff_mm=config.scanner.reference_distance_mm, setups=tuple(config.plan.setups))
+    else:
+        hand = plan_tjoint_passes(config, z_top_mm=config.fixture.block_size_mm[2] + config.tjoint.base_thickness_mm,
+                                  setups=tuple(config.plan.setups))
     req = plan.requirements
     predicted_hand = evaluate_passes(config, req, hand, stickers=False)
     result["hand"] = {"passes": len(hand), "scan_time_s": round(predicted_hand.scan_time_s, 1),
@@ -133,8 +198,11 @@ def main() -> int:
         truth = json.loads((sample / "truth" / "truth.json").read_text())
         result[name]["stickers"] = sum(1 for s in truth["stickers"] if s["on"] == "specimen")
         result[name]["accuracy"] = evaluate(sample, rec)
-        result[name]["toe_coverage"] = toe_coverage(sample, rec)
+        fillets = config.tjoint is not None
+        result[name]["toe_coverage"] = (toe_coverage_fillets if fillets else toe_coverage)(sample, rec)
         result[name]["weld"] = weld_figures(rec)
+        if fillets:
+            result[name]["fillets"] = fillet_figures(sample, rec, args.config)
     print(json.dumps(result, indent=1))
     if args.json:
         args.json.write_text(json.dumps(result, indent=1) + "\n")

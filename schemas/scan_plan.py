@@ -43,9 +43,11 @@ class PlanRequirements(StrictModel):
     toe_coverage: float = Field(default=0.98, ge=0, le=1, description=(
         "share of every weld toe (stations 2 mm apart) measured at full resolution from both sides: "
         "by a pass whose laser comes from over the plate and by one from over the weld, each leaning "
-        "10 deg or more across the toe"))
+        "10 deg or more across the toe; a fillet's toe (where the stem hides the side over the weld) "
+        "by two passes whose rays lean across it at least 20 deg apart"))
     toe_incidence_limit_deg: float = Field(default=60.0, gt=0, lt=90, description=(
-        "largest angle between a laser ray and the plate's normal at a toe that counts"))
+        "largest angle between a laser ray and the plate's normal at a toe that counts (a stem's "
+        "normal at a stem toe)"))
     face_coverage: float = Field(default=0.95, ge=0, le=1, description=(
         "share of each face of the part (2 mm cells) some pass sees, both setups together"))
     plate_spacing_mm: float | None = Field(default=None, gt=0, description=(
@@ -114,11 +116,18 @@ class FaceCoverage(StrictModel):
 
 class ToeCoverage(StrictModel):
     toe: str
+    rule: Literal["both sides", "two directions"] = Field(default="both sides", description=(
+        "both sides: a butt weld's toe, lit from over the plate and from over the weld, each leaning 10 deg "
+        "or more across it; two directions: a fillet's toe (the stem hides the side over the weld), lit by "
+        "rays leaning across it at least 20 deg apart"))
     length_mm: float
     stations: int
-    plate_side: float = Field(description="share of stations seen by a laser from over the plate")
-    weld_side: float = Field(description="share of stations seen by a laser from over the weld")
-    both_sides: float
+    plate_side: float = Field(description=(
+        "both sides: share of stations seen by a laser from over the plate; two directions: seen at all"))
+    weld_side: float = Field(description=(
+        "both sides: share of stations seen by a laser from over the weld; two directions: seen from a "
+        "second direction 20 deg from the first"))
+    both_sides: float = Field(description="share of stations measured as the rule asks")
 
 
 class ScanPlan(StrictModel):

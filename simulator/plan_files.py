@@ -62,13 +62,24 @@ def manifest_setups(plan: ScanPlan) -> list[Setup]:
     req = plan.requirements
     passes = planned_passes(plan)
     out = []
+    tj = cfg.tjoint
+    thickness, half_width = (cfg.specimen.thickness_mm, cfg.specimen.grip_width_mm / 2) if tj is None else \
+        (tj.base_thickness_mm, tj.base_width_mm / 2)
     for setup in req.setups:
         entries = [pass_entry(p, cfg.robot) for p in passes if p.setup == setup]
-        description = "top face up, against the fixture's stops" if setup == "top" else \
-            "turned 180 deg about its length, against the fixture's stops"
-        nominal = nominal_placement(cfg.fixture, cfg.specimen.thickness_mm, flipped=(setup == "bottom"))
+        if tj is None:
+            up = "top face up"
+        elif tj.stems == "both":
+            up = "the upper stem up, the lower one hanging between the support blocks" if setup == "top" else \
+                "turned over about the base plate's length: the lower stem up"
+        else:
+            up = "stem up, the base plate on the support blocks" if setup == "top" else \
+                "turned over about the base plate's length: the stem hangs between the support blocks"
+        description = (f"{up}, against the fixture's stops" if setup == "top" or tj is not None else
+                       "turned 180 deg about its length, against the fixture's stops")
+        nominal = nominal_placement(cfg.fixture, thickness, flipped=(setup == "bottom"))
         placement = PlacementConfig(translation_mm=req.placement_tolerance_mm, yaw_deg=req.placement_yaw_deg)
-        tol = placement_tolerance_mm(placement, cfg.specimen.grip_width_mm / 2)
+        tol = placement_tolerance_mm(placement, half_width)
         out.append(Setup(name=setup, description=description, passes=entries,
                          T_world_specimen_nominal=nominal.tolist(), placement_tolerance_mm=round(tol, 3)))
     return out
@@ -143,11 +154,84 @@ def _sticker_marks(u: float, v: float, r: float, sticker_id: int) -> list[str]:
             f'<text x="{u + r + 0.8:.3f}" y="{v - r:.3f}" font-size="3">{sticker_id}</text>']
 
 
+def _footer(width: float, height: float, pad: float, note: str, count: int, r: float) -> list[str]:
+    return [f'<path d="M{pad:.2f},{height - 8:.2f}h50" stroke="black" stroke-width="0.5"/>'
+            f'<text x="{pad + 52:.2f}" y="{height - 7:.2f}" font-size="3">50 mm: print at 100 %</text>',
+            f'<text x="{pad:.2f}" y="{height - 2:.2f}" font-size="3">{html.escape(note)}; '
+            f'{count} stickers of {2 * r:g} mm</text>']
+
+
+# a T-joint's faces, seen from outside: (u: specimen axis and sign to the right, v: axis and sign up)
+_TJOINT_VIEWS = {"top": ((0, 1.0), (1, 1.0), "the base plate's face on the stem's side, seen from above; x to the right, +y up"),
+                 "bottom": ((0, 1.0), (1, -1.0), "the base plate's other face, seen from below; x to the right, +y down"),
+                 "side_neg": ((0, 1.0), (2, 1.0), "the base plate's wall at -y, seen from outside; x to the right, z up"),
+                 "side_pos": ((0, -1.0), (2, 1.0), "the base plate's wall at +y, seen from outside; -x to the right, z up"),
+                 "end_neg": ((1, -1.0), (2, 1.0), "the base plate's end at -x, seen from outside; -y to the right, z up"),
+                 "end_pos": ((1, 1.0), (2, 1.0), "the base plate's end at +x, seen from outside; y to the right, z up"),
+                 "stem_neg": ((1, -1.0), (2, 1.0), "the stem's face at -x, seen from outside; -y to the right, z up"),
+                 "stem_pos": ((1, 1.0), (2, 1.0), "the stem's face at +x, seen from outside; y to the right, z up")}
+
+
+def _tjoint_maps(plan: ScanPlan) -> dict[str, str]:
+    """A T-joint's or a cruciform's faces with stickers, each a rectangle seen from outside
+    (``_TJOINT_VIEWS``), the weld zone shaded where the face meets a fillet; specimen frame."""
+    tj = plan.part.tjoint
+    r = plan.part.stickers.diameter_mm / 2
+    pad = 15.0
+    L, W, t, H = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm, tj.stem_height_mm
+    z0, x0 = t / 2, tj.stem_thickness_mm / 2
+    keep = plan.no_sticker_x_mm[1] - x0  # the weld zone and its clearance, from the stem's face
+    lower = tj.stems == "both"
+    extent = {0: (-L / 2, L / 2), 1: (-W / 2, W / 2)}
+    maps = {}
+    for face, ((ua, us), (va, vs), seen) in _TJOINT_VIEWS.items():
+        stickers = [s for s in plan.stickers if s.face == face]
+        if not stickers:
+            continue
+        if face.startswith("stem"):
+            v_lo, v_hi = (-z0 - H if lower else z0), z0 + H
+        else:
+            v_lo, v_hi = (-z0, z0) if va == 2 else extent[va]
+        u_lo, u_hi = extent[ua]
+        width = max((u_hi - u_lo) + 2 * pad, 200.0)  # room for the notes below
+        height = (v_hi - v_lo) + 2 * pad + 16
+
+        def to_uv(point, ua=ua, us=us, va=va, vs=vs, u_lo=u_lo, u_hi=u_hi, v_lo=v_lo, v_hi=v_hi):
+            u = point[ua] * us - (u_lo if us > 0 else -u_hi)
+            v = point[va] * vs - (v_lo if vs > 0 else -v_hi)
+            return pad + u, pad + (v_hi - v_lo) - v
+
+        body = [f'<rect x="{pad:.2f}" y="{pad:.2f}" width="{u_hi - u_lo:.2f}" height="{v_hi - v_lo:.2f}" fill="none" '
+                'stroke="black" stroke-width="0.3"/>']
+        shaded = []
+        if face == "top" or (face == "bottom" and lower):
+            shaded.append(((-x0 - keep, -W / 2, 0.0), (x0 + keep, W / 2, 0.0)))
+        if face.startswith("stem"):
+            sign = 1.0 if face == "stem_pos" else -1.0
+            shaded.append(((sign * x0, -W / 2, z0), (sign * x0, W / 2, z0 + keep)))
+            if lower:
+                shaded.append(((sign * x0, -W / 2, -z0 - keep), (sign * x0, W / 2, -z0)))
+                shaded.append(((sign * x0, -W / 2, -z0), (sign * x0, W / 2, z0)))  # the base plate
+        for a, b in shaded:
+            (ua_, va_), (ub_, vb_) = to_uv(a), to_uv(b)
+            body.append(f'<rect x="{min(ua_, ub_):.2f}" y="{min(va_, vb_):.2f}" width="{abs(ub_ - ua_):.2f}" '
+                        f'height="{abs(vb_ - va_):.2f}" fill="#ddd"/>')
+        for s in stickers:
+            body += _sticker_marks(*to_uv(s.centre_mm), r, s.sticker_id)
+        body.append(f'<text x="{pad:.2f}" y="{height - 12:.2f}" font-size="3">{face}: {html.escape(seen)}</text>')
+        note = "shaded: the welds and their keep-out, no stickers; specimen frame, mm"
+        body += _footer(width, height, pad, note, len(stickers), r)
+        maps[face] = _svg(width, height, body, f"{plan.part.sample_id}: stickers on the {face}")
+    return maps
+
+
 def sticker_maps(plan: ScanPlan) -> dict[str, str]:
     """One SVG per face with stickers, 1:1 in mm, the face as seen from outside it: top from
     above (x to the right, y up); bottom from below (x to the right, y down); a side wall from its
     side, unrolled along the wall (the length along the wall to the right from the end at -x on
-    side_neg, from the end at +x on side_pos; z up)."""
+    side_neg, from the end at +x on side_pos; z up). A T-joint's or a cruciform's: ``_tjoint_maps``."""
+    if plan.part.tjoint is not None:
+        return _tjoint_maps(plan)
     cfg = plan.part
     L, t = cfg.specimen.length_mm, cfg.specimen.thickness_mm
     r = cfg.stickers.diameter_mm / 2
@@ -197,10 +281,7 @@ def sticker_maps(plan: ScanPlan) -> dict[str, str]:
                 body += _sticker_marks(*to_uv(s.centre_mm[0], s.centre_mm[2]), r, s.sticker_id)
             end = "-x" if sign < 0 else "+x"
             note = f"{face} wall, seen from outside, unrolled along the wall from the end at {end}; z up"
-        body.append(f'<path d="M{pad:.2f},{height - 8:.2f}h50" stroke="black" stroke-width="0.5"/>'
-                    f'<text x="{pad + 52:.2f}" y="{height - 7:.2f}" font-size="3">50 mm: print at 100 %</text>')
-        body.append(f'<text x="{pad:.2f}" y="{height - 2:.2f}" font-size="3">{html.escape(note)}; '
-                    f'{len(stickers)} stickers of {2 * r:g} mm</text>')
+        body += _footer(width, height, pad, note, len(stickers), r)
         maps[face] = _svg(width, height, body, f"{plan.part.sample_id}: stickers on the {face}")
     return maps
 
@@ -266,14 +347,15 @@ def plan_page(plan: ScanPlan, maps: dict[str, str]) -> str:
                  ["stickers", f"{plan.part.stickers.min_common} whole per overlapping pass pair, "
                               f"{plan.part.stickers.min_spread_mm:g} mm off a line, put within "
                               f"{req.sticker_tolerance_mm:g} mm of their marks; {req.min_setup_stickers} shared by "
-                              "the setups"],
+                              f"the setups, and more than the fixture's {plan.part.stickers.n_fixture} over 0.75"],
                  ["robot", f"TCP within {list(req.reach.workspace_min_mm)}..{list(req.reach.workspace_max_mm)} mm, "
                            f"view at most {req.reach.max_tilt_deg:g} deg from straight down"]]),
              "<h2>Predicted coverage</h2>",
              _table(["face", "area, mm²", "seen", "passes per cell (median)"],
                     [[f.face, f"{f.area_mm2:.0f}", f"{100 * f.seen:.1f} %", f"{f.passes_median:g}"] for f in plan.faces]),
-             _table(["toe", "length, mm", "from over the plate", "from over the weld", "both"],
-                    [[t.toe, f"{t.length_mm:.0f}", f"{100 * t.plate_side:.1f} %", f"{100 * t.weld_side:.1f} %",
+             _table(["toe", "rule", "length, mm", "from over the plate (two directions: seen)",
+                     "from over the weld (two directions: from a second, 20 deg apart)", "as the rule asks"],
+                    [[t.toe, t.rule, f"{t.length_mm:.0f}", f"{100 * t.plate_side:.1f} %", f"{100 * t.weld_side:.1f} %",
                       f"{100 * t.both_sides:.1f} %"] for t in plan.toes]),
              "<h2>Passes</h2>",
              _table(["pass", "setup", "what for", "direction", "length, mm", "time, s", "stand-off, mm", "tilt, deg",

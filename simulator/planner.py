@@ -39,9 +39,9 @@ from scipy.spatial import cKDTree
 
 from schemas.scan_plan import (FaceCoverage, PlanOverlap, PlanPass, PlanRequirements, PlanSticker, ScanPlan, SetupLink,
                                ToeCoverage)
-from schemas.manifest import DogBoneSpecimen, SampleManifest
+from schemas.manifest import CruciformSpecimen, DogBoneSpecimen, SampleManifest, TJointSpecimen
 from schemas.simulation import (FixtureConfig, PlacementConfig, RobotConfig, ScannerConfig, SimulationConfig,
-                                SpecimenConfig, StickerConfig, WeldConfig)
+                                SpecimenConfig, StickerConfig, TJointConfig, WeldConfig)
 from schemas.truth import PointLabel
 from simulator.coverage import CoverageMap, cell_keys, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
@@ -51,6 +51,7 @@ from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
 from simulator.specimen import Face, Specimen, build_specimen
 from simulator.stickers import StickerPlacementError, place_stickers, sticker_candidates
+from simulator.tjoint import TJoint, build_tjoint, tjoint_sticker_candidates
 from tasks.arrays import distinct
 from tasks.frames import invert, rotation_deg, translation
 
@@ -69,6 +70,12 @@ SIDE_LEAN = math.sin(math.radians(10.0))
 that way across the toe; a ray straight down the plate's normal lights it from neither side (it
 sees both surfaces at the toe, but one viewing direction, where the paper's plan and ours look
 from two)."""
+SPREAD_DEG = 20.0
+"""A fillet's toe is measured from two directions when two rays that reach it within the
+incidence limit lean across it at least 20 deg apart (SIDE_LEAN's -10 and +10 deg are as far
+apart). It cannot be lit from over the weld as a butt weld's toe is: a stem toe's rays all come
+from above it, down the stem; a base toe's from over the weld must clear the stem (a 60 mm stem
+beside a 7 mm leg: 6.6 deg at most)."""
 DETECTABLE = (0.8, 1.2)
 """A pass finds a sticker where the points along its line lie this many times the pass's median
 spacing apart: the target search looks for circles of one radius on a grid of the pass's median
@@ -97,22 +104,21 @@ class PlanRefused(ValueError):
 
 
 def part_from_manifest(manifest: SampleManifest, *, source: str) -> SimulationConfig:
-    """The part a sample manifest describes, to plan its next scan: its dog-bone, its weld's
-    treatment, its stickers' size, its scanner and the speed and profile rate of its first pass
-    (the robot's defaults without one); the weld's ranges are the simulator's defaults, and the
-    fixture is two support blocks 60 mm long under the grips, 45 mm in from the ends. Refused
-    (``PlanRefused``, naming ``source``) for a part the planner has no passes for."""
+    """The part a sample manifest describes, to plan its next scan: its dog-bone, T-joint or
+    cruciform, its weld's treatment, its stickers' size, its scanner and the speed and profile
+    rate of its first pass (the robot's defaults without one). The weld's ranges (a butt cap's,
+    a fillet's legs) are the simulator's defaults. The fixture: a dog-bone on two support blocks
+    60 mm long under the grips, 45 mm in from the ends; a T-joint or a cruciform on two blocks
+    30 mm long, 25 mm in from the base plate's ends, 20 mm taller than the stem (turned over, it
+    hangs between them). Refused (``PlanRefused``, naming ``source``) for a part the planner has
+    no passes for."""
     part = manifest.specimen
-    if not isinstance(part, DogBoneSpecimen):
+    if not isinstance(part, (DogBoneSpecimen, TJointSpecimen, CruciformSpecimen)):
         kind = getattr(part, "kind", None) or "no specimen"
-        raise PlanRefused([f"{source}: part: {kind} is not planned yet (the planner's pass families are a dog-bone's)"])
+        raise PlanRefused([f"{source}: part: {kind} is not planned yet (the planner's pass families are a "
+                           "dog-bone's, a T-joint's and a cruciform's)"])
     if manifest.sticker_diameter_mm is None or manifest.scanner is None:
         raise PlanRefused([f"{source}: the manifest gives no sticker_diameter_mm or scanner: a plan needs both"])
-    lines = manifest.weld_lines() or []
-    xs = [p[0] for line in lines for p in line.points_mm]
-    if not xs or max(abs(x) for x in xs) > 0.5:
-        raise PlanRefused([f"{source}: weld: the planner draws a butt weld across the middle (x = 0); this part's weld "
-                           f"lines lie at x = {min(xs, default=float('nan')):g}..{max(xs, default=float('nan')):g} mm"])
     sc = manifest.scanner
     robot = RobotConfig(T_flange_sensor=sc.T_flange_sensor)
     passes = [entry for _, entry in manifest.passes() if getattr(entry, "nominal_motion", None) is not None]
@@ -120,27 +126,49 @@ def part_from_manifest(manifest: SampleManifest, *, source: str) -> SimulationCo
         motion = passes[0].nominal_motion
         robot = robot.model_copy(update={"speed_mm_s": motion.speed_mm_s,
                                          "profile_spacing_mm": motion.speed_mm_s / motion.profile_rate_hz})
+    common = dict(preset="manifest", seed=0, sample_id=manifest.sample_id,
+                  weld=WeldConfig(treatment=manifest.weld.treatment if manifest.weld is not None else "as-welded"),
+                  stickers=StickerConfig(diameter_mm=manifest.sticker_diameter_mm),
+                  scanner=ScannerConfig(model=sc.model, points_per_profile=sc.points_per_profile,
+                                        x_spacing_mm=sc.x_spacing_mm, reference_distance_mm=sc.reference_distance_mm,
+                                        z_range_mm=sc.z_range_mm, z_resolution_mm=sc.z_resolution_mm,
+                                        camera_offset_mm=sc.camera_offset_mm),
+                  robot=robot)
+    if not isinstance(part, DogBoneSpecimen):
+        if abs(part.stem_x_mm) > 0.5:
+            raise PlanRefused([f"{source}: specimen: the planner draws the stem across the base plate's middle "
+                               f"(stem_x_mm 0); this part's is at {part.stem_x_mm:g} mm"])
+        L, W, H = part.base_length_mm, part.base_width_mm, part.stem_height_mm
+        try:
+            tjoint = TJointConfig(stems="both" if isinstance(part, CruciformSpecimen) else "one", base_length_mm=L,
+                                  base_width_mm=W, base_thickness_mm=part.base_thickness_mm, stem_height_mm=H,
+                                  stem_thickness_mm=part.stem_thickness_mm)
+        except ValueError as exc:
+            raise PlanRefused([f"{source}: specimen: {exc.errors()[0]['msg'] if hasattr(exc, 'errors') else exc}"]) \
+                from None
+        fixture = FixtureConfig(plate_size_mm=(L + 160.0, max(320.0, W + 200.0), 10.0),
+                                block_size_mm=(30.0, min(60.0, 0.5 * W), H + 20.0),
+                                block_centres_x_mm=(-(L / 2 - 25.0), L / 2 - 25.0))
+        return SimulationConfig(tjoint=tjoint, fixture=fixture, **common)
+    lines = manifest.weld_lines() or []
+    xs = [p[0] for line in lines for p in line.points_mm]
+    if not xs or max(abs(x) for x in xs) > 0.5:
+        raise PlanRefused([f"{source}: weld: the planner draws a butt weld across the middle (x = 0); this part's weld "
+                           f"lines lie at x = {min(xs, default=float('nan')):g}..{max(xs, default=float('nan')):g} mm"])
     L, W = part.length_mm, part.grip_width_mm
     fixture = FixtureConfig(plate_size_mm=(L + 230.0, max(320.0, W + 220.0), 15.0),
                             block_size_mm=(60.0, min(50.0, 0.8 * W), 40.0), block_centres_x_mm=(-(L / 2 - 45.0), L / 2 - 45.0))
     return SimulationConfig(
-        preset="manifest", seed=0, sample_id=manifest.sample_id,
         specimen=SpecimenConfig(length_mm=L, grip_width_mm=W, gauge_width_mm=part.gauge_width_mm,
                                 gauge_length_mm=part.gauge_length_mm, transition_radius_mm=part.transition_radius_mm,
                                 thickness_mm=part.thickness_mm),
-        weld=WeldConfig(treatment=manifest.weld.treatment if manifest.weld is not None else "as-welded"),
-        stickers=StickerConfig(diameter_mm=manifest.sticker_diameter_mm),
-        fixture=fixture,
-        scanner=ScannerConfig(model=sc.model, points_per_profile=sc.points_per_profile, x_spacing_mm=sc.x_spacing_mm,
-                              reference_distance_mm=sc.reference_distance_mm, z_range_mm=sc.z_range_mm,
-                              z_resolution_mm=sc.z_resolution_mm, camera_offset_mm=sc.camera_offset_mm),
-        robot=robot)
+        fixture=fixture, **common)
 
 
 @dataclass
 class _Part:
     config: SimulationConfig
-    specimen: Specimen  # as drawn: no plate misalignment
+    specimen: Specimen | TJoint  # as drawn: a dog-bone's plates in line
     scenes: dict[tuple[str, int], Scene]  # per setup and shape (0: as drawn, 1: misaligned the most)
     placements: list[tuple[int, np.ndarray]]  # (shape, perturbation P, world frame): as drawn at its nominal
     # placement first, then at the corners of the placement tolerance, then the other shape
@@ -153,42 +181,48 @@ def _empty(radius: float) -> StickerSet:
 
 def planning_mesh(config: SimulationConfig) -> SimulationConfig:
     """The part's config with a true mesh fine enough to plan on (the scanner is rendered about
-    0.5 mm apart): 0.5 mm on the plates, 0.2 mm over the weld, 0.1 mm at its toes."""
+    0.5 mm apart): 1 mm on the plates, 0.2 mm over the weld, 0.1 mm at its toes; a T-joint's
+    sections 1 mm apart along its welds."""
     m = config.mesh
-    return config.model_copy(update={"mesh": m.model_copy(update={
+    update = {"mesh": m.model_copy(update={
         "plate_dx_mm": max(m.plate_dx_mm, 1.0), "weld_dx_mm": max(m.weld_dx_mm, 0.2),
         "toe_dx_mm": max(m.toe_dx_mm, 0.1), "across_nodes": min(m.across_nodes, 200),
-        "wall_rows": min(m.wall_rows, 11)})})
+        "wall_rows": min(m.wall_rows, 11)})}
+    if config.tjoint is not None:
+        update["tjoint"] = config.tjoint.model_copy(update={"along_weld_dx_mm": max(config.tjoint.along_weld_dx_mm, 1.0)})
+    return config.model_copy(update=update)
 
 
 def _part(config: SimulationConfig, req: PlanRequirements) -> _Part:
-    """The part as drawn (its weld from the part's ranges with the planning seed, its plates in
-    line), and the same part with the plates misaligned the most the weld's ranges allow: where
-    a real part's ends may lie. Each rests on the support blocks as ``place_on_fixture`` settles it."""
-    if config.tjoint is not None:
-        kind = "a cruciform joint" if config.tjoint.stems == "both" else "a T-joint"
-        raise PlanRefused([f"part: {kind} is not planned yet (the planner's pass families are a dog-bone's); "
-                           "its preset's hand-made plan is what `weldrecon simulate` scans"])
+    """The part as drawn (its weld from the part's ranges with the planning seed; a dog-bone's
+    plates in line), and a dog-bone with its plates misaligned the most the weld's ranges allow:
+    where a real part's ends may lie (a T-joint's plates are drawn square). Each rests on the
+    support blocks as ``place_on_fixture`` settles it."""
     drawn = planning_mesh(config)
     w = drawn.weld
     shapes = []
-    for axial, angular in ((0.0, 0.0), (w.axial_misalignment_mm[1], w.angular_misalignment_deg[1])):
-        weld = w.model_copy(update={"axial_misalignment_mm": (axial, axial), "angular_misalignment_deg": (angular, angular)})
-        shapes.append(build_specimen(drawn.specimen, weld, drawn.mesh,
-                                     np.random.default_rng(config.seed + PLANNING_SEED_OFFSET)))
+    if drawn.tjoint is not None:
+        shapes.append(build_tjoint(drawn.tjoint, w, drawn.mesh, np.random.default_rng(config.seed + PLANNING_SEED_OFFSET)))
+    else:
+        for axial, angular in ((0.0, 0.0), (w.axial_misalignment_mm[1], w.angular_misalignment_deg[1])):
+            weld = w.model_copy(update={"axial_misalignment_mm": (axial, axial),
+                                        "angular_misalignment_deg": (angular, angular)})
+            shapes.append(build_specimen(drawn.specimen, weld, drawn.mesh,
+                                         np.random.default_rng(config.seed + PLANNING_SEED_OFFSET)))
     fixture = build_fixture(config.fixture)
     radius = config.stickers.diameter_mm / 2
     t, yaw = req.placement_tolerance_mm, req.placement_yaw_deg
     corners = [(sx * t, sy * t, sz * yaw) for sx, sy, sz in itertools.product((-1, 1), repeat=3)] if t or yaw else []
     placements = [(0, np.eye(4))] + [(0, translation([dx, dy, 0.0]) @ rotation_deg("z", dz)) for dx, dy, dz in corners]
-    placements.append((1, np.eye(4)))
+    placements += [(k, np.eye(4)) for k in range(1, len(shapes))]
     still = PlacementConfig(translation_mm=0.0, yaw_deg=0.0)
     scenes = {}
     for setup in req.setups:
         for k, shape in enumerate(shapes):
             T = place_on_fixture(shape, config.fixture, still, np.random.default_rng(0), flipped=(setup == "bottom"))
             scenes[(setup, k)] = Scene(shape.mesh, T, fixture, _empty(radius), _empty(radius))
-    return _Part(config, shapes[0], scenes, placements, config.fixture.block_size_mm[2] + config.specimen.thickness_mm)
+    thickness = config.specimen.thickness_mm if config.tjoint is None else config.tjoint.base_thickness_mm
+    return _Part(config, shapes[0], scenes, placements, config.fixture.block_size_mm[2] + thickness)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -334,6 +368,125 @@ def _dog_bone_passes(part: _Part, choice: _Choice, req: PlanRequirements) -> _Fa
     return family
 
 
+# ---------------------------------------------------------------------------------------------
+# Pass families of a T-joint or a cruciform
+
+
+@dataclass(frozen=True)
+class _TChoice:
+    rows: int  # rows along the welds over each half of the base plate (the outer one rolled toward the stem)
+    end_roll_deg: float  # the outer rows' view, leaning in toward the stem: they see the base's ends
+    end_inset_mm: float  # the outer rows aimed this far in from the base's ends
+    fillet_rolls_deg: tuple[float, float]  # the two passes along each fillet, rolled toward it
+    wall_roll_deg: float  # one pass along each long wall of the base, rolled toward it
+    stem_end: bool  # a pass along the stem's end, straight down (its end face seen)
+
+
+TJOINT_END_ROLLS_DEG = (35.0, 30.0, 40.0)
+TJOINT_FILLET_ROLLS_DEG = ((35.0, 65.0), (30.0, 60.0), (35.0, 60.0), (30.0, 65.0))
+TJOINT_WALL_ROLLS_DEG = (50.0, 45.0, 55.0)
+
+
+def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Family:
+    """Per setup with a stem up (a T-joint's top, both of a cruciform's): rows along the welds
+    over each half of the base plate, the outer one rolled in to see the base's end; two passes
+    along each fillet rolled toward it (``fillet_rolls_deg``: both toes from two directions); a
+    pass along the stem's end (``stem_end``); one along each long wall rolled toward it (the walls
+    tie the setups). A T-joint turned over: the same rows over its flat underside, one pass along
+    its length over its middle (without it the rows are tied only through the wall passes: the
+    tjoint preset's worst pass 17.0 um against the truth, with it 11.8), and the walls.
+    Every pass along the welds (y) runs the base's width and a margin: the camera, ahead along the
+    travel, is never hidden by the stem."""
+    cfg = part.config
+    tj, sc, robot = cfg.tjoint, cfg.scanner, cfg.robot
+    ref = sc.reference_distance_mm
+    rate, v = robot.profile_rate_hz(), robot.speed_mm_s
+    L, W, t = tj.base_length_mm, tj.base_width_mm, tj.base_thickness_mm
+    x0, leg = tj.stem_thickness_mm / 2, float(np.mean(tj.leg_mm))
+    margin = 10.0 + req.placement_tolerance_mm
+    fan = sc.points_per_profile * sc.x_spacing_mm
+    z_top = part.z_top_mm
+    x_axis, y_axis = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    family = _Family()
+
+    def add(setup, purpose, label, view, aim, travel, length, standoff=ref):
+        count = sum(1 for q in family.info if q["setup"] == setup and q["purpose"] == purpose) + 1
+        tag = {"face": "F", "side": "S", "weld": "W", "end": "E"}[purpose]
+        view = view / np.linalg.norm(view)
+        family.passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, label,
+                                         _sensor_frame(travel, view, aim, standoff), travel, length, v, rate))
+        tilt, roll = _lean(view, travel)
+        family.info.append({"setup": setup, "purpose": purpose, "standoff": standoff, "tilt": tilt, "roll": roll})
+
+    def along_y(setup, purpose, label, x, z, view, standoff=ref):
+        add(setup, purpose, label, view, np.array([x, -W / 2 - margin, z]), y_axis, W + 2 * margin, standoff)
+
+    e = math.radians(choice.end_roll_deg)
+    phi = math.atan(fan / 2 / ref)  # the fan's half angle
+    for setup in req.setups:
+        stem_up = setup == "top" or tj.stems == "both"
+        # the inner row's line starts 10 mm short of the fillet's base toe (or the plate's middle)
+        first = (x0 + leg + fan / 2 - 10.0) if stem_up else fan / 2 - 10.0
+        outer = L / 2 - choice.end_inset_mm
+        for side in (-1.0, 1.0):
+            n_inner = choice.rows - 1
+            last = outer - fan / 2  # the outer rolled row reaches in about this far
+            xs = [first + (last - first) * k / max(n_inner - 1, 1) for k in range(n_inner)] if n_inner > 1 else \
+                [first] * n_inner
+            for x in xs:
+                along_y(setup, "face", "along the weld, over the base", side * x, z_top, np.array([0.0, 0.0, -1.0]))
+            along_y(setup, "face", f"along the weld, over the base's end, rolled {choice.end_roll_deg:g} in",
+                    side * outer, z_top, np.array([-side * math.sin(e), 0.0, -math.cos(e)]))
+        if stem_up:
+            for side in (-1.0, 1.0):
+                for roll in choice.fillet_rolls_deg:
+                    r = math.radians(roll)
+                    if roll < 55:  # at the weld's face: the base toe, the stem toe
+                        reach, rise = leg / 2, leg / 2
+                    else:  # at the stem, its line up to the stem's end (its toe well inside the line)
+                        up = ref * math.cos(r) - ref * math.sin(r) / math.tan(r + 0.9 * phi)
+                        reach, rise = leg / 4, max(leg * 1.5, tj.stem_height_mm + 2.0 - up)
+                    along_y(setup, "weld", f"along the fillet, rolled {roll:g} toward it", side * (x0 + reach),
+                            z_top + rise, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
+            if choice.stem_end:
+                along_y(setup, "end", "along the stem's end", 0.0, z_top + tj.stem_height_mm, np.array([0.0, 0.0, -1.0]))
+        else:  # the flat side up: one pass along its length, over its middle, ties every row
+            pitch = math.radians(15.0)
+            add(setup, "face", "along the base, over its middle, pitched 15", np.array([math.sin(pitch), 0.0,
+                                                                                   -math.cos(pitch)]),
+                np.array([-L / 2 - margin, 0.0, z_top]), x_axis, L + 2 * margin)
+        w = math.radians(choice.wall_roll_deg)
+        for side in (-1.0, 1.0):
+            view = np.array([0.0, -side * math.sin(w), -math.cos(w)])
+            add(setup, "side", f"along the base's wall, rolled {choice.wall_roll_deg:g}", view,
+                np.array([-L / 2 - margin, side * W / 2, z_top - t / 2]), x_axis, L + 2 * margin)
+    return family
+
+
+def _tjoint_choices(part: _Part, req: PlanRequirements) -> list[_TChoice]:
+    tilt = req.reach.max_tilt_deg
+    fillets = [pair for pair in TJOINT_FILLET_ROLLS_DEG if max(pair) <= tilt]
+    walls = [a for a in TJOINT_WALL_ROLLS_DEG if a <= tilt]
+    ends = [a for a in TJOINT_END_ROLLS_DEG if a <= tilt]
+    unreachable = []
+    for options, all_options, what in (
+            (fillets, [a for pair in TJOINT_FILLET_ROLLS_DEG for a in pair], "the fillets' toes: the passes along them"),
+            (walls, TJOINT_WALL_ROLLS_DEG, "faces side_neg and side_pos: the passes along the base's walls"),
+            (ends, TJOINT_END_ROLLS_DEG, "faces end_neg and end_pos: the outer rows over the base")):
+        if not options:
+            unreachable.append(f"{what} lean {min(all_options):g} to {max(all_options):g} deg from straight down; the "
+                               f"robot's largest tilt is {tilt:g} deg (reach.max_tilt_deg)")
+    if unreachable:
+        raise PlanRefused(unreachable)
+    return [_TChoice(rows, end, inset, pair, wall, stem_end)
+            for rows in (2, 3)
+            for stem_end in (False, True)
+            for pair in fillets
+            for wall in walls
+            for end in ends
+            for inset in (35.0, 25.0, 45.0)]
+
+
 def _choices(part: _Part, req: PlanRequirements) -> list[_Choice]:
     """Every family setting, fastest first (then the reference distance, then the gentlest angles)."""
     cfg = part.config
@@ -454,10 +607,10 @@ class _Targets:
     face: np.ndarray  # (k,) face of each sample
     samples: np.ndarray  # (k, 3) specimen frame
     areas: dict[int, float]
-    toes: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]
+    toes: list["_Toe"]
 
 
-def _targets(specimen: Specimen) -> _Targets:
+def _targets(specimen: Specimen | TJoint) -> _Targets:
     mesh = specimen.mesh
     v = mesh.vertices[mesh.triangles]
     area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
@@ -500,17 +653,20 @@ class _Seen:
         return seen
 
     def _toe_masks(self, view: _View) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per toe: the least and the most lean across the toe (the sine of the laser's angle
+        toward the plate's outward direction; < 0: from over the plate) of the rays that measure
+        each station within the incidence limit; +inf and -inf where none does."""
         cos_limit = math.cos(math.radians(self.req.toe_incidence_limit_deg))
         out = []
-        for _, stations, outward, normal in self.targets.toes:
-            plate = np.zeros(len(stations), bool)
-            weld = np.zeros(len(stations), bool)
-            d, hit = cKDTree(stations).query(view.points, distance_upper_bound=TOE_RADIUS_MM)
-            near = np.isfinite(d) & (-(view.rays @ normal) >= cos_limit)
-            lean = view.rays[near] @ outward  # < 0: the laser comes from over the plate
-            plate[hit[near][lean <= -SIDE_LEAN]] = True
-            weld[hit[near][lean >= SIDE_LEAN]] = True
-            out.append((plate, weld))
+        for toe in self.targets.toes:
+            lo = np.full(len(toe.stations), np.inf)
+            hi = np.full(len(toe.stations), -np.inf)
+            d, hit = cKDTree(toe.stations).query(view.points, distance_upper_bound=TOE_RADIUS_MM)
+            near = np.isfinite(d) & (-(view.rays @ toe.normal) >= cos_limit)
+            lean = view.rays[near] @ toe.outward
+            np.minimum.at(lo, hit[near], lean)
+            np.maximum.at(hi, hit[near], lean)
+            out.append((lo, hi))
         return out
 
     def faces(self, passes: list[PlannedPass]) -> tuple[list[FaceCoverage], list[str]]:
@@ -533,28 +689,58 @@ class _Seen:
 
     def toes(self, passes: list[PlannedPass]) -> tuple[list[ToeCoverage], list[str]]:
         out, problems = [], []
-        for k, (name, stations, _, _) in enumerate(self.targets.toes):
-            plate = np.zeros(len(stations), bool)
-            weld = np.zeros(len(stations), bool)
+        for k, toe in enumerate(self.targets.toes):
+            lo = np.full(len(toe.stations), np.inf)
+            hi = np.full(len(toe.stations), -np.inf)
             for p in passes:
-                pm, wm = self.of(p)[1][k]
-                plate |= pm
-                weld |= wm
-            both = plate & weld
+                a, b = self.of(p)[1][k]
+                lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+            if toe.rule == "both sides":
+                plate, weld = lo <= -SIDE_LEAN, hi >= SIDE_LEAN
+                both = plate & weld
+            else:  # two directions SPREAD_DEG apart, whichever side they come from
+                plate = np.isfinite(lo)
+                both = weld = plate & (np.degrees(np.arcsin(np.clip(hi, -1, 1)) - np.arcsin(np.clip(lo, -1, 1)))
+                                       >= SPREAD_DEG - 1e-9)
+            stations = toe.stations
             length = float(np.linalg.norm(np.diff(stations, axis=0), axis=1).sum())
-            out.append(ToeCoverage(toe=name, length_mm=round(length, 1), stations=len(stations),
+            out.append(ToeCoverage(toe=toe.name, rule=toe.rule, length_mm=round(length, 1), stations=len(stations),
                                    plate_side=round(float(plate.mean()), 4), weld_side=round(float(weld.mean()), 4),
                                    both_sides=round(float(both.mean()), 4)))
             if both.mean() < self.req.toe_coverage:
                 missing = stations[~both, 1]
-                problems.append(f"toe {name}: {100 * both.mean():.1f} % of it is measured from both sides, the plan "
+                how = "from both sides" if toe.rule == "both sides" else f"from two directions {SPREAD_DEG:g} deg apart"
+                problems.append(f"toe {toe.name}: {100 * both.mean():.1f} % of it is measured {how}, the plan "
                                 f"must reach {100 * self.req.toe_coverage:.0f} % (missed between y = "
                                 f"{missing.min():.0f} and {missing.max():.0f} mm)")
         return out, problems
 
 
-def _toe_stations(specimen: Specimen) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
-    """(name, stations (k, 3) specimen frame, outward direction (3,), plate normal (3,)) per toe."""
+@dataclass(frozen=True)
+class _Toe:
+    name: str
+    stations: np.ndarray  # (k, 3) specimen frame, every TOE_STEP_MM along the toe
+    outward: np.ndarray  # (3,) along the plate, away from the weld
+    normal: np.ndarray  # (3,) the plate's outward normal
+    rule: str  # "both sides" (a butt weld's toe) or "two directions" (a fillet's)
+
+
+def _toe_stations(specimen: Specimen | TJoint) -> list[_Toe]:
+    """The toes a plan must measure: a butt weld's four (top and bottom, each side of the cap),
+    stations every TOE_STEP_MM across the part 1 mm in from its edges; a fillet-welded part's
+    true toe lines (two per fillet: on the base plate and on the stem), as many stations."""
+    if isinstance(specimen, TJoint):
+        out = []
+        half = specimen.config.base_width_mm / 2
+        for line in specimen.toes:
+            pts = np.asarray(line.points_mm, float)
+            y = np.arange(-half + 1.0, half - 1.0 + 1e-9, TOE_STEP_MM)
+            stations = np.stack([np.interp(y, pts[:, 1], pts[:, 0]), y, np.interp(y, pts[:, 1], pts[:, 2])], axis=1)
+            side, face = np.sign(np.median(pts[:, 0])), np.sign(np.median(pts[:, 2]))
+            across, up = np.array([side, 0.0, 0.0]), np.array([0.0, 0.0, face])
+            outward, normal = (across, up) if line.plate == "base" else (up, across)
+            out.append(_Toe(line.name.removesuffix("-toe"), stations, outward, normal, "two directions"))
+        return out
     out = []
     for side, cap, z_of, normal in (("top", specimen.weld_top, specimen.top_z, (0.0, 0.0, 1.0)),
                                     ("bottom", specimen.weld_bottom, specimen.bottom_z, (0.0, 0.0, -1.0))):
@@ -564,7 +750,7 @@ def _toe_stations(specimen: Specimen) -> list[tuple[str, np.ndarray, np.ndarray,
         for toe, sign in (("neg", -1.0), ("pos", 1.0)):
             x = centre + sign * width / 2
             stations = np.stack([x, y, z_of(x, y)], axis=1)
-            out.append((f"{side}-{toe}", stations, np.array([sign, 0.0, 0.0]), np.array(normal)))
+            out.append(_Toe(f"{side}-{toe}", stations, np.array([sign, 0.0, 0.0]), np.array(normal), "both sides"))
     return out
 
 
@@ -590,7 +776,8 @@ def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: P
     cfg = part.config
     st = cfg.stickers
     margin = ROBOT_MARGIN_MM + req.sticker_tolerance_mm
-    candidates = sticker_candidates(part.specimen, cfg)
+    candidates = tjoint_sticker_candidates(part.specimen, cfg) if isinstance(part.specimen, TJoint) else \
+        sticker_candidates(part.specimen, cfg)
     radius = st.diameter_mm / 2
     # Two passes overlap when the room both see for stickers is wide enough: in a strip of centres
     # h either side of its middle, three stickers lie at most 4/3 h off their best line (two on
@@ -662,17 +849,32 @@ def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: P
         ids = [int(k) for k in stickers.ids if (masks[k] & in_a) and (masks[k] & in_b)]
         spread = spread_off_line_mm(stickers.centres[ids])
         links.append(SetupLink(setups=(a, b), sticker_ids=ids, spread_mm=round(spread, 2)))
-        if len(ids) < req.min_setup_stickers or spread < st.min_spread_mm:
+        need = _setup_stickers_needed(cfg, req)
+        if len(ids) < need or spread < st.min_spread_mm:
             problems.append(f"setups {a} and {b}: {len(ids)} stickers are seen whole from both ({spread:.1f} mm off a "
-                            f"line); {req.min_setup_stickers} not in a line are needed to match them without doubt")
+                            f"line); {need} not in a line are needed to match them without doubt "
+                            f"(min_setup_stickers {req.min_setup_stickers}, and more than the fixture's "
+                            f"{st.n_fixture} stickers, which match themselves, over {RUNNER_UP_RATIO:g})")
     return stickers, overlaps, links, problems
+
+
+RUNNER_UP_RATIO = 0.75
+"""The registration (tasks.matching) refuses to match two setups when a clearly different
+transform brings together this share of the best one's targets: the fixture's stickers, which
+stay put while the part is turned, bring themselves together in both setups."""
+
+
+def _setup_stickers_needed(cfg: SimulationConfig, req: PlanRequirements) -> int:
+    return max(req.min_setup_stickers, math.floor(cfg.stickers.n_fixture / RUNNER_UP_RATIO) + 1)
 
 
 def _link_picks(candidates, masks: np.ndarray, passes: list[PlannedPass], req: PlanRequirements,
                 cfg: SimulationConfig, rng: np.random.Generator) -> tuple[int, ...]:
     """Stickers for the setups to share: among the places passes of every setup see whole, as
     many as ``min_setup_stickers`` and two more, each as far from those already picked as it can
-    be (the first at random), never closer than the stickers' spacing."""
+    be (the first at random), never closer than the stickers' spacing; on a T-joint's or a
+    cruciform's walls (the only faces both setups see) as many as fit ``wall_sticker_pitch_mm``
+    apart."""
     setups = list(req.setups)
     if len(setups) < 2:
         return ()
@@ -684,10 +886,13 @@ def _link_picks(candidates, masks: np.ndarray, passes: list[PlannedPass], req: P
     if pool.size == 0:
         return ()
     spacing = cfg.stickers.spacing_factor * cfg.stickers.diameter_mm
+    count = req.min_setup_stickers + 2
+    if cfg.tjoint is not None:
+        spacing, count = max(spacing, cfg.tjoint.wall_sticker_pitch_mm), len(pool)
     centres = candidates.centres[pool]
     picks = [int(rng.integers(pool.size))]
     nearest = np.linalg.norm(centres - centres[picks[0]], axis=1)
-    while len(picks) < req.min_setup_stickers + 2:
+    while len(picks) < count:
         k = int(np.argmax(nearest))
         if nearest[k] < spacing:
             break
@@ -745,16 +950,22 @@ def plan_scan(config: SimulationConfig, req: PlanRequirements, *,
     tried = 0
     dead: set[tuple] = set()  # family settings whose passes were left without stickers to share
 
-    def keys(choice: _Choice) -> dict[str, tuple]:
+    tjoint = config.tjoint is not None
+
+    def keys(choice) -> dict[str, tuple]:
+        if tjoint:
+            return {"face": ("face", choice.rows, choice.end_roll_deg, choice.end_inset_mm),
+                    "side": ("side", choice.rows, choice.wall_roll_deg),
+                    "weld": ("weld", choice.rows, choice.fillet_rolls_deg), "end": ("end", choice.rows, choice.stem_end)}
         return {"face": ("face", choice.rows), "side": ("side", choice.rows, choice.side_roll_deg, choice.side_aim),
                 "end": ("end", choice.rows, choice.end_pitch_deg, choice.end_inset_mm),
                 "weld": ("weld", choice.rows, choice.weld_pitch_deg, choice.weld_offset_mm, choice.weld_standoff_mm)}
 
-    for choice in _choices(part, req):
+    for choice in (_tjoint_choices if tjoint else _choices)(part, req):
         if any(k in dead for k in keys(choice).values()):
             continue
         tried += 1
-        family = _dog_bone_passes(part, choice, req)
+        family = (_tjoint_passes if tjoint else _dog_bone_passes)(part, choice, req)
         passes = family.passes
         problems = _reach_problems(passes, req) + _resolution_problems(part, passes, family.info, req)
         stage = 0
@@ -794,11 +1005,14 @@ def plan_scan(config: SimulationConfig, req: PlanRequirements, *,
     raise PlanRefused(best[1] if best else ["no candidate plan"])
 
 
-def _as_drawn(specimen: Specimen, stickers: StickerSet) -> tuple[np.ndarray, np.ndarray]:
+def _as_drawn(specimen: Specimen | TJoint, stickers: StickerSet) -> tuple[np.ndarray, np.ndarray]:
     """The stickers' marks on the part as drawn: the planning weld's plate misalignment taken
     out (top and bottom faces flat at +-thickness/2, the walls' heights from the mid-plane), so
-    that a hand (``simulator.run``) puts them on the real part, whatever its misalignment."""
+    that a hand (``simulator.run``) puts them on the real part, whatever its misalignment. A
+    T-joint's faces are drawn flat where stickers go: its marks are where they were placed."""
     centres, normals = stickers.centres.copy(), stickers.normals.copy()
+    if isinstance(specimen, TJoint):
+        return centres, normals
     half_t = specimen.config.thickness_mm / 2
     for face, z in ((Face.TOP, half_t), (Face.BOTTOM, -half_t)):
         on = stickers.faces == face
@@ -822,7 +1036,10 @@ def _scan_plan(config, req, passes, info, stickers, overlaps, links, faces, toes
                                  normal=tuple(round(float(v), 6) for v in normal))
                      for row, (k, centre, normal) in enumerate(zip(stickers.ids, *_as_drawn(specimen, stickers)))]
     keep_out = specimen.weld_zone_half_mm() + config.stickers.weld_clearance_mm
-    c = specimen.weld_top.centre_x_mm
+    if isinstance(specimen, TJoint):  # about the stem, x = 0
+        c, keep_out = 0.0, keep_out + specimen.config.stem_thickness_mm / 2
+    else:
+        c = specimen.weld_top.centre_x_mm
     return ScanPlan(part=config, requirements=req, passes=plan_passes, stickers=plan_stickers, overlaps=overlaps,
                     no_sticker_x_mm=(round(c - keep_out, 3), round(c + keep_out, 3)),
                     setup_links=links, faces=faces, toes=toes,

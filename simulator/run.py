@@ -44,7 +44,7 @@ from simulator.scanner import LineScanner
 from simulator.scene import Scene, StickerSet
 from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
 from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
-from simulator.tjoint import (build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
+from simulator.tjoint import (TJoint, build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
                               tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
 
 __all__ = ["SimulationSummary", "simulate", "plan_config", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
@@ -241,10 +241,11 @@ def plan_config(plan: ScanPlan, *, seed: int | None = None, sample_id: str | Non
     return plan.part.model_copy(update=update)
 
 
-def _stickers_by_hand(plan: ScanPlan, specimen: Specimen, rng: np.random.Generator) -> StickerSet:
+def _stickers_by_hand(plan: ScanPlan, specimen: Specimen | TJoint, rng: np.random.Generator) -> StickerSet:
     """The plan's stickers as a hand puts them from the printed map on the real part: each within
-    the plan's sticker tolerance of its mark (uniform over the disc), flat on its face (the
-    plates' misalignment and the walls' taper followed)."""
+    the plan's sticker tolerance of its mark (uniform over the disc), flat on its face (a
+    dog-bone's plates' misalignment and its walls' taper followed; a T-joint's faces are flat
+    where stickers go)."""
     marks = plan_sticker_set(plan)
     tol = plan.requirements.sticker_tolerance_mm
     n = marks.normals
@@ -256,6 +257,9 @@ def _stickers_by_hand(plan: ScanPlan, specimen: Specimen, rng: np.random.Generat
     angle = rng.uniform(0, 2 * np.pi, len(n))
     centres = marks.centres + (radius * np.cos(angle))[:, None] * u + (radius * np.sin(angle))[:, None] * v
     normals = marks.normals.copy()
+    if isinstance(specimen, TJoint):
+        return StickerSet(centres=centres, normals=normals, ids=marks.ids, faces=marks.faces,
+                          radius_mm=marks.radius_mm, thickness_mm=marks.thickness_mm)
     eps = 0.05
     for face, z_of, sign in ((Face.TOP, specimen.top_z, 1.0), (Face.BOTTOM, specimen.bottom_z, -1.0)):
         on = marks.faces == face

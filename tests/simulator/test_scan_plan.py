@@ -1,6 +1,7 @@
 """``weldrecon plan``: a plan of the ci coupon that meets its requirements, its folder's files,
 its scan in the simulated cell (the guarantee checked against the truth), and the plans it
-refuses, naming the face or pass pair."""
+refuses, naming the face or pass pair; a T-joint's plan likewise, its fillets' toes measured
+from two directions."""
 
 from __future__ import annotations
 
@@ -170,11 +171,6 @@ def test_simulate_names_the_field_of_a_broken_plan(plan_dir, tmp_path):
     assert done.returncode == 2 and "leave out --preset" in done.stderr
 
 
-def test_a_part_the_planner_has_no_passes_for_is_refused_not_planned_badly():
-    with pytest.raises(PlanRefused, match=r"part: a T-joint is not planned yet"):
-        plan_scan(preset_config("tjoint"), PlanRequirements())
-
-
 def test_toes_are_seen_from_both_sides_only_by_passes_leaning_across_them(ci_plan):
     """Known answers: rows straight down (the plan's own face rows, alone) light no toe from either
     side; its two sweeps along the weld, pitched either way, light every toe from both."""
@@ -220,3 +216,131 @@ def test_a_samples_manifest_is_a_part_to_plan(ci_sample, tmp_path):
     done = weldrecon("plan", str(tjoint), "--out", str(tmp_path / "refused"))
     assert done.returncode == 2 and not (tmp_path / "refused").exists()
     assert f"{tjoint}: part: plate is not planned yet" in done.stderr
+
+
+# --- a T-joint ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tjoint_plan() -> ScanPlan:
+    return plan_scan(preset_config("tjoint"), PlanRequirements())
+
+
+def _hand_tjoint_passes(config):
+    from simulator.tjoint import plan_tjoint_passes
+
+    return plan_tjoint_passes(config, z_top_mm=config.fixture.block_size_mm[2] + config.tjoint.base_thickness_mm,
+                              setups=tuple(config.plan.setups))
+
+
+def test_a_t_joint_plan_sees_every_face_and_both_toes_of_each_fillet_from_two_directions(tjoint_plan):
+    req, stickers = tjoint_plan.requirements, tjoint_plan.part.stickers
+    assert {t.toe for t in tjoint_plan.toes} == {f"fillet-{s}-{p}" for s in ("neg", "pos") for p in ("base", "stem")}
+    assert all(t.rule == "two directions" and t.both_sides >= req.toe_coverage for t in tjoint_plan.toes)
+    assert {f.face for f in tjoint_plan.faces} == {"top", "bottom", "side_neg", "side_pos", "end_neg", "end_pos",
+                                                    "stem_neg", "stem_pos", "stem_top", "weld"}
+    assert all(f.seen >= req.face_coverage for f in tjoint_plan.faces)
+    by_id = {s.sticker_id: np.array(s.centre_mm) for s in tjoint_plan.stickers}
+    for o in tjoint_plan.overlaps:
+        assert len(o.sticker_ids) >= stickers.min_common
+        assert spread_off_line_mm(np.array([by_id[k] for k in o.sticker_ids])) >= stickers.min_spread_mm
+    # the setups share stickers on the base plate's walls only (the only faces both see), more of
+    # them than the fixture's stickers (which match themselves when the part is turned) over 0.75
+    (link,) = tjoint_plan.setup_links
+    faces = {s.sticker_id: s.face for s in tjoint_plan.stickers}
+    assert {faces[k] for k in link.sticker_ids} <= {"side_neg", "side_pos", "end_neg", "end_pos"}
+    assert len(link.sticker_ids) > stickers.n_fixture / 0.75 and len(link.sticker_ids) >= req.min_setup_stickers
+    # no sticker in a weld's keep-out: on the base beyond it, on the stem above it
+    keep = tjoint_plan.no_sticker_x_mm[1]
+    x0 = tjoint_plan.part.tjoint.stem_thickness_mm / 2
+    z0 = tjoint_plan.part.tjoint.base_thickness_mm / 2
+    for s in tjoint_plan.stickers:
+        if s.face == "top":
+            assert abs(s.centre_mm[0]) > keep + stickers.diameter_mm / 2 - 1e-6
+        if s.face.startswith("stem_"):
+            assert s.centre_mm[2] > z0 + keep - x0 + stickers.diameter_mm / 2 - 1e-6
+    hand = _hand_tjoint_passes(preset_config("tjoint"))
+    assert tjoint_plan.scan_time_s < sum(p.duration_s for p in hand)
+
+
+def test_a_t_joint_plans_folder_and_its_simulated_scan_keep_the_promise(tjoint_plan, tmp_path):
+    folder = write_plan_folder(tjoint_plan, tmp_path / "plan")
+    setups = json.loads((folder / "manifest_setups.json").read_text())["setups"]
+    assert [s["name"] for s in setups] == ["top", "bottom"] and "stem up" in setups[0]["description"]
+    for face in {s.face for s in tjoint_plan.stickers}:
+        svg = (folder / f"stickers-{face}.svg").read_text()
+        assert svg.count("<circle") == sum(1 for s in tjoint_plan.stickers if s.face == face)
+        w, h = (float(v) for v in re.search(r'viewBox="0 0 ([\d.]+) ([\d.]+)"', svg).groups())
+        assert f'width="{w:.1f}mm" height="{h:.1f}mm"' in svg  # 1 unit = 1 mm
+    # the top face from above, 15 mm of paper around it: a mark where the sticker goes
+    tj = tjoint_plan.part.tjoint
+    top = next(s for s in tjoint_plan.stickers if s.face == "top")
+    svg = (folder / "stickers-top.svg").read_text()
+    x, y = top.centre_mm[0] + tj.base_length_mm / 2 + 15.0, 15.0 + tj.base_width_mm / 2 - top.centre_mm[1]
+    assert f'<circle cx="{x:.3f}" cy="{y:.3f}"' in svg
+    plan = read_plan(folder)
+    sample = simulate(plan_config(plan, sample_id="sim-tjoint-plan"), tmp_path / "sample", previews=False,
+                      plan=plan).out_dir
+    truth = read_truth(sample / "truth" / "truth.json")
+    assert sum(1 for s in truth.stickers if s.on == "specimen") == len(plan.stickers)
+    for o in plan.overlaps:
+        assert set(o.sticker_ids) <= set(truth.common_stickers[f"{o.pass_a}|{o.pass_b}"]), (o.pass_a, o.pass_b)
+    manifest = load_manifest(sample)
+    assert manifest.specimen.kind == "t-joint"
+    assert [p.pass_id for _, p in manifest.passes()] == [p.pass_id for p in plan.passes]
+
+
+def test_a_fillets_toes_are_measured_from_two_directions_only_by_passes_that_give_them(tjoint_plan):
+    """Known answers on the T-joint: the rows straight down over the base alone see its base toes
+    from one direction and its stem toes (the stem's face edge-on) not at all; the two passes
+    along one fillet, rolled toward it at two angles, measure both its toes from two directions
+    and the other fillet's from none."""
+    from simulator.planner import evaluate_passes, planned_passes
+
+    passes = planned_passes(tjoint_plan)
+    info = {p.pass_id: p for p in tjoint_plan.passes}
+    rows = [p for p in passes if info[p.pass_id].purpose == "face" and p.setup == "top"
+            and abs(info[p.pass_id].roll_deg) < 1e-6]
+    alone = {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, rows, stickers=False).toes}
+    for side in ("neg", "pos"):
+        assert alone[f"fillet-{side}-base"].plate_side > 0.9 and alone[f"fillet-{side}-base"].both_sides == 0
+        assert alone[f"fillet-{side}-stem"].both_sides == 0
+    # the passes along the fillet at +x: rolled toward -x (their views lean that way)
+    fillet_pos = [p for p in passes if info[p.pass_id].purpose == "weld" and p.setup == "top"
+                  and p.T_world_sensor_start[0, 2] < 0]
+    assert len(fillet_pos) == 2
+    two = {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, fillet_pos,
+                                             stickers=False).toes}
+    assert two["fillet-pos-base"].both_sides == 1.0 and two["fillet-pos-stem"].both_sides == 1.0
+    assert two["fillet-neg-base"].both_sides == 0 and two["fillet-neg-stem"].both_sides == 0
+    one = {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, fillet_pos[:1],
+                                             stickers=False).toes}
+    assert one["fillet-pos-stem"].plate_side == 1.0 and one["fillet-pos-stem"].both_sides == 0
+
+
+def test_a_t_joint_the_robot_cannot_lean_to_is_refused_naming_its_fillets():
+    with pytest.raises(PlanRefused) as refused:
+        plan_scan(preset_config("tjoint"), PlanRequirements(reach=ReachModel(max_tilt_deg=30.0)))
+    assert any(p.startswith("the fillets' toes: the passes along them lean 30 to 65 deg") for p in refused.value.problems)
+
+
+def test_a_t_joint_or_cruciform_manifest_is_a_part_to_plan(tmp_path):
+    """A manifest's T-joint (or cruciform) is planned as drawn: its plates' figures, its scanner,
+    stickers and speed; a stem off the base plate's middle is refused naming the field."""
+    from simulator.planner import part_from_manifest
+    from simulator.run import _manifest
+
+    for preset in ("tjoint", "cruciform"):
+        config = preset_config(preset)
+        manifest = _manifest(config, _hand_tjoint_passes(config), {})
+        part = part_from_manifest(manifest, source="manifest.json")
+        for name in ("stems", "base_length_mm", "base_width_mm", "base_thickness_mm", "stem_height_mm",
+                     "stem_thickness_mm"):
+            assert getattr(part.tjoint, name) == getattr(config.tjoint, name), name
+        assert part.scanner.points_per_profile == config.scanner.points_per_profile
+        assert part.robot.profile_spacing_mm == pytest.approx(config.robot.profile_spacing_mm)
+        assert part.stickers.diameter_mm == config.stickers.diameter_mm
+        assert part.fixture.block_size_mm[2] > config.tjoint.stem_height_mm  # turned over, the stem hangs free
+    off = manifest.model_copy(update={"specimen": manifest.specimen.model_copy(update={"stem_x_mm": 20.0})})
+    with pytest.raises(PlanRefused, match=r"manifest.json: specimen: the planner draws the stem .* \(stem_x_mm 0\); this part's is at 20 mm"):
+        part_from_manifest(off, source="manifest.json")
