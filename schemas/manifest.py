@@ -418,6 +418,28 @@ AnyPass = Annotated[Union[PassEntry, ScanEntry], WrapValidator(_pass_of_its_kind
 REGISTRATIONS = ("targets", "surfaces")
 
 
+class PositionerTurn(StrictModel):
+    """This setup is an earlier one's turned by the cell's positioner instead of by hand: the part,
+    still clamped, turned ``angle_deg`` (right-handed) about the positioner's axis, the line
+    through ``axis_point_mm`` along ``axis_direction`` in the cell's frame, as calibrated. The
+    registration takes the turn as its prior for matching this setup to ``from_setup`` and checks
+    it against the stickers both see: a sticker must lie within ``tolerance_mm`` (the calibration's
+    error at the part) and the robot's coarse error (``registration.max_offset_mm``) of where the
+    turn puts it; the axis the stickers give is reported beside the calibrated one."""
+
+    from_setup: str = Field(pattern=_ID_PATTERN)
+    axis_point_mm: Vector3
+    axis_direction: Vector3
+    angle_deg: float = Field(ge=-360, le=360)
+    tolerance_mm: float = Field(default=1.0, gt=0, le=50)
+
+    @model_validator(mode="after")
+    def _direction(self) -> "PositionerTurn":
+        if not math.isfinite(sum(self.axis_direction)) or math.hypot(*self.axis_direction) < 1e-9:
+            raise ValueError("axis_direction must be a nonzero vector")
+        return self
+
+
 class Setup(StrictModel):
     """One placement of the specimen in the cell; the robot frame ('world') is the cell's.
 
@@ -432,6 +454,16 @@ class Setup(StrictModel):
     T_world_specimen_nominal: Pose4x4 | None = None
     placement_tolerance_mm: float = Field(default=0.0, ge=0, le=1000, description=(
         "how far the specimen's weld lines may lie from where T_world_specimen_nominal puts them"))
+    positioner: PositionerTurn | None = Field(default=None, description=(
+        "this setup is an earlier one's turned by the cell's positioner (not by hand)"))
+
+    @model_serializer(mode="wrap")
+    def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Written as before positioners for a setup turned by hand."""
+        data = handler(self)
+        if data.get("positioner", 0) is None:
+            data.pop("positioner")
+        return data
 
 
 class LoadCase(StrictModel):
@@ -496,6 +528,10 @@ class SampleManifest(StrictModel):
         setups = [s.name for s in self.setups]
         if len(set(setups)) != len(setups):
             raise ValueError(f"setup names must be unique, got {setups}")
+        for k, s in enumerate(self.setups):
+            if s.positioner is not None and s.positioner.from_setup not in setups[:k]:
+                raise ValueError(f"setups.{k}.positioner.from_setup: {s.positioner.from_setup!r} is not a setup "
+                                 f"before {s.name!r} (expected one of {setups[:k]})")
         ids = [p.pass_id for s in self.setups for p in s.passes]
         dupes = sorted({i for i in ids if ids.count(i) > 1})
         if dupes:

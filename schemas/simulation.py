@@ -213,6 +213,25 @@ class ScanPlanConfig(StrictModel):
         return self
 
 
+class PositionerConfig(StrictModel):
+    """A positioner turns the part between its setups instead of a hand: the part stays clamped
+    (its jaws drawn as the support blocks under its grips) and its second setup is its first
+    turned ``angle_deg`` about the positioner's axis. ``axis_point_mm`` and ``axis_direction``
+    are the axis as calibrated (the manifest's, cell frame; the point None: along the part's
+    length through its mid-plane at its nominal placement); the true axis differs from it by a
+    random offset (``axis_error_mm``, one sigma, across the axis), tilt (``axis_error_deg``) and
+    angle (``angle_error_deg``)."""
+
+    axis_point_mm: tuple[float, float, float] | None = None
+    axis_direction: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    angle_deg: float = Field(default=180.0, ge=-360, le=360)
+    axis_error_mm: float = Field(default=0.05, ge=0, le=10)
+    axis_error_deg: float = Field(default=0.02, ge=0, le=5)
+    angle_error_deg: float = Field(default=0.01, ge=0, le=5)
+    tolerance_mm: float = Field(default=1.0, gt=0, le=50, description=(
+        "the manifest's: how far a sticker may lie from where the calibrated turn puts it"))
+
+
 class PlacementConfig(StrictModel):
     """How far the hand placement of each setup strays from the nominal one."""
 
@@ -287,6 +306,8 @@ class SimulationConfig(StrictModel):
     tjoint: TJointConfig | None = Field(default=None, description=(
         "simulate a T-joint or a cruciform joint (simulator.tjoint) instead of the dog-bone of ``specimen``"))
     chunk_profiles: int = Field(default=256, ge=1, le=100000, description="profiles per zarr chunk and per render batch")
+    positioner: PositionerConfig | None = Field(default=None, description=(
+        "the part turned between its setups by a positioner instead of by hand"))
 
     @model_validator(mode="after")
     def _possible(self) -> "SimulationConfig":
@@ -316,6 +337,10 @@ class SimulationConfig(StrictModel):
 
     def simulation_json(self) -> str:
         """The config as ``truth/simulation.json`` holds it: a dog-bone's without ``tjoint`` (as
-        before T-joints existed), a T-joint's without ``tjoint.stems`` (as before cruciforms)."""
-        exclude = {"tjoint"} if self.tjoint is None else {"tjoint": {"stems"}} if self.tjoint.stems == "one" else None
-        return self.model_dump_json(indent=2, exclude=exclude) + "\n"
+        before T-joints existed), a T-joint's without ``tjoint.stems`` (as before cruciforms),
+        without ``positioner`` when the part is turned by hand."""
+        exclude: dict = {"tjoint": True} if self.tjoint is None else \
+            {"tjoint": {"stems"}} if self.tjoint.stems == "one" else {}
+        if self.positioner is None:  # as before positioners
+            exclude["positioner"] = True
+        return self.model_dump_json(indent=2, exclude=exclude or None) + "\n"

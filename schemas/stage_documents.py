@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
 from schemas.common import StrictModel
 from schemas.provenance import StageName
@@ -28,14 +28,41 @@ class PassPair(StrictModel):
     common_targets: int
 
 
+class MeasuredTurn(StrictModel):
+    """How the part was turned between two setups, from the registered stickers (tasks.graph.setup_turn):
+    a screw about the line through ``axis_point_mm`` (its point nearest the calibrated axis point)
+    along ``axis_direction`` (cell frame), by ``angle_deg``, sliding ``slide_mm`` along it."""
+
+    axis_point_mm: tuple[float, float, float]
+    axis_direction: tuple[float, float, float]
+    angle_deg: float
+    slide_mm: float
+
+
 class SetupEvidence(StrictModel):
     """Why a turned setup's match is no chance agreement: the targets it brought together against
-    the most a clearly different transform did."""
+    the most a clearly different transform did. A setup turned by a positioner (``prior``) is
+    matched on the positioner's calibrated turn: ``prior_difference_deg`` and ``_mm`` say how far
+    the stickers' own match lies from it, ``turn`` the turn the stickers give (the axis's
+    calibration, checked)."""
 
     a: str
     b: str
     targets: int
     runner_up: int
+    prior: Literal["positioner"] | None = None
+    prior_difference_deg: float | None = None
+    prior_difference_mm: float | None = None
+    turn: MeasuredTurn | None = None
+
+    @model_serializer(mode="wrap")
+    def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Written as before positioners for a setup turned by hand."""
+        data = handler(self)
+        for key in ("prior", "prior_difference_deg", "prior_difference_mm", "turn"):
+            if data.get(key, 0) is None:
+                data.pop(key)
+        return data
 
 
 class RegistrationSummary(StrictModel):

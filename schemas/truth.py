@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
 from schemas.common import Pose4x4, StrictModel, Vector3
 
@@ -66,6 +66,17 @@ class TruePass(StrictModel):
     label_counts: dict[str, int]
 
 
+class TruePositioner(StrictModel):
+    """The positioner's true turn between two setups: ``setup`` is ``from_setup`` turned
+    ``angle_deg`` about the line through ``axis_point_mm`` along ``axis_direction`` (cell frame)."""
+
+    from_setup: str
+    setup: str
+    axis_point_mm: Vector3
+    axis_direction: Vector3
+    angle_deg: float
+
+
 class GroundTruth(StrictModel):
     schema_version: Literal["1.0"] = TRUTH_SCHEMA_VERSION
     sample_id: str
@@ -78,6 +89,15 @@ class GroundTruth(StrictModel):
     passes: list[TruePass]
     overlapping_pairs: list[tuple[str, str]]
     common_stickers: dict[str, list[int]] = Field(description="'A|B' -> sticker ids both passes see whole")
+    positioner: "TruePositioner | None" = Field(default=None, description="the positioner's true turn, if it turned the part")
+
+    @model_serializer(mode="wrap")
+    def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """Written as before positioners when the part was turned by hand."""
+        data = handler(self)
+        if data.get("positioner", 0) is None:
+            data.pop("positioner")
+        return data
 
 
 class WeldSectionDetail(StrictModel):

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas.simulation import FixtureConfig, PlacementConfig
+from schemas.manifest import PositionerTurn
+from schemas.simulation import FixtureConfig, PlacementConfig, SimulationConfig
 from simulator.specimen import Specimen
 from tasks.frames import apply, make_pose, rotation_deg, translation
 
-__all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "FLIP"]
+__all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "positioner_turn", "FLIP"]
 
 FLIP = make_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
 """Turned over by hand: 180 degrees about the specimen's length axis."""
@@ -55,3 +56,14 @@ def place_on_fixture(specimen: Specimen, fixture: FixtureConfig, placement: Plac
         T = translation(centre) @ rotation_deg("y", pitch) @ translation(-centre) @ T
     z = _contact_heights(apply(T, vertices), fixture).min()
     return translation([0.0, 0.0, fixture.block_size_mm[2] - z]) @ T
+
+
+def positioner_turn(config: SimulationConfig, *, from_setup: str) -> PositionerTurn:
+    """The positioner's turn as calibrated (the manifest's): its axis by default along the part's
+    length through its mid-plane at the nominal placement."""
+    pc = config.positioner
+    thickness = config.specimen.thickness_mm if config.tjoint is None else config.tjoint.base_thickness_mm
+    point = pc.axis_point_mm if pc.axis_point_mm is not None else (0.0, 0.0, config.fixture.block_size_mm[2] + thickness / 2)
+    return PositionerTurn(from_setup=from_setup, axis_point_mm=tuple(float(v) for v in point),
+                          axis_direction=tuple(float(v) for v in pc.axis_direction), angle_deg=pc.angle_deg,
+                          tolerance_mm=pc.tolerance_mm)

@@ -27,9 +27,10 @@ from data_catalog.atomic import atomic_directory
 from schemas.manifest import Setup
 from schemas.scan_plan import ScanPlan
 from schemas.simulation import PlacementConfig
-from simulator.placement import nominal_placement, placement_tolerance_mm
+from simulator.placement import nominal_placement, placement_tolerance_mm, positioner_turn
 from simulator.planner import planned_passes
 from simulator.robot import pass_entry
+from tasks.frames import turn_about_axis
 from tasks.pass_coverage import dog_bone_half_width
 
 __all__ = ["PLAN_NAME", "write_plan_folder", "read_plan", "PlanFolderError", "manifest_setups"]
@@ -78,10 +79,17 @@ def manifest_setups(plan: ScanPlan) -> list[Setup]:
         description = (f"{up}, against the fixture's stops" if setup == "top" or tj is not None else
                        "turned 180 deg about its length, against the fixture's stops")
         nominal = nominal_placement(cfg.fixture, thickness, flipped=(setup == "bottom"))
+        turn = None
+        if cfg.positioner is not None and out:  # turned by the positioner, as simulator.run's manifest says
+            turn = positioner_turn(cfg, from_setup=out[0].name)
+            description = f"turned {turn.angle_deg:g} deg by the positioner, still clamped"
+            nominal = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg) @ \
+                nominal_placement(cfg.fixture, thickness, flipped=False)
         placement = PlacementConfig(translation_mm=req.placement_tolerance_mm, yaw_deg=req.placement_yaw_deg)
         tol = placement_tolerance_mm(placement, half_width)
         out.append(Setup(name=setup, description=description, passes=entries,
-                         T_world_specimen_nominal=nominal.tolist(), placement_tolerance_mm=round(tol, 3)))
+                         T_world_specimen_nominal=nominal.tolist(), placement_tolerance_mm=round(tol, 3),
+                         positioner=turn))
     return out
 
 
@@ -347,7 +355,7 @@ def plan_page(plan: ScanPlan, maps: dict[str, str]) -> str:
                  ["stickers", f"{plan.part.stickers.min_common} whole per overlapping pass pair, "
                               f"{plan.part.stickers.min_spread_mm:g} mm off a line, put within "
                               f"{req.sticker_tolerance_mm:g} mm of their marks; {req.min_setup_stickers} shared by "
-                              f"the setups, and more than the fixture's {plan.part.stickers.n_fixture} over 0.75"],
+                              "the setups"],
                  ["robot", f"TCP within {list(req.reach.workspace_min_mm)}..{list(req.reach.workspace_max_mm)} mm, "
                            f"view at most {req.reach.max_tilt_deg:g} deg from straight down"]]),
              "<h2>Predicted coverage</h2>",

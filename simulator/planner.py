@@ -380,6 +380,8 @@ class _TChoice:
     fillet_rolls_deg: tuple[float, float]  # the two passes along each fillet, rolled toward it
     wall_roll_deg: float  # one pass along each long wall of the base, rolled toward it
     stem_end: bool  # a pass along the stem's end, straight down (its end face seen)
+    stem_roll_deg: float | None = None  # a pass along each stem face's upper half, rolled toward it; the
+    # fillets' steeper passes then aimed at the toes (without: reaching up to the stem's end)
 
 
 TJOINT_END_ROLLS_DEG = (35.0, 30.0, 40.0)
@@ -443,11 +445,17 @@ def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Fam
                     r = math.radians(roll)
                     if roll < 55:  # at the weld's face: the base toe, the stem toe
                         reach, rise = leg / 2, leg / 2
+                    elif choice.stem_roll_deg is not None:  # at the stem toe
+                        reach, rise = leg / 4, leg * 1.5
                     else:  # at the stem, its line up to the stem's end (its toe well inside the line)
                         up = ref * math.cos(r) - ref * math.sin(r) / math.tan(r + 0.9 * phi)
                         reach, rise = leg / 4, max(leg * 1.5, tj.stem_height_mm + 2.0 - up)
                     along_y(setup, "weld", f"along the fillet, rolled {roll:g} toward it", side * (x0 + reach),
                             z_top + rise, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
+                if choice.stem_roll_deg is not None:
+                    r = math.radians(choice.stem_roll_deg)
+                    along_y(setup, "end", f"along the stem's face, rolled {choice.stem_roll_deg:g} toward it",
+                            side * x0, z_top + 0.7 * tj.stem_height_mm, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
             if choice.stem_end:
                 along_y(setup, "end", "along the stem's end", 0.0, z_top + tj.stem_height_mm, np.array([0.0, 0.0, -1.0]))
         else:  # the flat side up: one pass along its length, over its middle, ties every row
@@ -849,23 +857,10 @@ def _place(part: _Part, passes: list[PlannedPass], coverage: CoverageMap, req: P
         ids = [int(k) for k in stickers.ids if (masks[k] & in_a) and (masks[k] & in_b)]
         spread = spread_off_line_mm(stickers.centres[ids])
         links.append(SetupLink(setups=(a, b), sticker_ids=ids, spread_mm=round(spread, 2)))
-        need = _setup_stickers_needed(cfg, req)
-        if len(ids) < need or spread < st.min_spread_mm:
+        if len(ids) < req.min_setup_stickers or spread < st.min_spread_mm:
             problems.append(f"setups {a} and {b}: {len(ids)} stickers are seen whole from both ({spread:.1f} mm off a "
-                            f"line); {need} not in a line are needed to match them without doubt "
-                            f"(min_setup_stickers {req.min_setup_stickers}, and more than the fixture's "
-                            f"{st.n_fixture} stickers, which match themselves, over {RUNNER_UP_RATIO:g})")
+                            f"line); {req.min_setup_stickers} not in a line are needed to match them without doubt")
     return stickers, overlaps, links, problems
-
-
-RUNNER_UP_RATIO = 0.75
-"""The registration (tasks.matching) refuses to match two setups when a clearly different
-transform brings together this share of the best one's targets: the fixture's stickers, which
-stay put while the part is turned, bring themselves together in both setups."""
-
-
-def _setup_stickers_needed(cfg: SimulationConfig, req: PlanRequirements) -> int:
-    return max(req.min_setup_stickers, math.floor(cfg.stickers.n_fixture / RUNNER_UP_RATIO) + 1)
 
 
 def _link_picks(candidates, masks: np.ndarray, passes: list[PlannedPass], req: PlanRequirements,

@@ -29,15 +29,15 @@ from data_catalog.hashing import sha256_tree
 from data_catalog.manifests import MANIFEST_NAME, write_manifest
 from data_catalog.passes import PassWriter
 from data_catalog.truth import FILLET_TRUTH_NAME, TRUTH_DIR, WELD_TRUTH_NAME, TruthPassWriter, write_truth, write_weld_truth
-from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, SampleManifest, ScannerSettings, Setup,
-                              WeldDescription, dog_bone_weld_lines)
+from schemas.manifest import (MANIFEST_SCHEMA_VERSION, DogBoneSpecimen, PositionerTurn, SampleManifest, ScannerSettings,
+                              Setup, WeldDescription, dog_bone_weld_lines)
 from schemas.scan_plan import ScanPlan
 from schemas.simulation import PlacementConfig, ScanPlanConfig, SimulationConfig
-from schemas.truth import (GroundTruth, PointLabel, TruePass, TrueSticker, TrueToeLines, WeldSection, WeldSectionDetail,
-                           WeldTruth)
+from schemas.truth import (GroundTruth, PointLabel, TruePass, TruePositioner, TrueSticker, TrueToeLines, WeldSection,
+                           WeldSectionDetail, WeldTruth)
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
-from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm
+from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm, positioner_turn
 from simulator.planner import plan_sticker_set, planned_passes
 from simulator.robot import PassMotion, PlannedPass, draw_motion, pass_entry, plan_passes
 from simulator.scanner import LineScanner
@@ -46,6 +46,7 @@ from simulator.specimen import Face, Specimen, SurfaceMesh, build_specimen
 from simulator.stickers import Candidates, place_fixture_stickers, place_stickers, sticker_candidates
 from simulator.tjoint import (TJoint, build_tjoint, place_tjoint_fixture_stickers, plan_tjoint_passes, tjoint_specimen,
                               tjoint_sticker_candidates, tjoint_weld_lines, wall_sticker_picks)
+from tasks.frames import turn_about_axis
 
 __all__ = ["SimulationSummary", "simulate", "plan_config", "COVERAGE_CELL_MM", "SCAN_DATE", "TOES_NAME"]
 
@@ -186,9 +187,16 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
         thickness, half_width = (sp.thickness_mm, sp.grip_width_mm / 2) if tj is None else \
             (tj.base_thickness_mm, tj.base_width_mm / 2)
         nominal = nominal_placement(config.fixture, thickness, flipped=(setup == "bottom"))
+        turn = None
+        if config.positioner is not None and setups:
+            turn = positioner_turn(config, from_setup=setups[0].name)
+            description = f"turned {turn.angle_deg:g} deg by the positioner, still clamped"
+            nominal = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg) @ \
+                nominal_placement(config.fixture, thickness, flipped=False)
         setups.append(Setup(name=setup, description=description, passes=entries,
                             T_world_specimen_nominal=nominal.tolist(),
-                            placement_tolerance_mm=round(placement_tolerance_mm(config.placement, half_width), 3)))
+                            placement_tolerance_mm=round(placement_tolerance_mm(config.placement, half_width), 3),
+                            positioner=turn))
     if config.tjoint is not None:
         specimen = tjoint_specimen(config.tjoint)
         weld = WeldDescription(joint="double fillet" if config.tjoint.stems == "one" else "cruciform fillet",
@@ -225,6 +233,27 @@ def _live_directory(path: Path) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(path, ignore_errors=True)
         raise
+
+
+def _true_turn(turn: PositionerTurn, config: SimulationConfig, rng: np.random.Generator) -> TruePositioner:
+    """The positioner's true axis: the calibrated one moved across itself (``axis_error_mm``, one
+    sigma each way), tilted (``axis_error_deg`` about a random direction across it) and its angle
+    off by ``angle_error_deg`` (one sigma)."""
+    pc = config.positioner
+    d = np.asarray(turn.axis_direction, float)
+    d /= np.linalg.norm(d)
+    u = np.cross(d, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    a, b = rng.normal(0.0, pc.axis_error_mm, 2)
+    point = np.asarray(turn.axis_point_mm, float) + a * u + b * v
+    tilt = np.radians(rng.normal(0.0, pc.axis_error_deg))
+    phi = rng.uniform(0.0, 2 * np.pi)
+    across = np.cos(phi) * u + np.sin(phi) * v
+    direction = np.cos(tilt) * d + np.sin(tilt) * across
+    angle = turn.angle_deg + rng.normal(0.0, pc.angle_error_deg)
+    return TruePositioner(from_setup=turn.from_setup, setup="", axis_point_mm=tuple(float(x) for x in point),
+                          axis_direction=tuple(float(x) for x in direction), angle_deg=float(angle))
 
 
 def plan_config(plan: ScanPlan, *, seed: int | None = None, sample_id: str | None = None) -> SimulationConfig:
@@ -298,7 +327,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     if out_dir.exists():
         raise FileExistsError(f"{out_dir} already exists; refusing to overwrite it")
     t0 = time.perf_counter()
-    seeds = np.random.SeedSequence(config.seed).spawn(5)
+    seeds = np.random.SeedSequence(config.seed).spawn(6)  # the first five as before the positioner's
     rng_specimen, rng_place, rng_stickers, rng_fixture = (np.random.default_rng(s) for s in seeds[:4])
 
     tj = config.tjoint
@@ -309,6 +338,14 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
     fixture_mesh = build_fixture(config.fixture)
     T_world_specimen = {setup: place_on_fixture(specimen, config.fixture, config.placement, rng_place,
                                                 flipped=(setup == "bottom")) for setup in ("top", "bottom")}
+    true_turn = None
+    if config.positioner is not None:  # the later setups: the first turned by the positioner's true axis
+        first, *later = config.plan.setups
+        for setup in later:
+            true_turn = _true_turn(positioner_turn(config, from_setup=first), config,
+                                   np.random.default_rng(seeds[5])).model_copy(update={"setup": setup})
+            T_world_specimen[setup] = turn_about_axis(true_turn.axis_point_mm, true_turn.axis_direction,
+                                                      true_turn.angle_deg) @ T_world_specimen[first]
     if plan is not None:
         planned = planned_passes(plan)
     elif tj is None:
@@ -435,6 +472,7 @@ def simulate(config: SimulationConfig, out_dir: Path, *, progress: Callable[[str
             passes=true_passes,
             overlapping_pairs=[(planned[i].pass_id, planned[j].pass_id) for i, j in final_pairs],
             common_stickers=common,
+            positioner=true_turn,
         )
         write_truth(tmp / TRUTH_DIR / "truth.json", truth)
         if tj is None:  # the drawn butt weld, section by section

@@ -58,3 +58,34 @@ def frame_from_axes(x_axis, y_axis, z_axis, origin) -> np.ndarray:
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
         raise ValueError("axes must be orthonormal and right-handed")
     return make_pose(R, np.asarray(origin, dtype=float))
+
+
+def turn_about_axis(point_mm, direction, angle_deg: float) -> np.ndarray:
+    """(4, 4): a turn of ``angle_deg`` (right-handed) about the line through ``point_mm`` along
+    ``direction``."""
+    from scipy.spatial.transform import Rotation
+
+    d = np.asarray(direction, float)
+    R = Rotation.from_rotvec(np.radians(angle_deg) * d / np.linalg.norm(d)).as_matrix()
+    c = np.asarray(point_mm, float)
+    return make_pose(R, c - R @ c)
+
+
+def screw_axis(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The turn ``T`` (4, 4) as a screw: (a point of its axis, the one nearest the origin; its unit
+    direction, the angle positive about it; the angle, degrees, in (0, 180]; the slide along the
+    axis, mm). Undefined for a turn under a few hundredths of a degree."""
+    from scipy.spatial.transform import Rotation
+
+    rotvec = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    angle = float(np.linalg.norm(rotvec))
+    if angle < 1e-6:
+        raise ValueError("no turn: the axis of an identity rotation is undefined")
+    d = rotvec / angle
+    t = T[:3, 3]
+    slide = float(t @ d)
+    # (I - R) c = t - slide d, with c perpendicular to d: least squares (I - R is singular along d)
+    A = np.vstack([np.eye(3) - T[:3, :3], d[None]])
+    b = np.concatenate([t - slide * d, [0.0]])
+    c = np.linalg.lstsq(A, b, rcond=None)[0]
+    return c, d, float(np.degrees(angle)), slide

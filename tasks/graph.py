@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tasks.matching import match_by_translation, match_rotation_invariant
+from tasks.matching import match_by_translation, match_rotation_invariant, match_with_prior, pose_difference
 from tasks.registration import RegistrationError, RegistrationGraph, RegistrationResult, solve_pass_poses
 
-__all__ = ["PairReport", "PassRegistration", "register_passes"]
+__all__ = ["PairReport", "PassRegistration", "register_passes", "setup_turn"]
 
 _FIXTURE_DEG = 5.0  # a setup's match this close to the identity is the fixture's (a turned part moves far more)
 
@@ -45,6 +45,9 @@ class PassRegistration:
     # per later setup, the evidence of its match to the first: (targets brought together, the most
     # a clearly different transform brought together)
     setup_evidence: dict[str, tuple[int, int]] = field(default_factory=dict)
+    # per later setup matched on a prior turn (a positioner's): how far the stickers' own match lies
+    # from it, (deg, mm at the matched targets)
+    prior_difference: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 class _UnionFind:
@@ -88,21 +91,44 @@ def _edges(targets, idx_pairs):
 
 def register_passes(targets: list[np.ndarray], setups: list[str], *, names: list[str] | None = None,
                     min_common: int, max_offset_mm: float, tolerance_mm: float,
-                    min_setup_targets: int) -> PassRegistration:
+                    min_setup_targets: int, priors: dict[str, tuple[np.ndarray, float]] | None = None
+                    ) -> PassRegistration:
     """targets: per pass (k_i, 3) target centres, mm, coarsely aligned within its setup;
     setups: per pass its setup name. The first pass is held fixed. A RegistrationError carries
     the pass pairs that matched fewer than ``min_common`` targets; a ValueError names a setup whose
     match to the first is not decided by ``min_setup_targets`` or more targets, or is ambiguous
-    (tasks.matching.match_rotation_invariant)."""
+    (tasks.matching.match_rotation_invariant). ``priors``: per later setup, (T_first_setup (4, 4):
+    its coarse frame into the first setup's, as a positioner's calibrated turn gives it; the
+    tolerance, mm): that setup is matched on the prior (tasks.matching.match_with_prior: three
+    targets not in a line suffice) and its difference from the match is kept."""
     weak: list[PairReport] = []
     try:
-        return _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak, min_setup_targets)
+        return _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak, min_setup_targets,
+                         priors or {})
     except RegistrationError as exc:
         raise RegistrationError(str(exc), exc.unregistered, weak) from None
 
 
+def setup_turn(setups: list[str], T_common_pass: np.ndarray, a: str, b: str) -> np.ndarray:
+    """(4, 4): how the part moved from setup ``a`` to setup ``b`` in the cell (a point of the
+    part at p in ``a``'s coarse frame lies at T p in ``b``'s), from the registered poses: per
+    setup, its passes' maps from the common frame into the cell (each off by its own pose error)
+    averaged, rotations and translations apart. (A rigid fit of the detections instead turns the
+    passes' translation errors into rotation: each pass sees its own strip of the part.)"""
+    from scipy.spatial.transform import Rotation
+
+    means = {}
+    for setup in (a, b):
+        T = np.linalg.inv(np.asarray(T_common_pass, float)[[k for k, s in enumerate(setups) if s == setup]])
+        mean = np.eye(4)
+        mean[:3, :3] = Rotation.from_matrix(T[:, :3, :3]).mean().as_matrix()
+        mean[:3, 3] = T[:, :3, 3].mean(axis=0)
+        means[setup] = mean
+    return means[b] @ np.linalg.inv(means[a])
+
+
 def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, weak,
-              min_setup_targets) -> PassRegistration:
+              min_setup_targets, priors) -> PassRegistration:
     n = len(targets)
     if len(setups) != n:
         raise ValueError("targets and setups must have one entry per pass")
@@ -144,15 +170,28 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
     cross = []
     T_first_setup = {setup_names[0]: np.eye(4)}
     evidence: dict[str, tuple[int, int]] = {}
+    prior_difference: dict[str, tuple[float, float]] = {}
     for s in setup_names[1:]:
         ta = [k for k, ts in enumerate(track_setup) if ts == setup_names[0]]
         tb = [k for k, ts in enumerate(track_setup) if ts == s]
+        if s in priors:  # a positioner's turn: the targets where it puts them
+            T_prior, prior_tolerance = priors[s]
+            try:
+                rm = match_with_prior(positions[ta], positions[tb], T_prior, tolerance_mm=prior_tolerance)
+            except ValueError as exc:
+                raise ValueError(f"setups {setup_names[0]} and {s} ({len(ta)} and {len(tb)} targets), matched on the "
+                                 f"positioner's turn: {exc}; is the positioner's axis calibrated (the manifest's "
+                                 "setups' positioner) and the part still clamped between the setups?") from None
+            matched_b = positions[tb][rm.pairs[:, 1]]
+            prior_difference[s] = pose_difference(rm.T_a_b, T_prior, matched_b)
+        else:
+            rm = None
         try:
             # the fixture's stickers stay where they were (the identity, within the coarse poses'
             # error) while the part is turned: their match is neither the part's nor its rival
-            rm = match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5),
-                                          min_shared=2, min_inliers=min_setup_targets, exclude=np.eye(4),
-                                          exclude_within=(_FIXTURE_DEG, max_offset_mm))
+            rm = rm or match_rotation_invariant(positions[ta], positions[tb], tolerance_mm=max(tolerance_mm, 0.5),
+                                                min_shared=2, min_inliers=min_setup_targets, exclude=np.eye(4),
+                                                exclude_within=(_FIXTURE_DEG, max_offset_mm))
         except ValueError as exc:
             raise ValueError(f"setups {setup_names[0]} and {s} ({len(ta)} and {len(tb)} targets): {exc}; the specimen "
                              f"must show {min_setup_targets} or more stickers, not on one line, to passes of both "
@@ -188,4 +227,4 @@ def _register(targets, setups, names, min_common, max_offset_mm, tolerance_mm, w
                                for p, t in tr], axis=0) for tr in tracks]).reshape(-1, 3)
     return PassRegistration(T_common_pass=result.T_common_initial, result=result, graph=graph, pairs=reports,
                             weak_pairs=weak, tracks=tracks, track_positions_mm=final, specimen_track=specimen,
-                            T_first_setup=T_first_setup, setup_evidence=evidence)
+                            T_first_setup=T_first_setup, setup_evidence=evidence, prior_difference=prior_difference)

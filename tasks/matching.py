@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from tasks.frames import apply
 
 __all__ = ["PairMatch", "match_by_translation", "RigidMatch", "AmbiguousMatch", "match_rotation_invariant", "kabsch",
+           "match_with_prior",
            "pose_difference"]
 
 
@@ -253,3 +254,41 @@ def match_rotation_invariant(a_mm: np.ndarray, b_mm: np.ndarray, *, tolerance_mm
     moved = apply(T, at)
     rms = float(np.sqrt(np.mean(np.sum((moved - a[best_pairs[:, 0]]) ** 2, axis=1))))
     return RigidMatch(pairs=best_pairs[np.argsort(best_pairs[:, 0])], T_a_b=T, rms_mm=rms, runner_up=runner_up)
+
+
+def match_with_prior(a_mm: np.ndarray, b_mm: np.ndarray, T_a_b_prior: np.ndarray, *, tolerance_mm: float,
+                     min_inliers: int = 3, min_spread_mm: float = 1.0) -> RigidMatch:
+    """Match two target sets (n, 3), (m, 3) whose relation is known within ``tolerance_mm`` (a
+    positioner's calibrated turn): each of B's targets moved by ``T_a_b_prior`` and A's nearest
+    within the tolerance, both each other's nearest, is a pair; the rigid transform is fitted on
+    the pairs, and the pairs taken again with it within a third of the tolerance. An
+    ``AmbiguousMatch`` names the count when fewer than ``min_inliers`` pairs, or pairs all on
+    one line (within ``min_spread_mm``), remain: the prior is then wrong by more than its tolerance,
+    or the setups share too few targets."""
+    from scipy.spatial import cKDTree
+
+    a, b = np.asarray(a_mm, float).reshape(-1, 3), np.asarray(b_mm, float).reshape(-1, 3)
+    if len(a) == 0 or len(b) == 0:
+        raise AmbiguousMatch(f"no targets to match ({len(a)} and {len(b)})")
+    tree_a = cKDTree(a)
+    T = np.asarray(T_a_b_prior, float)
+    pairs = np.zeros((0, 2), np.int64)
+    for tolerance in (tolerance_mm, tolerance_mm / 3):
+        moved = b @ T[:3, :3].T + T[:3, 3]
+        d, nearest = tree_a.query(moved, distance_upper_bound=tolerance)
+        found = np.flatnonzero(np.isfinite(d))
+        back = cKDTree(moved).query(a[nearest[found]])[1]
+        pairs = np.stack([nearest[found], found], axis=1)[back == found].astype(np.int64)
+        if len(pairs) < min_inliers:
+            break
+        T = kabsch(b[pairs[:, 1]], a[pairs[:, 0]])
+    if len(pairs) < min_inliers:
+        raise AmbiguousMatch(f"{len(pairs)} targets lie within {tolerance_mm:g} mm of where the prior turn puts "
+                             f"them (expected {min_inliers} or more)")
+    centred = a[pairs[:, 0]] - a[pairs[:, 0]].mean(0)
+    spread = np.linalg.svd(centred, compute_uv=False)[1] / np.sqrt(len(pairs)) if len(pairs) > 2 else 0.0
+    if spread < min_spread_mm:
+        raise AmbiguousMatch(f"the {len(pairs)} targets the prior turn brings together lie on a line "
+                             f"(within {spread:.2f} mm; expected {min_spread_mm:g} mm or more off it)")
+    rms = float(np.sqrt(np.mean(np.sum((b[pairs[:, 1]] @ T[:3, :3].T + T[:3, 3] - a[pairs[:, 0]]) ** 2, axis=1))))
+    return RigidMatch(pairs=pairs[np.argsort(pairs[:, 0])], T_a_b=T, rms_mm=rms, runner_up=0)

@@ -8,6 +8,7 @@
 - ``imports``: import, import-scans
 - ``measure``: measure-weld (a butt weld straight from scanned points)
 - ``info``: stages, schema
+- ``positioner``: calibrate-positioner
 - ``render``: a run's typed summary on the terminal
 - ``errors``: one line per problem on the terminal, the traceback in a log file
 
@@ -20,7 +21,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from flows.cli import audit, catalog, imports, info, measure, reconstruct, simulate
+from flows.cli import audit, catalog, imports, info, measure, positioner, reconstruct, simulate
 from flows.cli.errors import end_log_file, say_error
 
 __all__ = ["main"]
@@ -41,6 +42,7 @@ def _parser() -> argparse.ArgumentParser:
     imports.add_import_scans(sub)
     measure.add_measure_weld(sub)
     simulate.add_export_cell(sub)
+    positioner.add_calibrate_positioner(sub)
     info.add_stages(sub)
     info.add_schema(sub)
     return parser

@@ -33,11 +33,14 @@ def add_simulate(sub) -> None:
 def add_plan(sub) -> None:
     plan = sub.add_parser("plan", help="plan the passes and stickers of a scan from the part's drawing")
     plan.add_argument("part", metavar="PART", help="the part: a simulator preset's (demo, paper, ci, ...), or a sample's "
-                      "manifest.json (or its folder): the dog-bone, stickers and scanner it describes")
+                      "manifest.json (or its folder): the dog-bone, T-joint or cruciform, stickers and scanner it describes")
     plan.add_argument("--out", required=True, metavar="PLAN_DIR", help="new folder for the plan (must not exist)")
     plan.add_argument("--config", metavar="FILE", help="YAML file of fields that override the part's (as simulate's)")
     plan.add_argument("--requirements", metavar="FILE", help="YAML file of the plan's requirements "
                       "(schemas/scan_plan.py, PlanRequirements): coverage, placement tolerance, the robot's reach")
+    plan.add_argument("--positioner", action="store_true", help="the cell's positioner turns the part between its "
+                      "setups (about its length, through its mid-plane; the part config's positioner: to give the "
+                      "calibrated axis) instead of a hand")
     plan.set_defaults(func=_cmd_plan)
 
 
@@ -142,6 +145,10 @@ def _cmd_plan(args: argparse.Namespace) -> int:
                 raise ValueError(f"{args.config}: invalid part config:\n{_describe(exc)}") from None
     else:
         config = _simulation_config(argparse.Namespace(preset=args.part, config=args.config, seed=None, sample_id=None))
+    if args.positioner and config.positioner is None:
+        from schemas.simulation import PositionerConfig
+
+        config = config.model_copy(update={"positioner": PositionerConfig()})
     out = Path(args.out)
     if out.exists():
         raise ValueError(f"--out {out} already exists; choose a new folder (nothing was written)")

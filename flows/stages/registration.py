@@ -8,8 +8,9 @@ from typing import Any
 import numpy as np
 
 from flows.stages.outputs import END_FIGURES, REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
-from schemas.stage_documents import PassPair, RegistrationSummary, SetupEvidence
-from tasks.graph import register_passes
+from schemas.stage_documents import MeasuredTurn, PassPair, RegistrationSummary, SetupEvidence
+from tasks.frames import screw_axis, turn_about_axis
+from tasks.graph import register_passes, setup_turn
 from tasks.registration import RegistrationError
 
 __all__ = ["register", "no_target_registration"]
@@ -55,15 +56,49 @@ def _end_figures(found, graph) -> dict[str, np.ndarray]:
     return out
 
 
+def _evidence(reg, setups, s: str, n: int, runner_up: int, turn) -> SetupEvidence:
+    """A later setup's evidence; turned by a positioner, with the prior's difference and the turn
+    the registered stickers give (its axis through the point nearest the calibrated one, pointing
+    the calibrated way)."""
+    if turn is None:
+        return SetupEvidence(a=setups[0], b=s, targets=n, runner_up=runner_up)
+    point, direction, angle, slide = screw_axis(setup_turn(setups, reg.T_common_pass, setups[0], s))
+    if direction @ np.asarray(turn.axis_direction, float) < 0:
+        direction, angle, slide = -direction, -angle, -slide
+    if (angle - turn.angle_deg) > 180:
+        angle -= 360
+    elif (angle - turn.angle_deg) < -180:
+        angle += 360
+    calibrated = np.asarray(turn.axis_point_mm, float)
+    point = point + ((calibrated - point) @ direction) * direction
+    deg, mm = reg.prior_difference[s]
+    return SetupEvidence(a=setups[0], b=s, targets=n, runner_up=runner_up, prior="positioner",
+                         prior_difference_deg=round(deg, 6), prior_difference_mm=round(mm, 6),
+                         turn=MeasuredTurn(axis_point_mm=tuple(round(float(v), 6) for v in point),
+                                           axis_direction=tuple(round(float(v), 9) for v in direction),
+                                           angle_deg=round(float(angle), 6), slide_mm=round(float(slide), 6)))
+
+
 def register(ctx) -> dict[str, Any]:
     rc, names = ctx.settings, ctx.names
     setups = [s for s, _ in ctx.manifest.passes()]
     found = [TARGETS.read(r) for r in ctx.inputs["targets"]]
     targets = [f.centres for f in found]
+    turns = {s.name: s.positioner for s in ctx.manifest.setups if s.positioner is not None}
+    first = setups[0]
+    priors = {}
+    for name, turn in turns.items():
+        if turn.from_setup != first:
+            raise ValueError(f"setups.{name}.positioner.from_setup: {turn.from_setup!r}; the registration matches "
+                             f"every setup to the first, {first!r}: expected {first!r}")
+        # the part's point at p in the first setup lies at T p in this one: this setup's frame into the first's;
+        # each setup's coarse frame is its first pass's, off by the robot's error (max_offset_mm) as well
+        T = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg)
+        priors[name] = (np.linalg.inv(T), turn.tolerance_mm + rc.max_offset_mm)
     try:
         reg = register_passes(targets, setups, names=names, min_common=rc.min_common_targets,
                               max_offset_mm=rc.max_offset_mm, tolerance_mm=rc.tolerance_mm,
-                              min_setup_targets=rc.min_setup_targets)
+                              min_setup_targets=rc.min_setup_targets, priors=priors)
     except RegistrationError as exc:
         weak = [f"{names[p.pass_a]}|{names[p.pass_b]} ({p.n_common})" for p in exc.weak_pairs]
         raise RegistrationError(f"{exc}; overlapping pass pairs with fewer than {rc.min_common_targets} common "
@@ -83,8 +118,7 @@ def register(ctx) -> dict[str, Any]:
         pass_rms_mm={n: (None if not np.isfinite(v) else float(v)) for n, v in zip(names, reg.result.pass_rms_mm)},
         # why each turned setup's match is not a chance agreement: the targets it brought together
         # against the most a clearly different transform did (the fixture's, staying put, or none)
-        between_setups=[SetupEvidence(a=setups[0], b=s, targets=n, runner_up=r)
-                        for s, (n, r) in reg.setup_evidence.items()]))
+        between_setups=[_evidence(reg, setups, s, n, r, turns.get(s)) for s, (n, r) in reg.setup_evidence.items()]))
     res = reg.result.residual_mm[reg.result.inlier]
     return {"target_pairs": int(reg.result.inlier.sum()), "outlier_pairs": int((~reg.result.inlier).sum()),
             "residual_median_mm": float(np.median(res)), "residual_max_mm": float(res.max()),

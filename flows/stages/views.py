@@ -32,8 +32,13 @@ def targets_view(manifest: SampleManifest, entry: PassEntry | None) -> dict[str,
 
 
 def setups_view(manifest: SampleManifest, entry: PassEntry | None = None) -> dict[str, Any]:
-    """The passes in order, each with its setup, and how the sample is registered."""
-    return {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()], "registration": manifest.registration}
+    """The passes in order, each with its setup, and how the sample is registered; the setups a
+    positioner turned, with its calibrated turns (a hand-turned sample's key as before them)."""
+    view = {"passes": [[setup, e.pass_id] for setup, e in manifest.passes()], "registration": manifest.registration}
+    turns = {s.name: s.positioner.model_dump(mode="json") for s in manifest.setups if s.positioner is not None}
+    if turns:
+        view["positioners"] = turns
+    return view
 
 
 def sample_wide(manifest: SampleManifest, entry: PassEntry | None = None) -> dict[str, Any]:
