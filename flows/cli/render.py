@@ -34,6 +34,13 @@ def print_run_summary(run, out: Path) -> None:
     if methods:  # per pass: targets, surfaces from given poses, surfaces, global
         kinds = sorted(set(methods.values()))
         print("registration: " + "; ".join(f"{k} ({sum(v == k for v in methods.values())} passes)" for k in kinds))
+    for e in report.registration.between_setups:
+        if e.prior == "positioner":  # matched on the positioner's calibrated turn, checked on the stickers
+            turn = e.turn
+            print(f"  setup {e.b}: turned by the positioner, {e.targets} stickers where its turn puts them (within "
+                  f"{e.prior_difference_deg:.3f} deg, {e.prior_difference_mm:.2f} mm); the stickers' turn "
+                  f"{turn.angle_deg:.3f} deg about ({', '.join(f'{v:.5f}' for v in turn.axis_direction)}) through "
+                  f"({', '.join(f'{v:.2f}' for v in turn.axis_point_mm)}) mm")
     weak = report.registration.pairs_below_min_common
     if weak:
         print("  pass pairs with fewer common targets than needed: "
