@@ -192,11 +192,17 @@ def main() -> int:
             seed = [] if args.seed is None else ["--seed", str(args.seed)]
             run([WELDRECON, "simulate", str(sample), *extra, *seed, "--no-preview"], work / f"{name}-simulate.log")
         rec = work / f"{name}-run"
-        if not (rec / "results" / "report.json").exists():
-            result[name]["reconstruct_s"] = round(run([WELDRECON, "reconstruct", str(sample), "--out", str(rec),
-                                                       "--config", args.config], work / f"{name}-reconstruct.log"), 1)
         truth = json.loads((sample / "truth" / "truth.json").read_text())
         result[name]["stickers"] = sum(1 for s in truth["stickers"] if s["on"] == "specimen")
+        if not (rec / "results" / "report.json").exists():
+            log = work / f"{name}-reconstruct.log"
+            try:
+                result[name]["reconstruct_s"] = round(run([WELDRECON, "reconstruct", str(sample), "--out", str(rec),
+                                                           "--config", args.config], log), 1)
+            except subprocess.CalledProcessError:  # a plan whose scan does not reconstruct: say why, go on
+                errors = [line for line in log.read_text().splitlines() if line.startswith("weldrecon reconstruct:")]
+                result[name]["failed"] = errors[-1] if errors else f"exit status != 0; see {log}"
+                continue
         result[name]["accuracy"] = evaluate(sample, rec)
         fillets = config.tjoint is not None
         result[name]["toe_coverage"] = (toe_coverage_fillets if fillets else toe_coverage)(sample, rec)

@@ -26,7 +26,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def _axis_error(point, direction, angle, true) -> dict:
+def axis_error(point, direction, angle, true) -> dict:
+    """An axis (a point, a direction) and a turn's angle against the true ones: the angle between
+    the directions (deg), the distance from the true axis's point to the line (mm), the angle off;
+    ``T``: the turn they make."""
     from tasks.frames import turn_about_axis
 
     d, td = np.asarray(direction, float), np.asarray(true.axis_direction, float)
@@ -45,7 +48,7 @@ def evaluate(sample: Path, run: Path) -> dict:
     from data_catalog.truth import read_truth
     from flows.stages.outputs import REFINED, REGISTRATION, REGISTRATION_SUMMARY
     from simulator.evaluate import pass_misalignment
-    from tasks.frames import screw_axis, turn_about_axis
+    from tasks.frames import screw_axis_as, turn_about_axis
     from tasks.graph import setup_turn
 
     manifest = load_manifest(sample)
@@ -66,12 +69,12 @@ def evaluate(sample: Path, run: Path) -> dict:
     setup = next(s for s in manifest.setups if s.name == true.setup)
     cal = setup.positioner
     out = {"sample": manifest.sample_id, "true_axis": true.model_dump()}
-    calibrated = _axis_error(cal.axis_point_mm, cal.axis_direction, cal.angle_deg, true)
+    calibrated = axis_error(cal.axis_point_mm, cal.axis_direction, cal.angle_deg, true)
     calibrated["part_moved_mm"] = moved(calibrated.pop("T"))
     out["calibrated (the manifest's)"] = calibrated
     summary = REGISTRATION_SUMMARY.read(stage_folder(run, "registration"))
     evidence = next(e for e in summary.between_setups if e.b == true.setup)
-    registered = _axis_error(evidence.turn.axis_point_mm, evidence.turn.axis_direction, evidence.turn.angle_deg, true)
+    registered = axis_error(evidence.turn.axis_point_mm, evidence.turn.axis_direction, evidence.turn.angle_deg, true)
     registered["part_moved_mm"] = moved(registered.pop("T"))
     out["from the stickers, targets alone (registration summary)"] = registered
     out["stickers matched on the prior"] = evidence.targets
@@ -79,11 +82,8 @@ def evaluate(sample: Path, run: Path) -> dict:
     setups = [s for s, _ in manifest.passes()]
     M = setup_turn(setups, np.asarray(REFINED.read(stage_folder(run, "refine")).T_common_pass), true.from_setup,
                    true.setup)
-    point, direction, angle, _ = screw_axis(M)
-    if direction @ np.asarray(cal.axis_direction) < 0:
-        direction, angle = -direction, -angle
-    angle += 360 * round((true.angle_deg - angle) / 360)
-    refined = _axis_error(point, direction, angle, true)
+    point, direction, angle, _ = screw_axis_as(M, cal.axis_direction, cal.angle_deg, cal.axis_point_mm)
+    refined = axis_error(point, direction, angle, true)
     refined["part_moved_mm"] = moved(M)
     refined.pop("T")
     out["from the refined poses"] = refined

@@ -42,7 +42,7 @@ def run_turns(run: Path) -> list[MeasuredAxis]:
     from data_catalog.audit import read_trail
     from data_catalog.manifests import load_manifest
     from flows.stages.outputs import REFINED
-    from tasks.frames import screw_axis
+    from tasks.frames import screw_axis, screw_axis_as
     from tasks.graph import setup_turn
 
     run = Path(run)
@@ -65,12 +65,10 @@ def run_turns(run: Path) -> list[MeasuredAxis]:
     out = []
     by_name = {s.name: s for s in manifest.setups}
     for name in names[1:]:
-        point, direction, angle, _ = screw_axis(setup_turn(setups, T_common_pass, names[0], name))
+        T = setup_turn(setups, T_common_pass, names[0], name)
         turn = by_name[name].positioner
-        if turn is not None:
-            if direction @ np.asarray(turn.axis_direction, float) < 0:
-                direction, angle = -direction, -angle
-            angle += 360 * round((turn.angle_deg - angle) / 360)
+        point, direction, angle, _ = screw_axis(T) if turn is None else \
+            screw_axis_as(T, turn.axis_direction, turn.angle_deg, turn.axis_point_mm)
         out.append(MeasuredAxis(str(run), name, names[0], point, direction, float(angle)))
     return out
 

@@ -380,21 +380,22 @@ class _TChoice:
     fillet_rolls_deg: tuple[float, float]  # the two passes along each fillet, rolled toward it
     wall_roll_deg: float  # one pass along each long wall of the base, rolled toward it
     stem_end: bool  # a pass along the stem's end, straight down (its end face seen)
-    stem_roll_deg: float | None = None  # a pass along each stem face's upper half, rolled toward it; the
-    # fillets' steeper passes then aimed at the toes (without: reaching up to the stem's end)
+    stem_roll_deg: float  # a pass along each stem face's upper part, rolled toward it
 
 
 TJOINT_END_ROLLS_DEG = (35.0, 30.0, 40.0)
-TJOINT_FILLET_ROLLS_DEG = ((35.0, 65.0), (30.0, 60.0), (35.0, 60.0), (30.0, 65.0))
+TJOINT_FILLET_ROLLS_DEG = ((40.0, 65.0), (35.0, 65.0), (35.0, 60.0), (30.0, 60.0))
+TJOINT_STEM_ROLLS_DEG = (55.0, 50.0, 60.0)
 TJOINT_WALL_ROLLS_DEG = (50.0, 45.0, 55.0)
 
 
 def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Family:
     """Per setup with a stem up (a T-joint's top, both of a cruciform's): rows along the welds
     over each half of the base plate, the outer one rolled in to see the base's end; two passes
-    along each fillet rolled toward it (``fillet_rolls_deg``: both toes from two directions); a
-    pass along the stem's end (``stem_end``); one along each long wall rolled toward it (the walls
-    tie the setups). A T-joint turned over: the same rows over its flat underside, one pass along
+    along each fillet rolled toward it (``fillet_rolls_deg``: both toes from two directions); one
+    along each face of the stem's upper part, rolled toward it (``stem_roll_deg``); a pass along
+    the stem's end (``stem_end``); one along each long wall rolled toward it (the walls tie the
+    setups). A T-joint turned over: the same rows over its flat underside, one pass along
     its length over its middle (without it the rows are tied only through the wall passes: the
     tjoint preset's worst pass 17.0 um against the truth, with it 11.8), and the walls.
     Every pass along the welds (y) runs the base's width and a margin: the camera, ahead along the
@@ -424,7 +425,6 @@ def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Fam
         add(setup, purpose, label, view, np.array([x, -W / 2 - margin, z]), y_axis, W + 2 * margin, standoff)
 
     e = math.radians(choice.end_roll_deg)
-    phi = math.atan(fan / 2 / ref)  # the fan's half angle
     for setup in req.setups:
         stem_up = setup == "top" or tj.stems == "both"
         # the inner row's line starts 10 mm short of the fillet's base toe (or the plate's middle)
@@ -443,19 +443,15 @@ def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Fam
             for side in (-1.0, 1.0):
                 for roll in choice.fillet_rolls_deg:
                     r = math.radians(roll)
-                    if roll < 55:  # at the weld's face: the base toe, the stem toe
-                        reach, rise = leg / 2, leg / 2
-                    elif choice.stem_roll_deg is not None:  # at the stem toe
-                        reach, rise = leg / 4, leg * 1.5
-                    else:  # at the stem, its line up to the stem's end (its toe well inside the line)
-                        up = ref * math.cos(r) - ref * math.sin(r) / math.tan(r + 0.9 * phi)
-                        reach, rise = leg / 4, max(leg * 1.5, tj.stem_height_mm + 2.0 - up)
+                    # the shallower at the weld's face, the steeper at the stem toe: both toes in the
+                    # middle of both lines (aimed up to the stem's end instead, the steeper pass met the
+                    # stem toe near its line's end: 96 % of the toes measured within 0.2 mm, against 98.9)
+                    reach, rise = (leg / 2, leg / 2) if roll < 55 else (leg / 4, leg * 1.5)
                     along_y(setup, "weld", f"along the fillet, rolled {roll:g} toward it", side * (x0 + reach),
                             z_top + rise, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
-                if choice.stem_roll_deg is not None:
-                    r = math.radians(choice.stem_roll_deg)
-                    along_y(setup, "end", f"along the stem's face, rolled {choice.stem_roll_deg:g} toward it",
-                            side * x0, z_top + 0.7 * tj.stem_height_mm, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
+                r = math.radians(choice.stem_roll_deg)
+                along_y(setup, "end", f"along the stem's face, rolled {choice.stem_roll_deg:g} toward it",
+                        side * x0, z_top + 0.7 * tj.stem_height_mm, np.array([-side * math.sin(r), 0.0, -math.cos(r)]))
             if choice.stem_end:
                 along_y(setup, "end", "along the stem's end", 0.0, z_top + tj.stem_height_mm, np.array([0.0, 0.0, -1.0]))
         else:  # the flat side up: one pass along its length, over its middle, ties every row
@@ -476,20 +472,23 @@ def _tjoint_choices(part: _Part, req: PlanRequirements) -> list[_TChoice]:
     fillets = [pair for pair in TJOINT_FILLET_ROLLS_DEG if max(pair) <= tilt]
     walls = [a for a in TJOINT_WALL_ROLLS_DEG if a <= tilt]
     ends = [a for a in TJOINT_END_ROLLS_DEG if a <= tilt]
+    stems = [a for a in TJOINT_STEM_ROLLS_DEG if a <= tilt]
     unreachable = []
     for options, all_options, what in (
             (fillets, [a for pair in TJOINT_FILLET_ROLLS_DEG for a in pair], "the fillets' toes: the passes along them"),
             (walls, TJOINT_WALL_ROLLS_DEG, "faces side_neg and side_pos: the passes along the base's walls"),
-            (ends, TJOINT_END_ROLLS_DEG, "faces end_neg and end_pos: the outer rows over the base")):
+            (ends, TJOINT_END_ROLLS_DEG, "faces end_neg and end_pos: the outer rows over the base"),
+            (stems, TJOINT_STEM_ROLLS_DEG, "faces stem_neg and stem_pos: the passes along the stem")):
         if not options:
             unreachable.append(f"{what} lean {min(all_options):g} to {max(all_options):g} deg from straight down; the "
                                f"robot's largest tilt is {tilt:g} deg (reach.max_tilt_deg)")
     if unreachable:
         raise PlanRefused(unreachable)
-    return [_TChoice(rows, end, inset, pair, wall, stem_end)
+    return [_TChoice(rows, end, inset, pair, wall, stem_end, stem)
             for rows in (2, 3)
             for stem_end in (False, True)
             for pair in fillets
+            for stem in stems
             for wall in walls
             for end in ends
             for inset in (35.0, 25.0, 45.0)]
@@ -951,7 +950,8 @@ def plan_scan(config: SimulationConfig, req: PlanRequirements, *,
         if tjoint:
             return {"face": ("face", choice.rows, choice.end_roll_deg, choice.end_inset_mm),
                     "side": ("side", choice.rows, choice.wall_roll_deg),
-                    "weld": ("weld", choice.rows, choice.fillet_rolls_deg), "end": ("end", choice.rows, choice.stem_end)}
+                    "weld": ("weld", choice.rows, choice.fillet_rolls_deg),
+                    "end": ("end", choice.rows, choice.stem_end, choice.stem_roll_deg)}
         return {"face": ("face", choice.rows), "side": ("side", choice.rows, choice.side_roll_deg, choice.side_aim),
                 "end": ("end", choice.rows, choice.end_pitch_deg, choice.end_inset_mm),
                 "weld": ("weld", choice.rows, choice.weld_pitch_deg, choice.weld_offset_mm, choice.weld_standoff_mm)}

@@ -89,3 +89,16 @@ def screw_axis(T: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     b = np.concatenate([t - slide * d, [0.0]])
     c = np.linalg.lstsq(A, b, rcond=None)[0]
     return c, d, float(np.degrees(angle)), slide
+
+
+def screw_axis_as(T: np.ndarray, direction, angle_deg: float, point_mm=None) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """``screw_axis(T)`` told as a given turn is (``direction``, ``angle_deg``): the direction
+    flipped to point its way (the angle and slide with it), the angle within 180 deg of it, and
+    the point the one nearest ``point_mm`` (when given) along the axis."""
+    point, d, angle, slide = screw_axis(T)
+    if d @ np.asarray(direction, float) < 0:
+        d, angle, slide = -d, -angle, -slide
+    angle += 360.0 * round((angle_deg - angle) / 360.0)
+    if point_mm is not None:
+        point = point + ((np.asarray(point_mm, float) - point) @ d) * d
+    return point, d, angle, slide

@@ -9,7 +9,7 @@ import numpy as np
 
 from flows.stages.outputs import END_FIGURES, REGISTRATION, REGISTRATION_SUMMARY, Registration, TARGETS
 from schemas.stage_documents import MeasuredTurn, PassPair, RegistrationSummary, SetupEvidence
-from tasks.frames import screw_axis, turn_about_axis
+from tasks.frames import screw_axis_as, turn_about_axis
 from tasks.graph import register_passes, setup_turn
 from tasks.registration import RegistrationError
 
@@ -62,15 +62,8 @@ def _evidence(reg, setups, s: str, n: int, runner_up: int, turn) -> SetupEvidenc
     the calibrated way)."""
     if turn is None:
         return SetupEvidence(a=setups[0], b=s, targets=n, runner_up=runner_up)
-    point, direction, angle, slide = screw_axis(setup_turn(setups, reg.T_common_pass, setups[0], s))
-    if direction @ np.asarray(turn.axis_direction, float) < 0:
-        direction, angle, slide = -direction, -angle, -slide
-    if (angle - turn.angle_deg) > 180:
-        angle -= 360
-    elif (angle - turn.angle_deg) < -180:
-        angle += 360
-    calibrated = np.asarray(turn.axis_point_mm, float)
-    point = point + ((calibrated - point) @ direction) * direction
+    point, direction, angle, slide = screw_axis_as(setup_turn(setups, reg.T_common_pass, setups[0], s),
+                                                   turn.axis_direction, turn.angle_deg, turn.axis_point_mm)
     deg, mm = reg.prior_difference[s]
     return SetupEvidence(a=setups[0], b=s, targets=n, runner_up=runner_up, prior="positioner",
                          prior_difference_deg=round(deg, 6), prior_difference_mm=round(mm, 6),

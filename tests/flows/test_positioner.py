@@ -24,12 +24,12 @@ STOP = "refine"
 
 
 def _axis_error(point, direction, angle, true):
-    d, td = np.asarray(direction, float), np.asarray(true.axis_direction, float)
-    d, td = d / np.linalg.norm(d), td / np.linalg.norm(td)
-    off = np.asarray(true.axis_point_mm) - np.asarray(point)
-    off -= (off @ d) * d
-    return (float(np.degrees(np.arccos(min(1.0, abs(d @ td))))), float(np.linalg.norm(off)),
-            float(angle - true.angle_deg))
+    """(tilt deg, offset mm, angle deg) of an axis and turn against the true one (bench/bench_positioner.py)."""
+    sys_path_bench()
+    from bench.bench_positioner import axis_error
+
+    e = axis_error(point, direction, angle, true)
+    return e["direction_deg"], e["offset_mm"], e["angle_deg"]
 
 
 @pytest.fixture(scope="module")
