@@ -294,8 +294,9 @@ def test_a_t_joint_plans_folder_and_its_simulated_scan_keep_the_promise(tjoint_p
 def test_a_fillets_toes_are_measured_from_two_directions_only_by_passes_that_give_them(tjoint_plan):
     """Known answers on the T-joint: the rows straight down over the base alone see its base toes
     from one direction and its stem toes (the stem's face edge-on) not at all; the two passes
-    along one fillet, rolled toward it at two angles, measure both its toes from two directions
-    and the other fillet's from none."""
+    along one fillet, rolled 40 and 65 deg toward it, measure its stem toe from two directions and
+    its base toe from one (at the base toe the 65 deg pass is past the 60 deg incidence limit),
+    and the other fillet's toes from none; with the rows on their side, the base toe from two."""
     from simulator.planner import evaluate_passes, planned_passes
 
     passes = planned_passes(tjoint_plan)
@@ -309,13 +310,20 @@ def test_a_fillets_toes_are_measured_from_two_directions_only_by_passes_that_giv
     # the passes along the fillet at +x: rolled toward -x (their views lean that way)
     fillet_pos = [p for p in passes if info[p.pass_id].purpose == "weld" and p.setup == "top"
                   and p.T_world_sensor_start[0, 2] < 0]
-    assert len(fillet_pos) == 2
-    two = {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, fillet_pos,
-                                             stickers=False).toes}
-    assert two["fillet-pos-base"].both_sides == 1.0 and two["fillet-pos-stem"].both_sides == 1.0
+    assert sorted(abs(info[p.pass_id].roll_deg) for p in fillet_pos) == [40.0, 65.0]
+
+    def toes(chosen):
+        return {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, chosen,
+                                                  stickers=False).toes}
+
+    two = toes(fillet_pos)
+    assert two["fillet-pos-stem"].both_sides == 1.0
+    assert two["fillet-pos-base"].plate_side == 1.0 and two["fillet-pos-base"].both_sides == 0
     assert two["fillet-neg-base"].both_sides == 0 and two["fillet-neg-stem"].both_sides == 0
-    one = {t.toe: t for t in evaluate_passes(tjoint_plan.part, tjoint_plan.requirements, fillet_pos[:1],
-                                             stickers=False).toes}
+    with_rows = toes(fillet_pos + [p for p in rows if p.T_world_sensor_start[0, 3] > 0])
+    assert with_rows["fillet-pos-base"].both_sides == 1.0
+    shallow = [p for p in fillet_pos if abs(info[p.pass_id].roll_deg) == 40.0]
+    one = toes(shallow)
     assert one["fillet-pos-stem"].plate_side == 1.0 and one["fillet-pos-stem"].both_sides == 0
 
 
