@@ -357,7 +357,10 @@ def plan_page(plan: ScanPlan, maps: dict[str, str]) -> str:
                               f"{req.sticker_tolerance_mm:g} mm of their marks; {req.min_setup_stickers} shared by "
                               "the setups"],
                  ["robot", f"TCP within {list(req.reach.workspace_min_mm)}..{list(req.reach.workspace_max_mm)} mm, "
-                           f"view at most {req.reach.max_tilt_deg:g} deg from straight down"]]),
+                           f"view at most {req.reach.max_tilt_deg:g} deg from straight down"],
+                 ["between the setups", "turned by hand" if plan.part.positioner is None else
+                  f"turned {plan.part.positioner.angle_deg:g} deg by the positioner, the part still clamped "
+                  "(manifest_setups.json: the calibrated axis)"]]),
              "<h2>Predicted coverage</h2>",
              _table(["face", "area, mm²", "seen", "passes per cell (median)"],
                     [[f.face, f"{f.area_mm2:.0f}", f"{100 * f.seen:.1f} %", f"{f.passes_median:g}"] for f in plan.faces]),

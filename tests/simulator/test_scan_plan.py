@@ -292,8 +292,9 @@ def test_a_t_joint_plans_folder_and_its_simulated_scan_keep_the_promise(tjoint_p
 
 
 def test_a_fillets_toes_are_measured_from_two_directions_only_by_passes_that_give_them(tjoint_plan):
-    """Known answers on the T-joint: the rows straight down over the base alone see its base toes
-    from one direction and its stem toes (the stem's face edge-on) not at all; the two passes
+    """Known answers on the T-joint: the rows over the base (their views straight down across the
+    toes, tilted along them) alone see its base toes from one direction and its stem toes (the
+    stem's face edge-on) not at all; the two passes
     along one fillet, rolled 40 and 65 deg toward it, measure its stem toe from two directions and
     its base toe from one (at the base toe the 65 deg pass is past the 60 deg incidence limit),
     and the other fillet's toes from none; with the rows on their side, the base toe from two."""
