@@ -50,11 +50,10 @@ def run(cmd: list[str], log: Path) -> float:
     return time.perf_counter() - started
 
 
-def toe_coverage(sample: Path, run_dir: Path) -> dict:
-    from scipy.spatial import cKDTree
-
+def measured_points(sample: Path, run_dir: Path) -> np.ndarray:
+    """The run's measured specimen points (segment stage) in the true specimen frame, placed by
+    the registered stickers fitted to the true ones."""
     from data_catalog.stages import load_arrays
-    from data_catalog.truth import TRUTH_DIR
     from simulator.evaluate import fit_gauge
 
     refined = load_arrays(latest_stage(run_dir, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
@@ -63,8 +62,15 @@ def toe_coverage(sample: Path, run_dir: Path) -> dict:
     gauge = fit_gauge(sample, positions[on_specimen] if on_specimen.any() else positions, positions)
     G_inv = np.linalg.inv(gauge.T_recon_specimen)
     cloud = load_arrays(latest_stage(run_dir, "segment") / "specimen.zarr", "points", "measured")
-    pts = np.asarray(cloud["points"][cloud["measured"].astype(bool)], np.float64)
-    pts = pts @ G_inv[:3, :3].T + G_inv[:3, 3]
+    return np.asarray(cloud["points"][cloud["measured"].astype(bool)], np.float64) @ G_inv[:3, :3].T + G_inv[:3, 3]
+
+
+def toe_coverage(sample: Path, run_dir: Path) -> dict:
+    from scipy.spatial import cKDTree
+
+    from data_catalog.truth import TRUTH_DIR
+
+    pts = measured_points(sample, run_dir)
     sections = json.loads((sample / TRUTH_DIR / "weld_sections.json").read_text())["sections"]
     half_w = json.loads((sample / TRUTH_DIR / "simulation.json").read_text())["specimen"]["gauge_width_mm"] / 2
     out = {}
@@ -87,18 +93,9 @@ def toe_coverage_fillets(sample: Path, run_dir: Path) -> dict:
     with a measured point within 0.2 mm, the median count within 0.5 mm."""
     from scipy.spatial import cKDTree
 
-    from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR, read_true_toes
-    from simulator.evaluate import fit_gauge
 
-    refined = load_arrays(latest_stage(run_dir, "refine") / "refined.zarr", "track_positions_mm", "specimen_track")
-    positions = refined["track_positions_mm"]
-    on_specimen = refined["specimen_track"].astype(bool)
-    gauge = fit_gauge(sample, positions[on_specimen] if on_specimen.any() else positions, positions)
-    G_inv = np.linalg.inv(gauge.T_recon_specimen)
-    cloud = load_arrays(latest_stage(run_dir, "segment") / "specimen.zarr", "points", "measured")
-    pts = np.asarray(cloud["points"][cloud["measured"].astype(bool)], np.float64) @ G_inv[:3, :3].T + G_inv[:3, 3]
-    tree = cKDTree(pts)
+    tree = cKDTree(measured_points(sample, run_dir))
     out = {}
     for toe in read_true_toes(sample / TRUTH_DIR / "toes.json").toes:
         line = np.asarray(toe.points_mm, float)

@@ -8,7 +8,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict
 
-__all__ = ["StrictModel", "InputModel", "Pose4x4", "Vector3", "FloatRange", "AwareDatetime", "check_rigid_pose"]
+__all__ = ["StrictModel", "InputModel", "Pose4x4", "Vector3", "FloatRange", "AwareDatetime", "check_rigid_pose", "without_none"]
 
 _ROTATION_TOLERANCE = 1e-6
 
@@ -83,3 +83,13 @@ def _timezone_aware(value: datetime) -> datetime:
 
 # a time that says which time it is: a naive one is refused
 AwareDatetime = Annotated[datetime, AfterValidator(_timezone_aware)]
+
+
+def without_none(data: dict, *keys: str) -> dict:
+    """``data`` (a model's dump) with each of ``keys`` left out where it is None: a field added
+    later, written as before it when not given."""
+    for key in keys:
+        if key in data and data[key] is None:
+            del data[key]
+    return data
+

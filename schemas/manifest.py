@@ -22,7 +22,7 @@ from pydantic import (AfterValidator, Field, SerializerFunctionWrapHandler, Vali
                       WrapValidator, field_validator, model_serializer, model_validator)
 from typing_extensions import Annotated
 
-from schemas.common import AwareDatetime, Pose4x4, StrictModel, Vector3
+from schemas.common import AwareDatetime, Pose4x4, StrictModel, Vector3, without_none
 
 __all__ = [
     "MANIFEST_SCHEMA_VERSION",
@@ -460,10 +460,7 @@ class Setup(StrictModel):
     @model_serializer(mode="wrap")
     def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """Written as before positioners for a setup turned by hand."""
-        data = handler(self)
-        if data.get("positioner", 0) is None:
-            data.pop("positioner")
-        return data
+        return without_none(handler(self), "positioner")
 
 
 class LoadCase(StrictModel):

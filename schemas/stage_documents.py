@@ -10,7 +10,7 @@ from typing import Any, Literal
 
 from pydantic import ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer
 
-from schemas.common import StrictModel
+from schemas.common import StrictModel, without_none
 from schemas.provenance import StageName
 from schemas.weld_document import FigureStatistics, Finding, ToeSide, WeldLineFound
 
@@ -58,11 +58,7 @@ class SetupEvidence(StrictModel):
     @model_serializer(mode="wrap")
     def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """Written as before positioners for a setup turned by hand."""
-        data = handler(self)
-        for key in ("prior", "prior_difference_deg", "prior_difference_mm", "turn"):
-            if data.get(key, 0) is None:
-                data.pop(key)
-        return data
+        return without_none(handler(self), "prior", "prior_difference_deg", "prior_difference_mm", "turn")
 
 
 class RegistrationSummary(StrictModel):

@@ -6,7 +6,7 @@ from typing import Any, Literal
 
 from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
-from schemas.common import Pose4x4, StrictModel, Vector3
+from schemas.common import Pose4x4, StrictModel, Vector3, without_none
 
 __all__ = ["TRUTH_SCHEMA_VERSION", "PointLabel", "Material", "TrueSticker", "WeldSection",
            "TruePass", "GroundTruth", "WeldSectionDetail", "WeldTruth", "TrueToeLine", "TrueToeLines"]
@@ -94,10 +94,7 @@ class GroundTruth(StrictModel):
     @model_serializer(mode="wrap")
     def _turned_by_hand_unsaid(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
         """Written as before positioners when the part was turned by hand."""
-        data = handler(self)
-        if data.get("positioner", 0) is None:
-            data.pop("positioner")
-        return data
+        return without_none(handler(self), "positioner")
 
 
 class WeldSectionDetail(StrictModel):

@@ -315,6 +315,18 @@ class _Family:
     passes: list[PlannedPass] = field(default_factory=list)
     info: list[dict] = field(default_factory=list)
 
+    def add(self, setup: str, purpose: str, label: str, view: np.ndarray, aim: np.ndarray, travel: np.ndarray,
+            length: float, standoff: float, speed: float, rate: float) -> None:
+        """A pass looking along ``view`` at ``aim`` from ``standoff``, named by its setup, purpose
+        and count (top-F01, ...)."""
+        count = sum(1 for q in self.info if q["setup"] == setup and q["purpose"] == purpose) + 1
+        tag = {"face": "F", "side": "S", "end": "E", "weld": "W"}[purpose]
+        view = view / np.linalg.norm(view)
+        self.passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, label,
+                                       _sensor_frame(travel, view, aim, standoff), travel, length, speed, rate))
+        tilt, roll = _lean(view, travel)
+        self.info.append({"setup": setup, "purpose": purpose, "standoff": standoff, "tilt": tilt, "roll": roll})
+
 
 def _dog_bone_passes(part: _Part, choice: _Choice, req: PlanRequirements) -> _Family:
     cfg = part.config
@@ -332,13 +344,7 @@ def _dog_bone_passes(part: _Part, choice: _Choice, req: PlanRequirements) -> _Fa
     family = _Family()
 
     def add(setup, purpose, label, view, aim, travel, length, standoff):
-        count = sum(1 for q in family.info if q["setup"] == setup and q["purpose"] == purpose) + 1
-        tag = {"face": "F", "side": "S", "end": "E", "weld": "W"}[purpose]
-        view = view / np.linalg.norm(view)
-        family.passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, label,
-                                         _sensor_frame(travel, view, aim, standoff), travel, length, v, rate))
-        tilt, roll = _lean(view, travel)
-        family.info.append({"setup": setup, "purpose": purpose, "standoff": standoff, "tilt": tilt, "roll": roll})
+        family.add(setup, purpose, label, view, aim, travel, length, standoff, v, rate)
 
     for setup in req.setups:
         # face rows: the outer lines reach 2 mm past the edges
@@ -416,13 +422,7 @@ def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Fam
     family = _Family()
 
     def add(setup, purpose, label, view, aim, travel, length, standoff=ref):
-        count = sum(1 for q in family.info if q["setup"] == setup and q["purpose"] == purpose) + 1
-        tag = {"face": "F", "side": "S", "weld": "W", "end": "E"}[purpose]
-        view = view / np.linalg.norm(view)
-        family.passes.append(PlannedPass(f"{setup}-{tag}{count:02d}", setup, label,
-                                         _sensor_frame(travel, view, aim, standoff), travel, length, v, rate))
-        tilt, roll = _lean(view, travel)
-        family.info.append({"setup": setup, "purpose": purpose, "standoff": standoff, "tilt": tilt, "roll": roll})
+        family.add(setup, purpose, label, view, aim, travel, length, standoff, v, rate)
 
     def along_y(setup, purpose, label, x, z, view, standoff=ref):
         add(setup, purpose, label, view, np.array([x, -W / 2 - margin, z]), y_axis, W + 2 * margin, standoff)
@@ -472,23 +472,28 @@ def _tjoint_passes(part: _Part, choice: _TChoice, req: PlanRequirements) -> _Fam
     return family
 
 
-def _tjoint_choices(part: _Part, req: PlanRequirements) -> list[_TChoice]:
-    tilt = req.reach.max_tilt_deg
-    fillets = [pair for pair in TJOINT_FILLET_ROLLS_DEG if max(pair) <= tilt]
-    walls = [a for a in TJOINT_WALL_ROLLS_DEG if a <= tilt]
-    ends = [a for a in TJOINT_END_ROLLS_DEG if a <= tilt]
-    stems = [a for a in TJOINT_STEM_ROLLS_DEG if a <= tilt]
-    unreachable = []
-    for options, all_options, what in (
-            (fillets, [a for pair in TJOINT_FILLET_ROLLS_DEG for a in pair], "the fillets' toes: the passes along them"),
-            (walls, TJOINT_WALL_ROLLS_DEG, "faces side_neg and side_pos: the passes along the base's walls"),
-            (ends, TJOINT_END_ROLLS_DEG, "faces end_neg and end_pos: the outer rows over the base"),
-            (stems, TJOINT_STEM_ROLLS_DEG, "faces stem_neg and stem_pos: the passes along the stem")):
-        if not options:
-            unreachable.append(f"{what} lean {min(all_options):g} to {max(all_options):g} deg from straight down; the "
+def _reachable(tilt: float, families) -> list[list[float]]:
+    """Per (angles, what) family, its angles the robot's tilt reaches; ``PlanRefused`` naming
+    every family left with none."""
+    reached, unreachable = [], []
+    for angles, what in families:
+        reached.append([a for a in angles if a <= tilt])
+        if not reached[-1]:
+            unreachable.append(f"{what} lean {min(angles):g} to {max(angles):g} deg from straight down; the "
                                f"robot's largest tilt is {tilt:g} deg (reach.max_tilt_deg)")
     if unreachable:
         raise PlanRefused(unreachable)
+    return reached
+
+
+def _tjoint_choices(part: _Part, req: PlanRequirements) -> list[_TChoice]:
+    tilt = req.reach.max_tilt_deg
+    fillets = [pair for pair in TJOINT_FILLET_ROLLS_DEG if max(pair) <= tilt]
+    walls, ends, stems = _reachable(tilt, (
+        ([max(pair) for pair in TJOINT_FILLET_ROLLS_DEG], "the fillets' toes: the steeper of the passes along them"),
+        (TJOINT_WALL_ROLLS_DEG, "faces side_neg and side_pos: the passes along the base's walls"),
+        (TJOINT_END_ROLLS_DEG, "faces end_neg and end_pos: the outer rows over the base"),
+        (TJOINT_STEM_ROLLS_DEG, "faces stem_neg and stem_pos: the passes along the stem")))[1:]
     return [_TChoice(rows, end, inset, pair, wall, stem_end, stem)
             for rows in (2, 3)
             for stem_end in (False, True)
@@ -515,18 +520,10 @@ def _choices(part: _Part, req: PlanRequirements) -> list[_Choice]:
     width = cfg.specimen.grip_width_mm + 4.0
     first = max(1, math.ceil((width - fan) / (fan - need)) + 1) if width > fan else 1
     tilt = req.reach.max_tilt_deg
-    sides = [a for a in SIDE_ROLLS_DEG if a <= tilt]
-    ends = [a for a in END_PITCHES_DEG if a <= tilt]
-    welds = [a for a in WELD_PITCHES_DEG if a <= tilt]
-    unreachable = []
-    for options, all_options, what in ((sides, SIDE_ROLLS_DEG, "faces side_neg and side_pos: the passes along the walls"),
-                                       (ends, END_PITCHES_DEG, "faces end_neg and end_pos: the passes across the ends"),
-                                       (welds, WELD_PITCHES_DEG, "the weld's toes: the passes along the weld")):
-        if not options:
-            unreachable.append(f"{what} lean {min(all_options):g} to {max(all_options):g} deg from straight down; the "
-                               f"robot's largest tilt is {tilt:g} deg (reach.max_tilt_deg)")
-    if unreachable:
-        raise PlanRefused(unreachable)
+    sides, ends, welds = _reachable(tilt, (
+        (SIDE_ROLLS_DEG, "faces side_neg and side_pos: the passes along the walls"),
+        (END_PITCHES_DEG, "faces end_neg and end_pos: the passes across the ends"),
+        (WELD_PITCHES_DEG, "the weld's toes: the passes along the weld")))
     out = [_Choice(n, side, aim, end, inset, pitch, offset, standoff)
            for n in range(first, first + 3)
            for standoff in standoffs
