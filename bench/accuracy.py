@@ -50,18 +50,24 @@ def stage_folder(run: Path, stage: str) -> StageFolder:
     return StageFolder(latest_stage(run, stage))
 
 
+def pass_misalignments(sample: Path, run: Path) -> dict:
+    """``simulator.evaluate.pass_misalignment`` of the run's target registration ("targets
+    alone") and of its refined poses ("refined")."""
+    from data_catalog.stages import load_arrays
+    from simulator.evaluate import pass_misalignment
+
+    return {poses: pass_misalignment(sample, load_arrays(latest_stage(run, stage) / name, "T_common_pass")["T_common_pass"])
+            for poses, stage, name in (("targets alone", "registration", "registration.zarr"),
+                                       ("refined", "refine", "refined.zarr"))}
+
+
 def evaluate(sample: Path, run: Path) -> dict:
     from data_catalog.stages import load_arrays
     from data_catalog.truth import TRUTH_DIR, read_truth
-    from simulator.evaluate import pass_misalignment
 
-    result: dict = {}
-    for poses, stage, name in (("targets alone", "registration", "registration.zarr"),
-                               ("refined", "refine", "refined.zarr")):
-        T = load_arrays(latest_stage(run, stage) / name, "T_common_pass")["T_common_pass"]
-        m = pass_misalignment(sample, T)
-        result[poses] = {"worst_um": round(1000 * float(np.nanmax(m.max_mm)), 1),
-                         "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
+    result: dict = {poses: {"worst_um": round(1000 * float(np.nanmax(m.max_mm)), 1),
+                            "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
+                    for poses, m in pass_misalignments(sample, run).items()}
     mesh = load_arrays(latest_stage(run, "mesh") / "mesh.zarr", "vertices")["vertices"]
     accuracy = mesh_to_truth(sample, run, mesh)
     result["mesh to truth, scanned length"] = accuracy["scanned length"]

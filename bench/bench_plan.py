@@ -38,7 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.accuracy import evaluate, latest_stage  # noqa: E402
+from bench.accuracy import emit, evaluate, latest_stage  # noqa: E402
 
 WELDRECON = str(ROOT / ".venv" / "bin" / "weldrecon")
 
@@ -206,9 +206,7 @@ def main() -> int:
         result[name]["weld"] = weld_figures(rec)
         if fillets:
             result[name]["fillets"] = fillet_figures(sample, rec, args.config)
-    print(json.dumps(result, indent=1))
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    emit(result, args.json)
     return 0
 
 

@@ -16,7 +16,6 @@ alone and refined). The run needs stage refine (``--stop-after refine`` will do)
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -43,11 +42,10 @@ def axis_error(point, direction, angle, true) -> dict:
 
 
 def evaluate(sample: Path, run: Path) -> dict:
-    from bench.accuracy import stage_folder
+    from bench.accuracy import pass_misalignments, stage_folder
     from data_catalog.manifests import load_manifest
     from data_catalog.truth import read_truth
-    from flows.stages.outputs import REFINED, REGISTRATION, REGISTRATION_SUMMARY
-    from simulator.evaluate import pass_misalignment
+    from flows.stages.outputs import REFINED, REGISTRATION_SUMMARY
     from tasks.frames import screw_axis_as, turn_about_axis
     from tasks.graph import setup_turn
 
@@ -87,25 +85,23 @@ def evaluate(sample: Path, run: Path) -> dict:
     refined["part_moved_mm"] = moved(M)
     refined.pop("T")
     out["from the refined poses"] = refined
-    for name, stage, output in (("targets alone", "registration", REGISTRATION), ("refined", "refine", REFINED)):
-        m = pass_misalignment(sample, output.read(stage_folder(run, stage)).T_common_pass)
-        worst = int(np.argmax(m.max_mm))
+    for name, m in pass_misalignments(sample, run).items():
+        worst = int(np.nanargmax(m.max_mm))
         out[f"pass misalignment, {name}"] = {"worst_um": round(1000 * float(m.max_mm[worst]), 1),
                                              "worst_pass": m.pass_ids[worst],
-                                             "median_of_pass_medians_um": round(1000 * float(np.median(m.median_mm)), 1)}
+                                             "median_of_pass_medians_um": round(1000 * float(np.nanmedian(m.median_mm)), 1)}
     return out
 
 
 def main() -> int:
+    from bench.accuracy import emit
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sample", type=Path)
     parser.add_argument("run", type=Path)
     parser.add_argument("--json", type=Path)
     args = parser.parse_args()
-    result = evaluate(args.sample, args.run)
-    print(json.dumps(result, indent=1))
-    if args.json:
-        args.json.write_text(json.dumps(result, indent=1) + "\n")
+    emit(evaluate(args.sample, args.run), args.json)
     return 0
 
 

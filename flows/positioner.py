@@ -41,6 +41,8 @@ def run_turns(run: Path) -> list[MeasuredAxis]:
     naming the run when it has no finished stage refine or a single setup."""
     from data_catalog.audit import read_trail
     from data_catalog.manifests import load_manifest
+    from data_catalog.stages import StageStore
+    from flows.stages.contracts import StageRef
     from flows.stages.outputs import REFINED
     from tasks.frames import screw_axis, screw_axis_as
     from tasks.graph import setup_turn
@@ -57,11 +59,13 @@ def run_turns(run: Path) -> list[MeasuredAxis]:
     if len(names) < 2:
         raise ValueError(f"{run}: its sample {sample} has one setup ({names[0]!r}); a turn needs two or more")
 
-    class _Folder:
-        def file(self, name: str) -> Path:
-            return run / "stages" / "refine" / refines[-1]["cache_key"] / name
-
-    T_common_pass = np.asarray(REFINED.read(_Folder()).T_common_pass, float)
+    store, key = StageStore(run, shared=False), refines[-1]["cache_key"]
+    record = store.lookup("refine", key)
+    if record is None:
+        raise ValueError(f"{run}: stage refine {key} is named by the audit trail but its folder holds no record")
+    refine = StageRef(stage="refine", item=None, key=key, path=str(store.path("refine", key)),
+                      outputs=dict(record.outputs), cached=True)
+    T_common_pass = np.asarray(REFINED.read(refine).T_common_pass, float)
     out = []
     by_name = {s.name: s for s in manifest.setups}
     for name in names[1:]:

@@ -25,7 +25,6 @@ STOP = "refine"
 
 def _axis_error(point, direction, angle, true):
     """(tilt deg, offset mm, angle deg) of an axis and turn against the true one (bench/bench_positioner.py)."""
-    sys_path_bench()
     from bench.bench_positioner import axis_error
 
     e = axis_error(point, direction, angle, true)
@@ -65,7 +64,6 @@ def test_the_manifest_says_the_positioner_turned_the_part_and_the_truth_how_it_t
 
 def test_the_turned_setup_is_matched_on_the_positioners_turn_and_the_stickers_give_the_true_axis(turned):
     sample, run = turned
-    sys_path_bench()
     from bench.bench_positioner import evaluate
 
     result = evaluate(sample, run)
@@ -81,15 +79,6 @@ def test_the_turned_setup_is_matched_on_the_positioners_turn_and_the_stickers_gi
     deg, mm = result["prior against the stickers' match (deg, mm)"]
     assert deg < 0.3 and mm < 4.0  # within the prior's tolerance: the calibration's and the robot's
     assert result["pass misalignment, refined"]["worst_um"] < 40  # as the hand-turned ci sample
-
-
-def sys_path_bench():
-    import sys
-    from pathlib import Path
-
-    bench = str(Path(__file__).resolve().parents[2])
-    if bench not in sys.path:
-        sys.path.insert(0, bench)
 
 
 def test_the_axis_is_calibrated_from_the_runs_stickers(turned, tmp_path):
