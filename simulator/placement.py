@@ -8,9 +8,10 @@ import numpy as np
 from schemas.manifest import PositionerTurn
 from schemas.simulation import FixtureConfig, PlacementConfig, SimulationConfig
 from simulator.specimen import Specimen
-from tasks.frames import apply, make_pose, rotation_deg, translation
+from tasks.frames import apply, make_pose, rotation_deg, translation, turn_about_axis
 
-__all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "positioner_turn", "FLIP"]
+__all__ = ["place_on_fixture", "nominal_placement", "placement_tolerance_mm", "positioner_turn", "turned_setup",
+           "resting_plate_mm", "FLIP"]
 
 FLIP = make_pose(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
 """Turned over by hand: 180 degrees about the specimen's length axis."""
@@ -58,12 +59,30 @@ def place_on_fixture(specimen: Specimen, fixture: FixtureConfig, placement: Plac
     return translation([0.0, 0.0, fixture.block_size_mm[2] - z]) @ T
 
 
+def resting_plate_mm(config: SimulationConfig) -> tuple[float, float]:
+    """(thickness, half width) of the plate that rests on the support blocks: a dog-bone's
+    (its grips' width), a T-joint's or a cruciform's base plate."""
+    tj = config.tjoint
+    if tj is None:
+        return config.specimen.thickness_mm, config.specimen.grip_width_mm / 2
+    return tj.base_thickness_mm, tj.base_width_mm / 2
+
+
 def positioner_turn(config: SimulationConfig, *, from_setup: str) -> PositionerTurn:
     """The positioner's turn as calibrated (the manifest's): its axis by default along the part's
     length through its mid-plane at the nominal placement."""
     pc = config.positioner
-    thickness = config.specimen.thickness_mm if config.tjoint is None else config.tjoint.base_thickness_mm
+    thickness, _ = resting_plate_mm(config)
     point = pc.axis_point_mm if pc.axis_point_mm is not None else (0.0, 0.0, config.fixture.block_size_mm[2] + thickness / 2)
     return PositionerTurn(from_setup=from_setup, axis_point_mm=tuple(float(v) for v in point),
                           axis_direction=tuple(float(v) for v in pc.axis_direction), angle_deg=pc.angle_deg,
                           tolerance_mm=pc.tolerance_mm)
+
+
+def turned_setup(config: SimulationConfig, *, from_setup: str) -> tuple[PositionerTurn, np.ndarray, str]:
+    """A setup the positioner turned from ``from_setup`` (at its nominal placement), as a
+    manifest says it: the calibrated turn, T_world_specimen_nominal, the description."""
+    turn = positioner_turn(config, from_setup=from_setup)
+    nominal = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg) @ \
+        nominal_placement(config.fixture, resting_plate_mm(config)[0], flipped=False)
+    return turn, nominal, f"turned {turn.angle_deg:g} deg by the positioner, still clamped"

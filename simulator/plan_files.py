@@ -27,10 +27,9 @@ from data_catalog.atomic import atomic_directory
 from schemas.manifest import Setup
 from schemas.scan_plan import ScanPlan
 from schemas.simulation import PlacementConfig
-from simulator.placement import nominal_placement, placement_tolerance_mm, positioner_turn
+from simulator.placement import nominal_placement, placement_tolerance_mm, resting_plate_mm, turned_setup
 from simulator.planner import planned_passes
 from simulator.robot import pass_entry
-from tasks.frames import turn_about_axis
 from tasks.pass_coverage import dog_bone_half_width
 
 __all__ = ["PLAN_NAME", "write_plan_folder", "read_plan", "PlanFolderError", "manifest_setups"]
@@ -64,8 +63,7 @@ def manifest_setups(plan: ScanPlan) -> list[Setup]:
     passes = planned_passes(plan)
     out = []
     tj = cfg.tjoint
-    thickness, half_width = (cfg.specimen.thickness_mm, cfg.specimen.grip_width_mm / 2) if tj is None else \
-        (tj.base_thickness_mm, tj.base_width_mm / 2)
+    thickness, half_width = resting_plate_mm(cfg)
     for setup in req.setups:
         entries = [pass_entry(p, cfg.robot) for p in passes if p.setup == setup]
         if tj is None:
@@ -81,10 +79,7 @@ def manifest_setups(plan: ScanPlan) -> list[Setup]:
         nominal = nominal_placement(cfg.fixture, thickness, flipped=(setup == "bottom"))
         turn = None
         if cfg.positioner is not None and out:  # turned by the positioner, as simulator.run's manifest says
-            turn = positioner_turn(cfg, from_setup=out[0].name)
-            description = f"turned {turn.angle_deg:g} deg by the positioner, still clamped"
-            nominal = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg) @ \
-                nominal_placement(cfg.fixture, thickness, flipped=False)
+            turn, nominal, description = turned_setup(cfg, from_setup=out[0].name)
         placement = PlacementConfig(translation_mm=req.placement_tolerance_mm, yaw_deg=req.placement_yaw_deg)
         tol = placement_tolerance_mm(placement, half_width)
         out.append(Setup(name=setup, description=description, passes=entries,

@@ -37,7 +37,8 @@ from schemas.truth import (GroundTruth, PointLabel, TruePass, TruePositioner, Tr
                            WeldSectionDetail, WeldTruth)
 from simulator.coverage import CoverageMap, face_params, spread_off_line_mm
 from simulator.fixture import build_fixture
-from simulator.placement import nominal_placement, place_on_fixture, placement_tolerance_mm, positioner_turn
+from simulator.placement import (nominal_placement, place_on_fixture, placement_tolerance_mm, positioner_turn,
+                                 resting_plate_mm, turned_setup)
 from simulator.planner import plan_sticker_set, planned_passes
 from simulator.robot import PassMotion, PlannedPass, draw_motion, pass_entry, plan_passes
 from simulator.scanner import LineScanner
@@ -184,15 +185,11 @@ def _manifest(config: SimulationConfig, planned: list[PlannedPass], hashes: dict
         else:
             description = "stem up, the base plate on the support blocks" if setup == "top" else \
                 "turned over by hand about the base plate's length: the stem hangs between the support blocks"
-        thickness, half_width = (sp.thickness_mm, sp.grip_width_mm / 2) if tj is None else \
-            (tj.base_thickness_mm, tj.base_width_mm / 2)
+        thickness, half_width = resting_plate_mm(config)
         nominal = nominal_placement(config.fixture, thickness, flipped=(setup == "bottom"))
         turn = None
         if config.positioner is not None and setups:
-            turn = positioner_turn(config, from_setup=setups[0].name)
-            description = f"turned {turn.angle_deg:g} deg by the positioner, still clamped"
-            nominal = turn_about_axis(turn.axis_point_mm, turn.axis_direction, turn.angle_deg) @ \
-                nominal_placement(config.fixture, thickness, flipped=False)
+            turn, nominal, description = turned_setup(config, from_setup=setups[0].name)
         setups.append(Setup(name=setup, description=description, passes=entries,
                             T_world_specimen_nominal=nominal.tolist(),
                             placement_tolerance_mm=round(placement_tolerance_mm(config.placement, half_width), 3),
